@@ -1,0 +1,41 @@
+# snell_bench: every target does its own set-up on a fresh machine.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+# The CPU build of torch keeps the environment small; override for a GPU build, e.g.
+#   make setup TORCH_SPEC="torch==2.14.1"
+TORCH_SPEC ?= torch==2.13.0
+STAMP := $(VENV)/.installed
+
+.PHONY: setup demo test bench clean system-deps
+
+setup: $(STAMP)
+
+# Open3D's wheel links libusb-1.0 at import time; Debian/Ubuntu machines need the system package.
+system-deps:
+	@if [ "$$(uname -s)" = "Linux" ] && command -v ldconfig >/dev/null && ! ldconfig -p | grep -q 'libusb-1.0.so.0'; then \
+	  echo "installing libusb-1.0-0 (needed by open3d)"; \
+	  if command -v apt-get >/dev/null; then \
+	    SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	    $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0; \
+	  else echo "please install libusb-1.0 with your system package manager" >&2; exit 1; fi; \
+	fi
+
+$(STAMP): pyproject.toml | system-deps
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q "$(TORCH_SPEC)"
+	$(PY) -m pip install -q -e ".[test]"
+	touch $(STAMP)
+
+demo: setup
+	$(PY) -m snell_bench
+
+test: setup
+	HF_HUB_OFFLINE=1 $(PY) -m pytest -q
+
+bench: setup
+	$(PY) benchmarks/bench_warps.py
+
+clean:
+	rm -rf $(VENV) runs/ .pytest_cache

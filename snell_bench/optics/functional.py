@@ -1,0 +1,85 @@
+"""Pure, batched optics on torch tensors.
+
+Convention
+----------
+- ``d``: incoming ray directions ``(..., 3)``, unit length, pointing *along* the ray.
+- ``n``: unit surface normals ``(..., 3)`` *facing the incoming ray* (``d . n <= 0``); use
+  :func:`face_forward` to orient a surface normal.
+- ``eta``: ratio ``nu_i / nu_t`` of the refractive index on the incoming side to the one on the
+  transmitted side (``1 / 1.5`` entering glass from air), a float or a tensor broadcastable to
+  ``d[..., 0]``.
+- Any floating dtype; computations stay in the input dtype (pass float64 for the last digits).
+
+The paper's form of Snell's law, with ``beta = -d . n`` and ``gamma = 1 - eta^2 (1 - beta^2)``:
+``d' = eta d + (eta beta - sqrt(gamma)) n``; ``gamma < 0`` is total internal reflection (TIR),
+where the ray is mirrored: ``d' = d - 2 (d . n) n``.
+"""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["face_forward", "reflect", "refract", "fresnel", "fresnel_cos"]
+
+
+def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return (a * b).sum(-1)
+
+
+def face_forward(n: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+    """``n`` flipped where needed so that it faces the ray ``d`` (``d . n <= 0``)."""
+    return torch.where((_dot(d, n) > 0)[..., None], -n, n)
+
+
+def reflect(d: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
+    """Mirror reflection ``d - 2 (d . n) n`` (either orientation of ``n`` gives the same result)."""
+    return d - 2.0 * _dot(d, n)[..., None] * n
+
+
+def refract(d: torch.Tensor, n: torch.Tensor, eta) -> tuple[torch.Tensor, torch.Tensor]:
+    """Refract ``d`` at a surface with normal ``n`` (facing the ray) and index ratio ``eta``.
+
+    Returns ``(d_out (..., 3), tir (...) bool)``: the transmitted direction (unit length), or the
+    mirrored direction where ``tir`` is true. Finite for every unit input, grazing incidence
+    (``beta -> 0``) and ``eta == 1`` (the identity) included.
+    """
+    eta = torch.as_tensor(eta, dtype=d.dtype, device=d.device)
+    beta = (-_dot(d, n)).clamp(0.0, 1.0)
+    gamma = 1.0 - eta * eta * (1.0 - beta * beta)
+    tir = gamma < 0
+    sq = torch.sqrt(gamma.clamp_min(0.0))
+    e = eta[..., None] if eta.ndim else eta
+    t = e * d + (eta * beta - sq)[..., None] * n
+    out = torch.where(tir[..., None], reflect(d, n), t)
+    out = out / torch.linalg.vector_norm(out, dim=-1, keepdim=True).clamp_min(torch.finfo(d.dtype).tiny)
+    return out, tir
+
+
+def fresnel_cos(cos_i: torch.Tensor, n_i, n_t) -> torch.Tensor:
+    """Exact unpolarised Fresnel reflectance ``R = (R_s + R_p) / 2`` from the cosine of the angle of
+    incidence ``cos_i`` in ``[0, 1]`` going from index ``n_i`` into ``n_t``. ``R = 1`` under TIR and
+    at grazing incidence; ``R(0, 1 -> 1.5) = 0.04``; ``R = 0`` for ``n_i == n_t`` (except exactly
+    at grazing incidence, where the limit 1 is returned)."""
+    cos_i = torch.as_tensor(cos_i).clamp(0.0, 1.0)
+    dt = cos_i.dtype if cos_i.is_floating_point() else torch.get_default_dtype()
+    cos_i = cos_i.to(dt)
+    n_i = torch.as_tensor(n_i, dtype=dt, device=cos_i.device)
+    n_t = torch.as_tensor(n_t, dtype=dt, device=cos_i.device)
+    eta = n_i / n_t
+    gamma = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
+    tir = gamma < 0
+    cos_t = torch.sqrt(gamma.clamp_min(0.0))
+    tiny = torch.finfo(dt).tiny
+    den_s = n_i * cos_i + n_t * cos_t
+    den_p = n_t * cos_i + n_i * cos_t
+    rs = ((n_i * cos_i - n_t * cos_t) / den_s.clamp_min(tiny)) ** 2
+    rp = ((n_t * cos_i - n_i * cos_t) / den_p.clamp_min(tiny)) ** 2
+    r = 0.5 * (rs + rp)
+    degenerate = (den_s <= tiny) | (den_p <= tiny)  # grazing incidence at matched indices
+    return torch.where(tir | degenerate, torch.ones_like(r), r.clamp(0.0, 1.0))
+
+
+def fresnel(d: torch.Tensor, n: torch.Tensor, n_i, n_t) -> torch.Tensor:
+    """Fresnel reflectance ``(...)`` for rays ``d`` hitting a surface with normal ``n`` (either
+    orientation), going from index ``n_i`` into ``n_t``."""
+    return fresnel_cos(_dot(d, n).abs(), n_i, n_t)

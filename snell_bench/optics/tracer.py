@@ -1,0 +1,299 @@
+"""Ray tracing through a glass object in a depth-map scene, on Open3D's ``RaycastingScene``.
+
+Convention
+----------
+- Everything is in the camera frame (OpenCV; camera at the origin), float64 numpy arrays at the
+  interface; rays are cast in float32 (Open3D's only ray type).
+- Two acceleration structures are built once: the *background* (the depth mesh, geometry 0, and
+  the bounding box of unobserved space, geometry 1) and the *object* alone. Every ray is cast
+  against both, so an object that cuts into the background is handled (a ray inside the glass
+  that reaches the background ends there).
+- Object normals point outwards. Shading normals are interpolated from the object's per-corner
+  normals (``normals="interpolated"``, the default) or are the flat face normals
+  (``normals="face"``). Which side of the surface a ray is on is always decided by the *geometric*
+  (face) normal, and where an interpolated normal would send a ray to the wrong side of the
+  geometric surface (near silhouettes) the face normal is used for that interaction.
+- Self-intersection: a new ray starts ``eps`` away from the surface along the geometric normal, on
+  the side it travels to (default ``eps = 1e-5 x`` the object's diameter, at least ``1e-6 x`` its
+  distance from the camera, so float32 coordinates cannot round it away).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+import torch
+
+from snell_bench.optics.functional import face_forward, fresnel_cos, reflect, refract
+from snell_bench.scene.depth_mesh import BackgroundMesh
+from snell_bench.scene.objects import GlassObject
+
+__all__ = ["HitKind", "BackgroundHit", "RefractionTrace", "SceneTracer"]
+
+
+class HitKind(enum.IntEnum):
+    """What a traced ray ends on."""
+
+    NONE = 0  #: not traced (e.g. a pixel that does not see the object)
+    OBSERVED = 1  #: the front side of the background surface, which I⁻ observes
+    UNOBSERVED = 2  #: the box of unobserved space, or the back side of the background surface
+    ESCAPED = 3  #: nothing at all (the ray leaves the scene's box: only numerically possible)
+    TRAPPED = 4  #: still bouncing in the object after ``max_bounces`` interactions
+    LOST = 5  #: inside the object and hits nothing (a crack in an open mesh)
+
+
+_BACKGROUND, _BOX = 0, 1
+
+
+@dataclass
+class BackgroundHit:
+    t: np.ndarray  # (N,) distance, inf where nothing is hit
+    kind: np.ndarray  # (N,) int8 HitKind: OBSERVED, UNOBSERVED or ESCAPED
+    point: np.ndarray  # (N, 3) hit point, NaN where nothing is hit
+
+
+@dataclass
+class RefractionTrace:
+    """Result of tracing camera rays through the object (one row per ray)."""
+
+    kind: np.ndarray  # (N,) int8 HitKind of where the final ray ends
+    origin: np.ndarray  # (N, 3) origin of the final ray (its last surface point)
+    direction: np.ndarray  # (N, 3) unit direction of the final ray
+    point: np.ndarray  # (N, 3) where the final ray ends, NaN if nowhere
+    bounces: np.ndarray  # (N,) int16 surface interactions (entry, TIR, exit, re-entries)
+    first_point: np.ndarray  # (N, 3) first surface point
+    first_normal: np.ndarray  # (N, 3) unit shading normal there, facing the camera ray
+    first_geometric_normal: np.ndarray  # (N, 3) outward face normal there
+    fresnel: np.ndarray  # (N,) Fresnel reflectance at the first surface
+    reflected: np.ndarray  # (N, 3) unit mirror direction at the first surface
+
+
+def _o3d_rays(origins: np.ndarray, directions: np.ndarray) -> o3d.core.Tensor:
+    rays = np.empty((len(origins), 6), np.float32)
+    rays[:, :3] = origins
+    rays[:, 3:] = directions
+    return o3d.core.Tensor.from_numpy(rays)
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", a, b)
+
+
+class SceneTracer:
+    """Casts rays against a :class:`BackgroundMesh` and a placed :class:`GlassObject`."""
+
+    def __init__(
+        self,
+        background: BackgroundMesh,
+        obj: GlassObject,
+        *,
+        max_bounces: int = 8,
+        normals: str = "interpolated",
+        eps: float | None = None,
+        nthreads: int = 0,
+    ) -> None:
+        if normals not in ("interpolated", "face"):
+            raise ValueError(f"normals must be 'interpolated' or 'face', got {normals!r}")
+        if int(max_bounces) != max_bounces or max_bounces < 1:
+            raise ValueError(f"max_bounces must be an integer >= 1, got {max_bounces!r}")
+        self.obj = obj
+        self.max_bounces = int(max_bounces)
+        self.normals = normals
+        self.nthreads = int(nthreads)
+        dist = float(np.linalg.norm(obj.center))
+        self.eps = float(eps) if eps is not None else max(1e-5 * obj.diameter, 1e-6 * dist, 1e-7)
+
+        self._bg = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
+        if len(background.faces):
+            gid = self._bg.add_triangles(
+                o3d.core.Tensor.from_numpy(np.ascontiguousarray(background.vertices, np.float32)),
+                o3d.core.Tensor.from_numpy(np.ascontiguousarray(background.faces, np.uint32)),
+            )
+        else:  # keep geometry ids fixed: an unreachable degenerate triangle stands in
+            gid = self._bg.add_triangles(
+                o3d.core.Tensor(np.zeros((3, 3), np.float32)), o3d.core.Tensor(np.array([[0, 1, 2]], np.uint32))
+            )
+        bid = self._bg.add_triangles(
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(background.box_vertices, np.float32)),
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(background.box_faces, np.uint32)),
+        )
+        assert (gid, bid) == (_BACKGROUND, _BOX)
+        self._obj = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
+        self._obj.add_triangles(
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(obj.vertices, np.float32)),
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(obj.faces, np.uint32)),
+        )
+        self._corner_normals = obj.corner_normals() if normals == "interpolated" else None
+
+    # ------------------------------------------------------------------ casting
+    def cast_background(self, origins: np.ndarray, directions: np.ndarray) -> BackgroundHit:
+        """First hit on the background or the box. A hit on the back side of the background
+        surface (seen from where the camera is not) counts as unobserved."""
+        n = len(origins)
+        if n == 0:
+            return BackgroundHit(np.zeros(0), np.zeros(0, np.int8), np.zeros((0, 3)))
+        r = self._bg.cast_rays(_o3d_rays(origins, directions), nthreads=self.nthreads)
+        t = r["t_hit"].numpy().astype(np.float64)
+        gid = r["geometry_ids"].numpy()
+        fn = r["primitive_normals"].numpy().astype(np.float64)
+        hit = np.isfinite(t)
+        kind = np.full(n, HitKind.ESCAPED, np.int8)
+        front = _dot(fn, directions) < 0  # depth-mesh faces are wound to face the camera
+        kind[hit & (gid == _BACKGROUND) & front] = HitKind.OBSERVED
+        kind[hit & ((gid == _BOX) | ((gid == _BACKGROUND) & ~front))] = HitKind.UNOBSERVED
+        point = np.where(hit[:, None], origins + np.where(hit, t, 0.0)[:, None] * directions, np.nan)
+        return BackgroundHit(np.where(hit, t, np.inf), kind, point)
+
+    def cast_object(self, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
+        """First hit on the object: ``t`` (inf if none), ``face``, ``uv``, ``normal`` (outward face)."""
+        r = self._obj.cast_rays(_o3d_rays(origins, directions), nthreads=self.nthreads)
+        return {
+            "t": r["t_hit"].numpy().astype(np.float64),
+            "face": r["primitive_ids"].numpy().astype(np.int64),
+            "uv": r["primitive_uvs"].numpy().astype(np.float64),
+            "normal": r["primitive_normals"].numpy().astype(np.float64),
+        }
+
+    def shading_normals(self, face: np.ndarray, uv: np.ndarray, face_normal: np.ndarray) -> np.ndarray:
+        """Outward unit shading normals at hits given by face index and barycentrics (u, v)."""
+        if self._corner_normals is None:
+            return face_normal
+        cn = self._corner_normals[face]  # (N, 3, 3)
+        w = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], -1)
+        n = np.einsum("nc,ncd->nd", w, cn)
+        norm = np.linalg.norm(n, axis=-1, keepdims=True)
+        return np.where(norm > 1e-12, n / np.maximum(norm, 1e-300), face_normal)
+
+    def visible_from_camera(self, points: np.ndarray, rel_tol: float = 1e-3) -> np.ndarray:
+        """Whether background points are seen by the camera (not hidden behind other background)."""
+        dist = np.linalg.norm(points, axis=-1)
+        ok = np.isfinite(dist) & (dist > 0)
+        out = np.zeros(len(points), bool)
+        if ok.any():
+            d = points[ok] / dist[ok, None]
+            hit = self.cast_background(np.zeros_like(d), d)
+            out[ok] = hit.t >= dist[ok] * (1.0 - rel_tol)
+        return out
+
+    # ------------------------------------------------------------------ one interaction
+    def _interact(
+        self, d: np.ndarray, ns: np.ndarray, ng: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Refract or totally reflect rays ``d`` at surface points with outward shading normal
+        ``ns`` and face normal ``ng``. Returns ``(d_new, goes_inside, fresnel, mirror, nf)``."""
+        ior = self.obj.ior
+        from_inside = _dot(d, ng) > 0
+        eta = np.where(from_inside, ior, 1.0 / ior)
+        n_i = np.where(from_inside, ior, 1.0)
+        n_t = np.where(from_inside, 1.0, ior)
+        dt, nst, ngt = (torch.from_numpy(a) for a in (d, ns, ng))
+        nf = face_forward(nst, dt)
+        d_new, tir = refract(dt, nf, torch.from_numpy(eta))
+        # a shading normal must not send the ray to the wrong side of the geometric surface
+        goes_inside = torch.where(tir, torch.from_numpy(from_inside), ~torch.from_numpy(from_inside))
+        s = (d_new * ngt).sum(-1)
+        wrong = torch.where(goes_inside, s > 0, s < 0)
+        if bool(wrong.any()):
+            nfg = face_forward(ngt, dt)
+            d_g, tir_g = refract(dt, nfg, torch.from_numpy(eta))
+            d_new = torch.where(wrong[:, None], d_g, d_new)
+            tir = torch.where(wrong, tir_g, tir)
+            nf = torch.where(wrong[:, None], nfg, nf)
+            goes_inside = torch.where(tir, torch.from_numpy(from_inside), ~torch.from_numpy(from_inside))
+        cos_i = -(dt * nf).sum(-1)
+        R = fresnel_cos(cos_i, torch.from_numpy(n_i), torch.from_numpy(n_t))
+        mirror = reflect(dt, nf)
+        return d_new.numpy(), goes_inside.numpy(), R.numpy(), mirror.numpy(), nf.numpy()
+
+    # ------------------------------------------------------------------ full trace
+    def trace(self, origins: np.ndarray, directions: np.ndarray) -> RefractionTrace:
+        """Trace rays that start outside the object and are known to hit it first.
+
+        Each ray refracts in, bounces (refraction out, total internal reflection, re-entry for
+        non-convex shapes) until it leaves the object for the background, or until
+        ``max_bounces`` interactions (then it is marked ``TRAPPED``).
+        """
+        o = np.asarray(origins, np.float64).copy()
+        d = np.asarray(directions, np.float64)
+        d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        N = len(o)
+        nan3 = np.full((N, 3), np.nan)
+        res = RefractionTrace(
+            kind=np.zeros(N, np.int8),
+            origin=nan3.copy(),
+            direction=nan3.copy(),
+            point=nan3.copy(),
+            bounces=np.zeros(N, np.int16),
+            first_point=nan3.copy(),
+            first_normal=nan3.copy(),
+            first_geometric_normal=nan3.copy(),
+            fresnel=np.zeros(N),
+            reflected=nan3.copy(),
+        )
+        inside = np.zeros(N, bool)
+        active = np.arange(N)
+        for it in range(self.max_bounces + 1):
+            if len(active) == 0:
+                break
+            oa, da = o[active], d[active]
+            ho = self.cast_object(oa, da)
+            hb = self.cast_background(oa, da)
+            hit_obj = np.isfinite(ho["t"]) & (ho["t"] < hb.t)
+            # rays that end here: on the background, the box, or nowhere
+            end = active[~hit_obj]
+            if len(end):
+                k = hb.kind[~hit_obj].copy()
+                k[inside[end] & (k == HitKind.ESCAPED)] = HitKind.LOST
+                res.kind[end] = k
+                res.origin[end] = oa[~hit_obj]
+                res.direction[end] = da[~hit_obj]
+                res.point[end] = hb.point[~hit_obj]
+            act = active[hit_obj]
+            if len(act) == 0:
+                active = act
+                break
+            if it == self.max_bounces:
+                res.kind[act] = HitKind.TRAPPED
+                res.origin[act] = o[act]
+                res.direction[act] = d[act]
+                break
+            t = ho["t"][hit_obj]
+            p = oa[hit_obj] + t[:, None] * da[hit_obj]
+            ng = ho["normal"][hit_obj]
+            ns = self.shading_normals(ho["face"][hit_obj], ho["uv"][hit_obj], ng)
+            d_new, goes_inside, R, mirror, nf = self._interact(d[act], ns, ng)
+            if it == 0:
+                res.first_point[act] = p
+                res.first_normal[act] = nf
+                res.first_geometric_normal[act] = ng
+                res.fresnel[act] = R
+                res.reflected[act] = mirror
+            side = np.where(goes_inside, -1.0, 1.0)
+            o[act] = p + (self.eps * side)[:, None] * ng
+            d[act] = d_new
+            inside[act] = goes_inside
+            res.bounces[act] += 1
+            active = act
+        return res
+
+    def trace_reflection(self, trace: RefractionTrace) -> BackgroundHit:
+        """Cast the first-bounce mirror rays of a trace against the background (the object itself
+        is not hit again: first-bounce reflection only)."""
+        ok = np.isfinite(trace.first_point).all(axis=1)
+        out = BackgroundHit(
+            np.full(len(ok), np.inf), np.zeros(len(ok), np.int8), np.full((len(ok), 3), np.nan)
+        )
+        if ok.any():
+            ng = trace.first_geometric_normal[ok]
+            side = np.where(_dot(trace.reflected[ok], ng) >= 0, 1.0, -1.0)
+            o = trace.first_point[ok] + (self.eps * side)[:, None] * ng
+            h = self.cast_background(o, trace.reflected[ok])
+            out.t[ok], out.kind[ok], out.point[ok] = h.t, h.kind, h.point
+        return out
+
+    def cast_camera_object(self, directions: np.ndarray) -> np.ndarray:
+        """Distance to the object along camera rays (inf where missed)."""
+        return self.cast_object(np.zeros_like(directions), directions)["t"]

@@ -1,0 +1,415 @@
+"""Pixel-to-pixel warps through a glass object: the :class:`WarpSet` and :func:`compute_warps`.
+
+Convention
+----------
+Every warp is a *backward* map (DESIGN §3): for each destination pixel it stores the source pixel
+coordinate ``(x, y)`` (float32, integer values at pixel centres), NaN where invalid, plus a bool
+mask. Perspective arrays are ``(H, W, ...)``, panorama arrays ``(Hp, 2 Hp, ...)``. The panorama
+is an equirectangular image centred at the object (:class:`~snell_bench.imaging.PanoramaCamera`,
+gravity-aligned with the scene's up direction, its centre column looking along the camera's
+horizontal forward direction).
+
+=====================  ==========  ==========================================================
+field                  paper       meaning
+=====================  ==========  ==========================================================
+``refraction``         π^R         object pixel -> pixel of I⁻ the refracted ray ends on;
+                                   identity outside the object
+``pano_refraction``    π⁻¹         object pixel -> panorama pixel of the refracted ray's end
+``pano_reflection``    π^-R        object pixel -> panorama pixel of the first-bounce mirror
+                                   ray's end
+``pano_to_persp``      π           panorama pixel -> perspective pixel (straight rays from the
+                                   panorama centre, through the glass-free scene)
+``reflection``         —           object pixel -> pixel of I⁻ the mirror ray ends on
+=====================  ==========  ==========================================================
+
+Panorama coordinates of a ray are those of *its end point* seen from the panorama centre (exact
+parallax for the scene's geometry); only a ray that hits nothing uses its direction.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from snell_bench.imaging.equirect import PanoramaCamera
+from snell_bench.optics.tracer import HitKind, SceneTracer
+from snell_bench.scene.camera import Camera
+from snell_bench.scene.depth_mesh import build_background, valid_depth_mask
+from snell_bench.scene.objects import GlassObject
+
+log = logging.getLogger(__name__)
+
+__all__ = ["WarpSet", "compute_warps", "warp_inputs_hash", "WARPS_VERSION"]
+
+#: Bump when the meaning or computation of any warp changes (invalidates caches).
+WARPS_VERSION = 1
+
+_ARRAYS = (
+    "object_mask",
+    "refraction",
+    "refraction_valid",
+    "refraction_kind",
+    "bounces",
+    "fresnel",
+    "reflection",
+    "reflection_valid",
+    "pano_refraction",
+    "pano_refraction_valid",
+    "pano_reflection",
+    "pano_reflection_valid",
+    "pano_to_persp",
+    "pano_to_persp_valid",
+    "pano_to_persp_object",
+)
+
+
+@dataclass(eq=False)
+class WarpSet:
+    """All warps of one (scene, object) pair; see the module docstring for conventions."""
+
+    camera: Camera
+    pano: PanoramaCamera
+    ior: float
+    #: (H, W) bool: the pixel's camera ray hits the object before the background.
+    object_mask: np.ndarray
+    #: (H, W, 2) float32 π^R; identity outside the object, NaN where invalid.
+    refraction: np.ndarray
+    #: (H, W) bool: true outside the object; inside, the refracted ray ends on a background point
+    #: that I⁻ observes (front side, in view, not hidden behind other background geometry).
+    refraction_valid: np.ndarray
+    #: (H, W) int8 :class:`HitKind` of the refracted ray's end (NONE outside the object).
+    refraction_kind: np.ndarray
+    #: (H, W) uint8 surface interactions along the refracted path.
+    bounces: np.ndarray
+    #: (H, W) float32 unpolarised Fresnel reflectance at the first surface (0 outside the object).
+    fresnel: np.ndarray
+    #: (H, W, 2) float32 I⁻ pixel seen by the first-bounce mirror ray, NaN where invalid.
+    reflection: np.ndarray
+    reflection_valid: np.ndarray
+    #: (H, W, 2) float32 π⁻¹: panorama pixel of the refracted ray (object pixels), NaN elsewhere.
+    pano_refraction: np.ndarray
+    pano_refraction_valid: np.ndarray
+    #: (H, W, 2) float32 π^-R: panorama pixel of the mirror ray (object pixels), NaN elsewhere.
+    pano_reflection: np.ndarray
+    pano_reflection_valid: np.ndarray
+    #: (Hp, Wp, 2) float32 π: perspective pixel seen by each panorama pixel, NaN where invalid.
+    pano_to_persp: np.ndarray
+    #: (Hp, Wp) bool: the panorama ray ends on a background point observed in I⁻.
+    pano_to_persp_valid: np.ndarray
+    #: (Hp, Wp) bool: valid, but the perspective pixel shows the glass object (the image *with*
+    #: the object does not show that point there; I⁻ does).
+    pano_to_persp_object: np.ndarray
+    input_hash: str = ""
+    options: dict = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ aliases (paper notation)
+    @property
+    def pi_R(self) -> np.ndarray:
+        return self.refraction
+
+    @property
+    def pi_inv(self) -> np.ndarray:
+        return self.pano_refraction
+
+    @property
+    def pi_minus_R(self) -> np.ndarray:
+        return self.pano_reflection
+
+    @property
+    def pi(self) -> np.ndarray:
+        return self.pano_to_persp
+
+    # ------------------------------------------------------------------ persistence
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write every array and the metadata to one ``.npz`` file (atomically)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        meta = {
+            "version": WARPS_VERSION,
+            "camera": self.camera.to_dict(),
+            "pano": self.pano.to_dict(),
+            "ior": self.ior,
+            "input_hash": self.input_hash,
+            "options": self.options,
+            "stats": self.stats,
+        }
+        arrays = {k: getattr(self, k) for k in _ARRAYS}
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez_compressed(f, meta=np.array(json.dumps(meta)), **arrays)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "WarpSet":
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            if meta.get("version") != WARPS_VERSION:
+                raise ValueError(
+                    f"{path} holds warps of version {meta.get('version')}, this code writes {WARPS_VERSION}; "
+                    "delete the file to recompute it"
+                )
+            arrays = {k: z[k] for k in _ARRAYS}
+        return cls(
+            camera=Camera.from_dict(meta["camera"]),
+            pano=PanoramaCamera.from_dict(meta["pano"]),
+            ior=float(meta["ior"]),
+            input_hash=meta["input_hash"],
+            options=meta["options"],
+            stats=meta["stats"],
+            **arrays,
+        )
+
+    def summary(self) -> dict:
+        """Counts for logs and reports."""
+        m = self.object_mask
+        n = int(m.sum())
+        kinds = {k.name.lower(): int((self.refraction_kind[m] == k).sum()) for k in HitKind if k != HitKind.NONE}
+        return {
+            "object_pixels": n,
+            "refraction_valid_in_object": int(self.refraction_valid[m].sum()),
+            "refraction_end": kinds,
+            "max_bounces_used": int(self.bounces.max()) if n else 0,
+            "mean_fresnel_in_object": float(self.fresnel[m].mean()) if n else float("nan"),
+            "pano_to_persp_valid_fraction": float(self.pano_to_persp_valid.mean()),
+        }
+
+    def __repr__(self) -> str:
+        return f"WarpSet({self.camera!r}, pano={self.pano.height}x{self.pano.width}, ior={self.ior}, {self.summary()})"
+
+
+def warp_inputs_hash(depth: np.ndarray, camera: Camera, obj: GlassObject, options: dict) -> str:
+    """Content hash of everything a :class:`WarpSet` depends on (for caching)."""
+    h = hashlib.sha256()
+    h.update(f"warps-v{WARPS_VERSION}".encode())
+    d = np.ascontiguousarray(depth, dtype=np.float32)
+    h.update(repr(d.shape).encode())
+    h.update(d.tobytes())
+    h.update(json.dumps(camera.to_dict(), sort_keys=True).encode())
+    h.update(obj.content_hash().encode())
+    h.update(json.dumps(options, sort_keys=True, default=str).encode())
+    return h.hexdigest()
+
+
+def _check_object_in_view(obj: GlassObject, camera: Camera) -> None:
+    if not obj.placed:
+        raise ValueError(
+            f"{obj.name}: the object is in its canonical frame, not in camera coordinates; place it first "
+            "(snell_bench.scene.place_object) or build it with GlassObject.from_mesh(...) from camera-frame vertices"
+        )
+    v = obj.vertices
+    zmin = float(v[:, 2].min())
+    if zmin <= 0:
+        where = "behind the camera" if float(v[:, 2].max()) <= 0 else "crossing the camera plane (z <= 0)"
+        raise ValueError(
+            f"{obj.name}: the object is {where} (min z = {zmin:.4g}); move it in front of the camera (z > 0)"
+        )
+    pix, _ = camera.project(v)
+    lo, hi = pix.min(axis=0), pix.max(axis=0)
+    if hi[0] < -0.5 or lo[0] > camera.width - 0.5 or hi[1] < -0.5 or lo[1] > camera.height - 0.5:
+        raise ValueError(
+            f"{obj.name}: the object is outside the view (its projection spans x in [{lo[0]:.1f}, {hi[0]:.1f}], "
+            f"y in [{lo[1]:.1f}, {hi[1]:.1f}], the image is {camera.width}x{camera.height}); move it into the frustum"
+        )
+
+
+def compute_warps(
+    depth: np.ndarray,
+    camera: Camera,
+    obj: GlassObject,
+    pano_height: int = 1024,
+    *,
+    max_bounces: int = 8,
+    normals: str = "interpolated",
+    edge_threshold: float = 0.05,
+    up=None,
+    eps: float | None = None,
+    cache_dir: str | os.PathLike | None = None,
+) -> WarpSet:
+    """Trace the camera's rays through ``obj`` placed in the scene of ``depth`` and return every warp.
+
+    Parameters
+    ----------
+    depth: ``(H, W)`` z-depth of the object-free image I⁻ (NaN, inf or <= 0 where unknown).
+    camera: the camera of I⁻ (its size must match ``depth``).
+    obj: a glass object in camera coordinates (placed or built with ``GlassObject.from_mesh``).
+    pano_height: height of the 360° panorama (its width is twice that).
+    max_bounces: surface interactions per refracted path before it is marked trapped.
+    normals: ``"interpolated"`` (smooth shading normals, creased at sharp edges) or ``"face"``.
+    edge_threshold: relative depth jump at which the background mesh is cut.
+    up: the scene's up direction in camera coordinates; default ``obj.up``, else ``(0, -1, 0)``.
+    eps: self-intersection offset (default: scaled to the object, see :mod:`~snell_bench.optics.tracer`).
+    cache_dir: if given, warps are loaded from / saved to ``<cache_dir>/<input hash>.npz``.
+    """
+    depth = np.asarray(depth)
+    if depth.ndim != 2 or depth.shape != camera.shape:
+        raise ValueError(
+            f"depth has shape {depth.shape} but the camera is {camera.height}x{camera.width}; "
+            "pass a depth map of the camera's (height, width)"
+        )
+    if int(pano_height) != pano_height or pano_height < 2:
+        raise ValueError(f"pano_height must be an integer >= 2, got {pano_height!r}")
+    pano_height = int(pano_height)
+    up_vec = np.asarray(up if up is not None else (obj.up if obj.up is not None else (0.0, -1.0, 0.0)), np.float64)
+    if up_vec.shape != (3,) or not np.all(np.isfinite(up_vec)) or np.linalg.norm(up_vec) == 0:
+        raise ValueError(f"up must be a non-zero 3-vector, got {up!r}")
+    up_vec = up_vec / np.linalg.norm(up_vec)
+    options = {
+        "pano_height": pano_height,
+        "max_bounces": int(max_bounces),
+        "normals": normals,
+        "edge_threshold": float(edge_threshold),
+        "up": up_vec.round(12).tolist(),
+        "eps": eps,
+    }
+    key = warp_inputs_hash(depth, camera, obj, options)
+    cache_path = Path(cache_dir) / f"{key}.npz" if cache_dir is not None else None
+    if cache_path is not None and cache_path.is_file():
+        log.info("warps: loading cached %s", cache_path)
+        return WarpSet.load(cache_path)
+
+    _check_object_in_view(obj, camera)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    lo, hi = obj.mesh.bounds
+    background = build_background(depth, camera, edge_threshold, extra_points=np.stack([lo, hi]))
+    tracer = SceneTracer(background, obj, max_bounces=max_bounces, normals=normals, eps=eps)
+    timings["build"] = time.perf_counter() - t0
+
+    H, W = camera.shape
+    t0 = time.perf_counter()
+    # ---- 1. primary rays: which pixels see the object (before the background)
+    rays = camera.pixel_rays().reshape(-1, 3)
+    t_obj = tracer.cast_camera_object(rays)
+    cand = np.flatnonzero(np.isfinite(t_obj))
+    if len(cand):
+        t_bg = tracer.cast_background(np.zeros((len(cand), 3)), rays[cand]).t
+        cand = cand[t_obj[cand] < t_bg]
+    mask = np.zeros(H * W, bool)
+    mask[cand] = True
+    if not len(cand):
+        log.warning("%s covers no pixel centre of the %dx%d image: the object mask is empty", obj.name, W, H)
+    timings["primary"] = time.perf_counter() - t0
+
+    # ---- 2. refraction through the object (object pixels only)
+    t0 = time.perf_counter()
+    tr = tracer.trace(np.zeros((len(cand), 3)), rays[cand])
+    timings["refraction"] = time.perf_counter() - t0
+
+    grid = camera.pixel_grid().reshape(-1, 2)
+    t0 = time.perf_counter()
+    refraction = grid.astype(np.float32)
+    refraction_valid = np.ones(H * W, bool)
+    src, ok = _self_warp(camera, tracer, tr.point, tr.kind)
+    refraction[cand] = np.where(ok[:, None], src, np.nan)
+    refraction_valid[cand] = ok
+    kind = np.zeros(H * W, np.int8)
+    kind[cand] = tr.kind
+    bounces = np.zeros(H * W, np.uint8)
+    bounces[cand] = np.minimum(tr.bounces, 255)
+    fres = np.zeros(H * W, np.float32)
+    fres[cand] = tr.fresnel
+
+    # ---- 3. first-bounce reflection
+    refl = tracer.trace_reflection(tr)
+    src_r, ok_r = _self_warp(camera, tracer, refl.point, refl.kind)
+    reflection = np.full((H * W, 2), np.nan, np.float32)
+    reflection_valid = np.zeros(H * W, bool)
+    reflection[cand] = np.where(ok_r[:, None], src_r, np.nan)
+    reflection_valid[cand] = ok_r
+    timings["reflection"] = time.perf_counter() - t0
+
+    # ---- 4. panorama warps
+    t0 = time.perf_counter()
+    pano = PanoramaCamera.level(obj.center, up_vec, (0.0, 0.0, 1.0), pano_height)
+    exited = np.isin(tr.kind, (HitKind.OBSERVED, HitKind.UNOBSERVED, HitKind.ESCAPED))
+    pr = _pano_coords(pano, tr.point, tr.direction)
+    pano_refraction = np.full((H * W, 2), np.nan, np.float32)
+    pano_refraction[cand] = np.where(exited[:, None], pr, np.nan)
+    pano_refraction_valid = np.zeros(H * W, bool)
+    pano_refraction_valid[cand] = exited & np.isfinite(pr).all(axis=1)
+    rr = _pano_coords(pano, refl.point, tr.reflected)
+    pano_reflection = np.full((H * W, 2), np.nan, np.float32)
+    pano_reflection[cand] = rr
+    pano_reflection_valid = np.zeros(H * W, bool)
+    pano_reflection_valid[cand] = np.isfinite(rr).all(axis=1)
+
+    pdirs = pano.directions().reshape(-1, 3)
+    ph = tracer.cast_background(np.broadcast_to(pano.center, pdirs.shape), pdirs)
+    pix, pok = _self_warp(camera, tracer, ph.point, ph.kind)
+    pano_to_persp = np.where(pok[:, None], pix, np.nan).astype(np.float32)
+    near = np.rint(np.where(pok[:, None], pix, 0)).astype(np.int64)
+    near[:, 0] = near[:, 0].clip(0, W - 1)
+    near[:, 1] = near[:, 1].clip(0, H - 1)
+    pano_to_persp_object = pok & mask[near[:, 1] * W + near[:, 0]]
+    timings["panorama"] = time.perf_counter() - t0
+
+    Hp, Wp = pano.shape
+    ws = WarpSet(
+        camera=camera,
+        pano=pano,
+        ior=obj.ior,
+        object_mask=mask.reshape(H, W),
+        refraction=refraction.reshape(H, W, 2),
+        refraction_valid=refraction_valid.reshape(H, W),
+        refraction_kind=kind.reshape(H, W),
+        bounces=bounces.reshape(H, W),
+        fresnel=fres.reshape(H, W),
+        reflection=reflection.reshape(H, W, 2),
+        reflection_valid=reflection_valid.reshape(H, W),
+        pano_refraction=pano_refraction.reshape(H, W, 2),
+        pano_refraction_valid=pano_refraction_valid.reshape(H, W),
+        pano_reflection=pano_reflection.reshape(H, W, 2),
+        pano_reflection_valid=pano_reflection_valid.reshape(H, W),
+        pano_to_persp=pano_to_persp.reshape(Hp, Wp, 2),
+        pano_to_persp_valid=pok.reshape(Hp, Wp),
+        pano_to_persp_object=pano_to_persp_object.reshape(Hp, Wp),
+        input_hash=key,
+        options=options,
+        stats={
+            "timings_s": {k: round(v, 4) for k, v in timings.items()},
+            "invalid_depth_pixels": background.invalid_pixels,
+            "cut_triangles": background.cut_triangles,
+            "background_triangles": int(len(background.faces)),
+            "eps": tracer.eps,
+        },
+    )
+    if cache_path is not None:
+        ws.save(cache_path)
+    log.info("warps: %s", ws.summary())
+    return ws
+
+
+def _self_warp(camera: Camera, tracer: SceneTracer, points: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of I⁻ that observe background points; ``ok`` where observed, in view and visible."""
+    pix, z = camera.project(np.where(np.isfinite(points), points, 0.0))
+    ok = (kind == HitKind.OBSERVED) & camera.in_view(pix) & (z > 0)
+    if ok.any():
+        idx = np.flatnonzero(ok)
+        ok[idx] = tracer.visible_from_camera(points[idx])
+    return pix.astype(np.float32), ok
+
+
+def _pano_coords(pano: PanoramaCamera, points: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Panorama pixels of ray ends (by point where there is one, else by direction)."""
+    has_point = np.isfinite(points).all(axis=1)
+    out = np.full((len(points), 2), np.nan)
+    if has_point.any():
+        out[has_point] = pano.project_points(points[has_point])
+    rest = ~has_point & np.isfinite(directions).all(axis=1)
+    if rest.any():
+        out[rest] = pano.project_directions(directions[rest])
+    return out.astype(np.float32)

@@ -1,0 +1,313 @@
+"""Glass objects: procedural primitives, mesh files, materials.
+
+Convention
+----------
+- A *canonical* object (``sphere``, ``cylinder``, ``pyramid``, ``from_file``) lives in its own
+  local frame: y up, its bottom centre at the origin, its largest bounding-box side 1 (unit size).
+  :func:`snell_bench.scene.placement.place_object` moves it into the camera frame.
+- A *placed* object is in camera coordinates (OpenCV frame, metres or the depth map's unit);
+  :meth:`GlassObject.from_mesh` takes a mesh that is already there.
+- Faces wind counter-clockwise seen from outside, so face normals point out of the object.
+- Shading normals are per face corner (``corner_normals``): vertex normals averaged only over the
+  faces whose normal is within ``crease_angle_deg`` of the corner's face, so smooth parts
+  interpolate while sharp edges (a cylinder's rim, a pyramid's edges) keep their face normals.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+log = logging.getLogger(__name__)
+
+__all__ = ["MATERIALS", "resolve_ior", "GlassObject"]
+
+#: Refractive indices (sodium D line, ~589 nm) of common transparent materials.
+MATERIALS: dict[str, float] = {
+    "air": 1.0,
+    "ice": 1.31,
+    "water": 1.333,
+    "acrylic": 1.49,
+    "glass": 1.5,
+    "crown_glass": 1.52,
+    "quartz": 1.544,
+    "flint_glass": 1.62,
+    "sapphire": 1.77,
+    "cubic_zirconia": 2.15,
+    "diamond": 2.42,
+}
+
+
+def resolve_ior(material: str | float | int) -> float:
+    """Index of refraction from a material name in :data:`MATERIALS` or a number.
+
+    Raises ``ValueError`` for an unknown name or a value that is not finite and > 0.
+    An IOR of 1 is allowed (the object is invisible: identity warp); below 1 means the object is
+    optically thinner than its surroundings (e.g. an air bubble: pass the ratio).
+    """
+    if isinstance(material, str):
+        key = material.strip().lower().replace(" ", "_").replace("-", "_")
+        if key in MATERIALS:
+            return MATERIALS[key]
+        try:
+            material = float(key)
+        except ValueError:
+            raise ValueError(
+                f"unknown material {material!r}; use one of {sorted(MATERIALS)} or a number (the IOR)"
+            ) from None
+    if isinstance(material, bool):
+        raise ValueError(f"ior must be a number or a material name, got {material!r}")
+    try:
+        ior = float(material)
+    except (TypeError, ValueError):
+        raise ValueError(f"ior must be a number or a material name, got {material!r}") from None
+    if not math.isfinite(ior) or ior <= 0.0:
+        raise ValueError(f"ior must be finite and > 0, got {material!r} (glass is 1.5, water 1.333)")
+    return ior
+
+
+def _clean_mesh(mesh: trimesh.Trimesh, *, allow_open: bool, repair: bool, what: str) -> trimesh.Trimesh:
+    if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
+        raise ValueError(f"{what}: the mesh is empty (0 faces); a glass object needs a closed surface")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise ValueError(f"{what}: the mesh has non-finite vertex coordinates")
+    mesh = mesh.copy()
+    mesh.merge_vertices(merge_tex=True, merge_norm=True)
+    keep = mesh.nondegenerate_faces()
+    n_degenerate = int((~keep).sum())
+    if n_degenerate:
+        log.info("%s: removed %d degenerate faces", what, n_degenerate)
+        mesh.update_faces(keep)
+    mesh.remove_unreferenced_vertices()
+    if len(mesh.faces) == 0:
+        raise ValueError(f"{what}: every face is degenerate (zero area)")
+    if not mesh.is_watertight and repair:
+        trimesh.repair.fill_holes(mesh)
+        trimesh.repair.fix_normals(mesh)
+        log.info("%s: filled holes, watertight now: %s", what, mesh.is_watertight)
+    if not mesh.is_watertight:
+        if not allow_open:
+            raise ValueError(
+                f"{what}: the mesh is not watertight (it has boundary edges), so refraction through it is "
+                "undefined. Repair it (pass repair=True to fill holes), or pass allow_open=True to trace it "
+                "anyway (rays may leak through the holes)."
+            )
+        log.warning("%s: tracing a mesh that is not watertight (allow_open=True)", what)
+    else:
+        trimesh.repair.fix_normals(mesh)  # consistent winding, outward normals
+        if mesh.volume < 0:
+            mesh.invert()
+    return mesh
+
+
+def _canonicalize(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Bottom centre to the origin and the largest bounding-box side to 1 (y is up)."""
+    lo, hi = mesh.bounds
+    extent = float((hi - lo).max())
+    if extent <= 0:
+        raise ValueError("the mesh has zero extent")
+    T = np.eye(4)
+    T[:3, 3] = -np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
+    S = np.diag([1 / extent] * 3 + [1.0])
+    mesh = mesh.copy()
+    mesh.apply_transform(S @ T)
+    return mesh
+
+
+_Z_TO_Y_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], dtype=float)
+
+
+@dataclass(frozen=True, eq=False)
+class GlassObject:
+    """A closed triangle mesh of a transparent material.
+
+    Attributes
+    ----------
+    mesh: the surface (see the module's conventions for its frame).
+    ior: index of refraction of the material (the surroundings are air, IOR 1).
+    name: a short label (``sphere``, a file stem, ...).
+    placed: whether ``mesh`` is in camera coordinates.
+    up: the scene's up direction in camera coordinates, set by placement (``None`` if unknown).
+    crease_angle_deg: faces meeting at a sharper angle than this do not share shading normals.
+    """
+
+    mesh: trimesh.Trimesh
+    ior: float = 1.5
+    name: str = "object"
+    placed: bool = False
+    up: np.ndarray | None = None
+    crease_angle_deg: float = 30.0
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "ior", resolve_ior(self.ior))
+        if self.up is not None:
+            up = np.asarray(self.up, np.float64).reshape(3)
+            object.__setattr__(self, "up", up / np.linalg.norm(up))
+        if not (0.0 <= self.crease_angle_deg <= 180.0):
+            raise ValueError(f"crease_angle_deg must be in [0, 180], got {self.crease_angle_deg}")
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def sphere(cls, ior: str | float = "glass", subdivisions: int = 5) -> "GlassObject":
+        """Unit-diameter icosphere (``subdivisions=5``: 20,480 faces)."""
+        m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=0.5)
+        return cls(mesh=_canonicalize(m), ior=ior, name="sphere")
+
+    @classmethod
+    def cylinder(cls, ior: str | float = "glass", radius: float = 0.35, sections: int = 128) -> "GlassObject":
+        """Upright cylinder of height 1 before normalisation (``radius`` relative to the height)."""
+        m = trimesh.creation.cylinder(radius=radius, height=1.0, sections=sections)
+        m.apply_transform(_Z_TO_Y_UP)
+        return cls(mesh=_canonicalize(m), ior=ior, name="cylinder")
+
+    @classmethod
+    def pyramid(cls, ior: str | float = "glass", base: float = 1.0, height: float = 1.0) -> "GlassObject":
+        """Square pyramid (a 4-sided cone, the edges of its base along the diagonals)."""
+        m = trimesh.creation.cone(radius=base / math.sqrt(2.0), height=height, sections=4)
+        m.apply_transform(_Z_TO_Y_UP)
+        return cls(mesh=_canonicalize(m), ior=ior, name="pyramid")
+
+    @classmethod
+    def from_file(
+        cls,
+        path: str | Path,
+        ior: str | float = "glass",
+        *,
+        up_axis: str = "y",
+        allow_open: bool = False,
+        repair: bool = False,
+    ) -> "GlassObject":
+        """Any mesh trimesh reads (.ply, .obj, .glb, .stl, ...), normalised to the canonical frame.
+
+        ``up_axis`` names the file's up axis (``y``, ``z``, ``-y``, ...).
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"mesh file not found: {path}")
+        try:
+            loaded = trimesh.load(path, force="mesh", process=False)
+        except Exception as e:  # trimesh raises many kinds
+            raise ValueError(f"could not read mesh {path}: {e}") from e
+        if not isinstance(loaded, trimesh.Trimesh):
+            raise ValueError(f"{path} holds no triangle mesh")
+        mesh = _clean_mesh(loaded, allow_open=allow_open, repair=repair, what=str(path))
+        mesh.apply_transform(_up_axis_transform(up_axis))
+        return cls(mesh=_canonicalize(mesh), ior=ior, name=path.stem)
+
+    @classmethod
+    def from_mesh(
+        cls,
+        vertices: np.ndarray,
+        faces: np.ndarray,
+        ior: str | float = "glass",
+        *,
+        name: str = "mesh",
+        up=None,
+        allow_open: bool = False,
+        repair: bool = False,
+    ) -> "GlassObject":
+        """A mesh already in camera coordinates (placed as given)."""
+        vertices = np.asarray(vertices, dtype=np.float64)
+        faces = np.asarray(faces)
+        if vertices.ndim != 2 or vertices.shape[1:] != (3,) or faces.ndim != 2 or faces.shape[1:] != (3,):
+            if vertices.size == 0 or faces.size == 0:
+                raise ValueError("from_mesh: the mesh is empty (0 faces); a glass object needs a closed surface")
+            raise ValueError(f"from_mesh: expected vertices (V, 3) and faces (F, 3), got {vertices.shape} and {faces.shape}")
+        if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+            raise ValueError(f"from_mesh: face indices out of range [0, {len(vertices)})")
+        mesh = trimesh.Trimesh(vertices=vertices, faces=faces.astype(np.int64), process=False)
+        mesh = _clean_mesh(mesh, allow_open=allow_open, repair=repair, what="from_mesh")
+        return cls(mesh=mesh, ior=ior, name=name, placed=True, up=up)
+
+    # ------------------------------------------------------------------ derived objects
+    def with_ior(self, ior: str | float) -> "GlassObject":
+        return replace(self, ior=ior, _cache={})
+
+    def transformed(self, matrix: np.ndarray, *, up=None) -> "GlassObject":
+        """Apply a 4x4 rigid or similarity transform; the result is a placed object."""
+        m = self.mesh.copy()
+        m.apply_transform(np.asarray(matrix, dtype=np.float64))
+        return replace(self, mesh=m, placed=True, up=up if up is not None else self.up, _cache={})
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def vertices(self) -> np.ndarray:
+        return np.asarray(self.mesh.vertices)
+
+    @property
+    def faces(self) -> np.ndarray:
+        return np.asarray(self.mesh.faces)
+
+    @property
+    def center(self) -> np.ndarray:
+        """Centre of the axis-aligned bounding box (the panorama is centred here)."""
+        lo, hi = self.mesh.bounds
+        return (lo + hi) / 2.0
+
+    @property
+    def diameter(self) -> float:
+        lo, hi = self.mesh.bounds
+        return float(np.linalg.norm(hi - lo))
+
+    def corner_normals(self) -> np.ndarray:
+        """Unit shading normals per face corner, ``(F, 3, 3)`` float64 (see module docs)."""
+        if "corner_normals" not in self._cache:
+            self._cache["corner_normals"] = _corner_normals(self.mesh, self.crease_angle_deg)
+        return self._cache["corner_normals"]
+
+    def content_hash(self) -> str:
+        h = hashlib.sha256()
+        h.update(np.ascontiguousarray(self.vertices, dtype=np.float64).tobytes())
+        h.update(np.ascontiguousarray(self.faces, dtype=np.int64).tobytes())
+        h.update(repr((round(self.ior, 12), self.crease_angle_deg, self.placed)).encode())
+        return h.hexdigest()
+
+    def __repr__(self) -> str:
+        return (
+            f"GlassObject(name={self.name!r}, ior={self.ior}, faces={len(self.mesh.faces)}, placed={self.placed}, "
+            f"center={np.round(self.center, 4).tolist()})"
+        )
+
+
+def _up_axis_transform(up_axis: str) -> np.ndarray:
+    axis = up_axis.strip().lower()
+    sign = -1.0 if axis.startswith("-") else 1.0
+    axis = axis.lstrip("+-")
+    if axis not in ("x", "y", "z"):
+        raise ValueError(f"up_axis must be one of x, y, z (optionally signed), got {up_axis!r}")
+    up = np.zeros(3)
+    up["xyz".index(axis)] = sign
+    # rotation taking `up` to +y by the shortest arc
+    target = np.array([0.0, 1.0, 0.0])
+    T = np.eye(4)
+    if np.allclose(up, target):
+        return T
+    if np.allclose(up, -target):
+        T[:3, :3] = np.diag([1.0, -1.0, -1.0])
+        return T
+    T[:3, :3] = trimesh.geometry.align_vectors(up, target)[:3, :3]
+    return T
+
+
+def _corner_normals(mesh: trimesh.Trimesh, crease_angle_deg: float) -> np.ndarray:
+    faces = np.asarray(mesh.faces)
+    fn = np.asarray(mesh.face_normals, dtype=np.float64)  # unit
+    area = np.asarray(mesh.area_faces, dtype=np.float64)
+    vf = np.asarray(mesh.vertex_faces)  # (V, max_valence), padded with -1
+    nbr = vf[faces]  # (F, 3, k) faces around each corner's vertex
+    valid = nbr >= 0
+    nbr_safe = np.where(valid, nbr, 0)
+    nbr_n = fn[nbr_safe]  # (F, 3, k, 3)
+    cos = np.einsum("fckd,fd->fck", nbr_n, fn)
+    w = np.where(valid & (cos >= math.cos(math.radians(crease_angle_deg)) - 1e-9), area[nbr_safe], 0.0)
+    n = np.einsum("fck,fckd->fcd", w, nbr_n)
+    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    fallback = np.broadcast_to(fn[:, None, :], n.shape)
+    return np.where(norm > 1e-12, n / np.maximum(norm, 1e-300), fallback)
