@@ -93,10 +93,14 @@ def _clean_mesh(mesh: trimesh.Trimesh, *, allow_open: bool, repair: bool, what: 
         log.info("%s: filled holes, watertight now: %s", what, mesh.is_watertight)
     if not mesh.is_watertight:
         if not allow_open:
+            hint = (
+                "repair=True could not close it: repair the mesh in a mesh editor"
+                if repair
+                else "repair it (repair=True fills simple holes)"
+            )
             raise ValueError(
                 f"{what}: the mesh is not watertight (it has boundary edges), so refraction through it is "
-                "undefined. Repair it (pass repair=True to fill holes), or pass allow_open=True to trace it "
-                "anyway (rays may leak through the holes)."
+                f"undefined; {hint}, or pass allow_open=True to trace it anyway (rays may leak through the holes)"
             )
         log.warning("%s: tracing a mesh that is not watertight (allow_open=True)", what)
     else:

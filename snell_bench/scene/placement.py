@@ -44,7 +44,8 @@ def find_support_plane(
     max_tilt_deg: float = 30.0,
     window: tuple[float, float] = (0.6, 0.9),
     distance_threshold: float = 0.004,
-    min_inlier_fraction: float = 0.02,
+    min_inlier_fraction: float = 0.05,
+    prefer: str = "highest",
     max_planes: int = 6,
     max_points: int = 60_000,
     num_iterations: int = 500,
@@ -53,9 +54,11 @@ def find_support_plane(
     """Find a horizontal supporting surface near the optical axis with RANSAC (Open3D).
 
     Points come from a central window of the image (``window`` = fraction of width, height). Planes
-    are peeled off one at a time (up to ``max_planes``); among the horizontal ones with at least
-    ``min_inlier_fraction`` of the window's points, the one closest to the image centre wins
-    (ties broken by size). ``distance_threshold`` is relative to the median depth. Raises
+    are peeled off one at a time (up to ``max_planes``). Candidates are horizontal, below the camera
+    (seen from above) and hold at least ``min_inlier_fraction`` of the window's points; ``prefer``
+    picks among them: ``"highest"`` (default: a table top rather than the floor under it),
+    ``"largest"`` (most points) or ``"central"`` (nearest the image centre). The object stands at
+    the median of the chosen plane's points. ``distance_threshold`` is relative to the median depth. Raises
     ``ValueError`` when no horizontal plane exists. Deterministic for a given ``seed``.
     """
     depth = np.asarray(depth, np.float64)
@@ -71,6 +74,8 @@ def find_support_plane(
     sub[y0:y1, x0:x1] = True
     sel = sub & valid_depth_mask(depth)
     ys, xs = np.nonzero(sel)
+    if prefer not in ("highest", "largest", "central"):
+        raise ValueError(f"prefer must be 'highest', 'largest' or 'central', got {prefer!r}")
     if len(ys) < 3:
         raise ValueError("no valid depth near the image centre to find a supporting surface on")
     rng = np.random.default_rng(seed)
@@ -95,7 +100,8 @@ def find_support_plane(
         n = n / np.linalg.norm(n)
         if n @ up < 0:
             n = -n
-        if len(inl) >= min_inlier_fraction * len(pts) and n @ up >= cos_tilt:
+        below_camera = float(-pts[inl].mean(axis=0) @ n) > 0  # seen from above: something can stand on it
+        if len(inl) >= min_inlier_fraction * len(pts) and n @ up >= cos_tilt and below_camera:
             # refine the normal by least squares on the inliers
             q = pts[inl]
             c = q.mean(axis=0)
@@ -111,7 +117,12 @@ def find_support_plane(
             f"counts as horizontal within {max_tilt_deg} deg of up_hint={np.round(up, 3).tolist()}). Pass up_hint "
             "for a tilted camera, widen `window`, or place the object explicitly with GlassObject.from_mesh"
         )
-    candidates.sort(key=lambda c: (round(c[0], 6), c[1]))
+    if prefer == "highest":  # a table top rather than the floor under it
+        candidates.sort(key=lambda c: (-round(float(c[3].mean(axis=0) @ c[2]), 6), c[1]))
+    elif prefer == "largest":
+        candidates.sort(key=lambda c: (c[1], round(c[0], 6)))
+    else:  # central
+        candidates.sort(key=lambda c: (round(c[0], 6), c[1]))
     _, neg_count, normal, q, pix = candidates[0]
     # the centre of the visible supporting region: median of the inliers, projected onto the plane
     c = np.median(q, axis=0)

@@ -1,0 +1,68 @@
+"""Support-plane detection (Open3D RANSAC) and object placement."""
+
+import math
+
+import numpy as np
+import pytest
+
+from snell_bench.scene.camera import Camera
+from snell_bench.scene.objects import GlassObject
+from snell_bench.scene.placement import find_support_plane, place_object
+
+
+def ray_plane_depth(cam, normal, offset):
+    """z-depth of the plane ``normal . x = offset`` (inf where the ray misses it)."""
+    d = cam.pixel_rays(normalize=False)
+    with np.errstate(divide="ignore"):
+        t = offset / (d @ normal)
+    return np.where(t > 0, t, np.inf)
+
+
+def table_scene(cam, pitch_deg=15.0):
+    """A level floor 0.8 m below the camera and a wall 6 m ahead, the camera pitched down."""
+    a = math.radians(pitch_deg)
+    up = np.array([0.0, -math.cos(a), -math.sin(a)])  # world up in the pitched camera's frame
+    fwd_h = np.array([0.0, -math.sin(a), math.cos(a)])  # horizontal forward
+    floor = ray_plane_depth(cam, -up, 0.8)
+    wall = ray_plane_depth(cam, fwd_h, 6.0)
+    return np.minimum(floor, wall), up
+
+
+def test_finds_level_floor_of_a_pitched_camera():
+    cam = Camera.from_fov(160, 120, 70)
+    depth, up = table_scene(cam)
+    plane = find_support_plane(depth, cam)
+    assert plane.normal @ up > math.cos(math.radians(0.5))
+    assert (plane.point @ up) == pytest.approx(-0.8, abs=2e-3)
+    x, y = plane.pixel
+    assert y > cam.height / 2  # below the horizon
+
+
+def test_no_horizontal_surface_is_a_clear_error():
+    cam = Camera.from_fov(64, 48, 60)
+    wall = np.full(cam.shape, 3.0)
+    with pytest.raises(ValueError, match="no horizontal supporting surface"):
+        find_support_plane(wall, cam)
+
+
+def test_place_object_stands_on_the_plane():
+    cam = Camera.from_fov(160, 120, 70)
+    depth, up = table_scene(cam)
+    obj = place_object(GlassObject.sphere(subdivisions=3), depth, cam, size=0.4)
+    heights = obj.vertices @ obj.up
+    plane = find_support_plane(depth, cam)
+    bottom = heights.min() - plane.point @ plane.normal
+    assert bottom == pytest.approx(1e-3 * 0.4, abs=1e-6)  # the lift
+    assert np.ptp(heights) == pytest.approx(0.4, rel=1e-6)
+    assert np.all(obj.vertices[:, 2] > 0) and obj.placed
+    with pytest.raises(ValueError, match="already placed"):
+        place_object(obj, depth, cam)
+    with pytest.raises(ValueError, match="size"):
+        place_object(GlassObject.sphere(subdivisions=1), depth, cam, size=-1.0)
+
+
+def test_deterministic():
+    cam = Camera.from_fov(160, 120, 70)
+    depth, _ = table_scene(cam)
+    a, b = find_support_plane(depth, cam, seed=3), find_support_plane(depth, cam, seed=3)
+    np.testing.assert_array_equal(a.point, b.point)
