@@ -2,10 +2,13 @@
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
-# The CPU build of torch keeps the environment small; override for a GPU build, e.g.
-#   make setup TORCH_SPEC="torch==2.14.1"
+# Optional extras, comma-separated: test, gpu, render, metrics (see README).
+EXTRAS ?= test
+# The CPU build of torch keeps the environment small (~1 GB). The gpu and metrics extras need
+# torchvision: use a matched pair, e.g.  make setup EXTRAS=test,metrics TORCH_SPEC="torch==2.14.1 torchvision==0.29.1"
 TORCH_SPEC ?= torch==2.13.0
-STAMP := $(VENV)/.installed
+comma := ,
+STAMP := $(VENV)/.installed-$(subst $(comma),-,$(EXTRAS))
 
 .PHONY: setup demo test bench clean system-deps
 
@@ -24,8 +27,8 @@ system-deps:
 $(STAMP): pyproject.toml | system-deps
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q "$(TORCH_SPEC)"
-	$(PY) -m pip install -q -e ".[test]"
+	$(PY) -m pip install -q $(TORCH_SPEC)
+	$(PY) -m pip install -q -e ".[$(EXTRAS)]"
 	touch $(STAMP)
 
 demo: setup

@@ -238,6 +238,7 @@ def compute_warps(
     up=None,
     eps: float | None = None,
     cache_dir: str | os.PathLike | None = None,
+    verify_visibility: bool = False,
 ) -> WarpSet:
     """Trace the camera's rays through ``obj`` placed in the scene of ``depth`` and return every warp.
 
@@ -253,6 +254,8 @@ def compute_warps(
     up: the scene's up direction in camera coordinates; default ``obj.up``, else ``(0, -1, 0)``.
     eps: self-intersection offset (default: scaled to the object, see :mod:`~snell_bench.optics.tracer`).
     cache_dir: if given, warps are loaded from / saved to ``<cache_dir>/<input hash>.npz``.
+    verify_visibility: also cast a camera ray to every background point a warp lands on (redundant
+        for depth-map backgrounds, see ``_self_warp``; for checking).
     """
     depth = np.asarray(depth)
     if depth.ndim != 2 or depth.shape != camera.shape:
@@ -274,6 +277,7 @@ def compute_warps(
         "edge_threshold": float(edge_threshold),
         "up": up_vec.round(12).tolist(),
         "eps": eps,
+        "verify_visibility": bool(verify_visibility),
     }
     key = warp_inputs_hash(depth, camera, obj, options)
     cache_path = Path(cache_dir) / f"{key}.npz" if cache_dir is not None else None
@@ -313,7 +317,7 @@ def compute_warps(
     t0 = time.perf_counter()
     refraction = grid.astype(np.float32)
     refraction_valid = np.ones(H * W, bool)
-    src, ok = _self_warp(camera, tracer, tr.point, tr.kind)
+    src, ok = _self_warp(camera, tracer, tr.point, tr.kind, verify_visibility)
     refraction[cand] = np.where(ok[:, None], src, np.nan)
     refraction_valid[cand] = ok
     kind = np.zeros(H * W, np.int8)
@@ -325,7 +329,7 @@ def compute_warps(
 
     # ---- 3. first-bounce reflection
     refl = tracer.trace_reflection(tr)
-    src_r, ok_r = _self_warp(camera, tracer, refl.point, refl.kind)
+    src_r, ok_r = _self_warp(camera, tracer, refl.point, refl.kind, verify_visibility)
     reflection = np.full((H * W, 2), np.nan, np.float32)
     reflection_valid = np.zeros(H * W, bool)
     reflection[cand] = np.where(ok_r[:, None], src_r, np.nan)
@@ -349,7 +353,7 @@ def compute_warps(
 
     pdirs = pano.directions().reshape(-1, 3)
     ph = tracer.cast_background(np.broadcast_to(pano.center, pdirs.shape), pdirs)
-    pix, pok = _self_warp(camera, tracer, ph.point, ph.kind)
+    pix, pok = _self_warp(camera, tracer, ph.point, ph.kind, verify_visibility)
     pano_to_persp = np.where(pok[:, None], pix, np.nan).astype(np.float32)
     near = np.rint(np.where(pok[:, None], pix, 0)).astype(np.int64)
     near[:, 0] = near[:, 0].clip(0, W - 1)
@@ -393,11 +397,19 @@ def compute_warps(
     return ws
 
 
-def _self_warp(camera: Camera, tracer: SceneTracer, points: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels of I⁻ that observe background points; ``ok`` where observed, in view and visible."""
+def _self_warp(
+    camera: Camera, tracer: SceneTracer, points: np.ndarray, kind: np.ndarray, verify_visibility: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of I⁻ that observe background points; ``ok`` where observed, in view and visible.
+
+    The background is a depth-map mesh: its triangles project onto the image without overlapping,
+    so the front side of any of its points is seen by the camera (nothing else in I⁻ can hide it).
+    ``verify_visibility`` casts the camera ray to every point anyway (the test suite checks that
+    both agree).
+    """
     pix, z = camera.project(np.where(np.isfinite(points), points, 0.0))
     ok = (kind == HitKind.OBSERVED) & camera.in_view(pix) & (z > 0)
-    if ok.any():
+    if verify_visibility and ok.any():
         idx = np.flatnonzero(ok)
         ok[idx] = tracer.visible_from_camera(points[idx])
     return pix.astype(np.float32), ok

@@ -309,3 +309,18 @@ class TestPersistence:
         b = compute_warps(plane_depth, cam, obj, pano_height=16)
         np.testing.assert_array_equal(a.refraction, b.refraction)
         np.testing.assert_array_equal(a.pano_to_persp, b.pano_to_persp)
+
+
+def test_depth_mesh_points_are_always_visible(cam):
+    """The visibility argument of _self_warp: with a depth-map background, explicit camera-ray
+    visibility checks change nothing, even with occluding steps in the depth."""
+    depth = np.full(cam.shape, PLANE_Z, np.float32)
+    depth[:, 330:] = 3.6  # a near wall on the right, partly behind the sphere
+    depth[200:, :200] = 2.8  # a near block lower left
+    obj = sphere_at(CENTER, RADIUS, subdivisions=4)
+    a = compute_warps(depth, cam, obj, pano_height=64)
+    b = compute_warps(depth, cam, obj, pano_height=64, verify_visibility=True)
+    assert a.stats["cut_triangles"] > 0
+    for name in ("refraction_valid", "reflection_valid", "pano_to_persp_valid"):
+        va, vb = getattr(a, name), getattr(b, name)
+        assert (va != vb).sum() <= 1e-4 * va.size, name

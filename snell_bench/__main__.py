@@ -1,0 +1,24 @@
+"""``python -m snell_bench``: the Hydra entry point. Jobs live in :mod:`snell_bench.experiment`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig
+
+from snell_bench.config import register_configs
+
+register_configs()
+CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+
+
+@hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="config")
+def main(cfg: DictConfig) -> None:
+    from snell_bench.experiment import run_job
+
+    run_job(cfg)
+
+
+if __name__ == "__main__":
+    main()

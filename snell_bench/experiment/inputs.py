@@ -1,0 +1,81 @@
+"""From config to the inputs every method shares: I⁻, its depth and camera, the placed object."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from omegaconf import DictConfig
+
+from snell_bench.scene.camera import Camera
+from snell_bench.scene.objects import GlassObject
+from snell_bench.scene.placement import place_object
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SceneInputs", "make_scene_inputs", "make_object"]
+
+_REPO = Path(__file__).resolve().parents[2]
+
+
+@dataclass
+class SceneInputs:
+    image: np.ndarray  # (H, W, 3) float32 sRGB in [0, 1]: I⁻
+    depth: np.ndarray  # (H, W) float32 z-depth
+    camera: Camera
+    up: np.ndarray | None  # scene up in camera coordinates, if the source knows it
+    source: object  # the scene source (e.g. a ProceduralScene), for panoramas and ground truth
+
+
+def make_scene_inputs(scene_cfg: DictConfig) -> SceneInputs:
+    if scene_cfg.source != "procedural":
+        raise ValueError(
+            f"scene.source={scene_cfg.source!r} is not available yet; use scene.source=procedural"
+        )
+    from snell_bench.scene.procedural import ProceduralScene
+
+    scene = ProceduralScene(kind=scene_cfg.kind, seed=int(scene_cfg.variation))
+    r = scene.render(width=int(scene_cfg.width), height=int(scene_cfg.height), supersample=int(scene_cfg.supersample))
+    return SceneInputs(image=r.image, depth=r.depth, camera=r.camera, up=scene.up, source=scene)
+
+
+def make_object(obj_cfg: DictConfig) -> GlassObject:
+    """The canonical (unplaced) object a config names."""
+    shape = obj_cfg.shape
+    if shape == "sphere":
+        return GlassObject.sphere(ior=obj_cfg.ior)
+    if shape == "cylinder":
+        return GlassObject.cylinder(ior=obj_cfg.ior)
+    if shape == "pyramid":
+        return GlassObject.pyramid(ior=obj_cfg.ior)
+    if shape == "mesh":
+        if not obj_cfg.path:
+            raise ValueError(f"object {obj_cfg.name!r}: shape=mesh needs object.path (a mesh file)")
+        path = Path(obj_cfg.path)
+        if not path.is_absolute() and not path.exists():
+            path = _REPO / path
+        if not path.is_file():
+            raise FileNotFoundError(
+                f"object {obj_cfg.name!r}: mesh file {obj_cfg.path!r} not found; set object.path to an existing "
+                ".ply/.obj/.glb/.stl file"
+            )
+        obj = GlassObject.from_file(path, ior=obj_cfg.ior, up_axis=obj_cfg.up_axis)
+        return obj
+    raise ValueError(f"object.shape={shape!r} is unknown; use sphere, cylinder, pyramid or mesh")
+
+
+def place_from_config(obj: GlassObject, inputs: SceneInputs, obj_cfg: DictConfig, seed: int = 0) -> GlassObject:
+    kwargs = {"seed": seed}
+    if inputs.up is not None:
+        kwargs["up_hint"] = inputs.up
+    return place_object(
+        obj,
+        inputs.depth,
+        inputs.camera,
+        size=obj_cfg.size,
+        relative_size=float(obj_cfg.relative_size),
+        yaw_deg=float(obj_cfg.yaw_deg),
+        **kwargs,
+    )
