@@ -41,6 +41,39 @@ def raw_cast(vertices, faces, obj, rays) -> float:
     return time.perf_counter() - t0
 
 
+_OMP_PROBE = """
+import time, torch
+d = torch.nn.functional.normalize(torch.randn(54_000, 3, dtype=torch.float64), dim=-1)
+for _ in range(5): d * d
+t0 = time.perf_counter()
+for _ in range(200): (d * d).sum(-1)
+print((time.perf_counter() - t0) / 200)
+"""
+
+
+def omp_wait_policy_probe() -> dict[tuple[str, bool], float]:
+    """Seconds per small multi-threaded torch op under each OpenMP wait policy, in fresh processes,
+    on an idle machine and next to one busy process (a parallel sweep, a renderer)."""
+    import subprocess
+    import sys
+
+    out = {}
+    for contended in (False, True):
+        busy = (
+            subprocess.Popen([sys.executable, "-c", "while True: pass"]) if contended else None
+        )
+        try:
+            for policy in ("ACTIVE", "PASSIVE"):
+                env = dict(os.environ, OMP_WAIT_POLICY=policy)
+                r = subprocess.run([sys.executable, "-c", _OMP_PROBE], env=env, capture_output=True, text=True, check=True)
+                out[policy, contended] = float(r.stdout.strip())
+        finally:
+            if busy is not None:
+                busy.kill()
+                busy.wait()
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--height", type=int, default=720)
@@ -77,6 +110,11 @@ def main() -> None:
     keys = stages[0].keys()
     med = {k: statistics.median(s[k] for s in stages) for k in keys}
     print("  WarpSet stages: " + ", ".join(f"{k} {v:.3f} s" for k, v in med.items()))
+    probe = omp_wait_policy_probe()
+    print("OpenMP wait policy, one small torch op (54k x 3, float64; snell_bench sets PASSIVE unless OMP_WAIT_POLICY is set):")
+    for contended, label in ((False, "idle machine"), (True, "one busy process beside it")):
+        a, p = probe["ACTIVE", contended], probe["PASSIVE", contended]
+        print(f"  {label:27s}: ACTIVE {a * 1e3:7.2f} ms, PASSIVE {p * 1e3:6.2f} ms, ACTIVE / PASSIVE {a / p:6.1f}x")
 
 
 if __name__ == "__main__":

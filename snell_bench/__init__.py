@@ -3,10 +3,11 @@ and measured."""
 
 import os as _os
 
-# OpenMP's default busy-wait makes every parallel torch op pay milliseconds of thread hand-over on
-# small, shared CPU machines (2 vCPUs: ~8 ms per op instead of ~0.1 ms, measured by
-# benchmarks/bench_warps.py). Passive waiting costs little elsewhere. It only takes effect if
-# snell_bench is imported before torch; set OMP_WAIT_POLICY yourself to override.
+# OpenMP's default busy-waiting threads fight any other busy process for the cores: on 2 cores a
+# small torch op becomes ~3x slower beside one busy process (benchmarks/bench_warps.py prints it),
+# and far worse beside a multi-threaded one, the normal case in parallel sweeps. Passive waiting
+# costs ~20 % on tiny ops of an idle machine. It only takes effect if snell_bench is imported
+# before torch; set OMP_WAIT_POLICY yourself to choose.
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 __version__ = "0.1.0"
