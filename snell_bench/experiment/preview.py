@@ -25,7 +25,6 @@ from omegaconf import DictConfig, OmegaConf
 from PIL import Image
 
 from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear
-from snell_bench.imaging.equirect import PanoramaCamera
 from snell_bench.imaging.remap import remap
 from snell_bench.optics.warps import WarpSet, compute_warps
 
@@ -77,17 +76,6 @@ def warp_to_rgb(coords: np.ndarray, width: int, height: int) -> np.ndarray:
     return np.clip(rgb, 0, 1)
 
 
-def render_panorama(source, pano: PanoramaCamera, supersample: int = 2) -> np.ndarray:
-    """The source scene's panorama seen by ``pano`` (sRGB), box-filtered from a finer render."""
-    fine = PanoramaCamera(center=pano.center, rotation=pano.rotation, height=pano.height * supersample)
-    dirs = fine.directions().reshape(-1, 3)
-    rgb, _ = source.radiance(np.broadcast_to(pano.center, dirs.shape).copy(), dirs)
-    rgb = rgb.reshape(fine.height, fine.width, 3)
-    s = supersample
-    rgb = rgb.reshape(pano.height, s, pano.width, s, 3).mean(axis=(1, 3))
-    return np.asarray(linear_to_srgb(rgb), np.float32)
-
-
 def run_preview(cfg: DictConfig) -> dict:
     from snell_bench.experiment.inputs import make_object, make_scene_inputs, place_from_config
 
@@ -117,7 +105,14 @@ def run_preview(cfg: DictConfig) -> dict:
     timings["warps"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    panorama = render_panorama(inputs.source, ws.pano)
+    # the source's true panorama, in the orientation of the warps' panorama camera
+    panorama = inputs.source.render_panorama(
+        center=ws.pano.center,
+        height=ws.pano.height,
+        up=-ws.pano.rotation[:, 1],
+        forward=ws.pano.rotation[:, 2],
+        supersample=int(cfg.scene.supersample),
+    )
     timings["panorama"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
