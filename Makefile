@@ -4,9 +4,9 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 # Optional extras, comma-separated: test, gpu, render, metrics (see README).
 EXTRAS ?= test
-# The CPU build of torch keeps the environment small (~1 GB). The gpu and metrics extras need
-# torchvision: use a matched pair, e.g.  make setup EXTRAS=test,metrics TORCH_SPEC="torch==2.14.1 torchvision==0.29.1"
-TORCH_SPEC ?= torch==2.13.0
+# torch and torchvision must be a matched pair (a mismatched torchvision fails to import, and with
+# it diffusers and open_clip). Override for another platform or CUDA version.
+TORCH_SPEC ?= torch==2.14.1 torchvision==0.29.1
 comma := ,
 STAMP := $(VENV)/.installed-$(subst $(comma),-,$(EXTRAS))
 
@@ -39,6 +39,8 @@ test: setup
 
 bench: setup
 	$(PY) benchmarks/bench_warps.py
+	$(PY) benchmarks/bench_imaging.py
+	$(PY) benchmarks/bench_sampler.py
 
 clean:
 	rm -rf $(VENV) runs/ .pytest_cache

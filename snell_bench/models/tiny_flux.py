@@ -1,0 +1,254 @@
+"""A tiny FLUX pipeline with random weights, built offline from configs in code (for tests).
+
+It has the architecture of FLUX.1-dev (a guidance-distilled ``FluxTransformer2DModel``, a 16-channel
+``AutoencoderKL`` with downscale 8, a CLIP text encoder for the pooled embedding and a T5 encoder
+for the token embeddings), only far smaller, so every code path of
+:class:`~snell_bench.models.flux.FluxGenerator` runs on a CPU in milliseconds. Its outputs mean
+nothing: the weights are random.
+
+Convention
+----------
+- Built deterministically from ``seed`` inside :func:`torch.random.fork_rng`: the caller's global
+  RNG state is left untouched, and two builds with the same seed have identical weights.
+- Every module is in ``.eval()`` mode (modules built from configs start in train mode, and T5's
+  dropout would otherwise randomise the embeddings).
+- No file is downloaded. The T5 side uses the byte-level ``ByT5Tokenizer`` (no vocabulary file);
+  the CLIP side uses a ``CLIPTokenizer`` written from open_clip's shipped BPE vocabulary
+  (``bpe_simple_vocab_16e6.txt.gz``) into ``$SNELL_BENCH_CACHE/clip_bpe_tokenizer`` (default
+  ``~/.cache/snell_bench``; a temporary folder if that is not writable), once per machine.
+- The VAE's ``sample_size`` is 1024, as in FLUX.1-dev, so VAE tiling starts at the same image size.
+"""
+
+from __future__ import annotations
+
+import functools
+import gzip
+import importlib.util
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import torch
+
+from .flux import FluxGenerator
+
+__all__ = ["TinyFluxGenerator", "build_tiny_flux_pipeline", "clip_tokenizer_from_open_clip_vocab"]
+
+#: FLUX.1-dev's VAE latent normalisation.
+FLUX_VAE_SCALING_FACTOR = 0.3611
+FLUX_VAE_SHIFT_FACTOR = 0.1159
+
+#: CLIP's BPE vocabulary: 256 byte symbols, 256 end-of-word byte symbols, 48894 merges, 2 specials.
+_CLIP_NUM_MERGES = 49152 - 256 - 2
+_CLIP_VOCAB_SIZE = 49408
+_CLIP_BOS, _CLIP_EOS = "<|startoftext|>", "<|endoftext|>"
+_TOKENIZER_FOLDER_NAME = "clip_bpe_tokenizer"
+
+
+def _bytes_to_unicode() -> dict[int, str]:
+    """GPT-2/CLIP's reversible map from bytes to printable unicode characters."""
+    bs = list(range(ord("!"), ord("~") + 1)) + list(range(ord("¡"), ord("¬") + 1)) + list(range(ord("®"), ord("ÿ") + 1))
+    cs = bs[:]
+    n = 0
+    for b in range(256):
+        if b not in bs:
+            bs.append(b)
+            cs.append(256 + n)
+            n += 1
+    return dict(zip(bs, (chr(c) for c in cs)))
+
+
+def _open_clip_bpe_path() -> Path:
+    spec = importlib.util.find_spec("open_clip")  # locates the package without importing it
+    if spec is None or not spec.submodule_search_locations:
+        raise RuntimeError("open_clip_torch is not installed: it ships the CLIP BPE vocabulary for the tiny FLUX")
+    path = Path(list(spec.submodule_search_locations)[0]) / "bpe_simple_vocab_16e6.txt.gz"
+    if not path.is_file():
+        raise RuntimeError(f"open_clip's BPE vocabulary is missing: {path}")
+    return path
+
+
+def _cache_root() -> Path:
+    root = os.environ.get("SNELL_BENCH_CACHE")
+    return Path(root).expanduser() if root else Path.home() / ".cache" / "snell_bench"
+
+
+def _write_clip_tokenizer_files(folder: Path) -> None:
+    """Write ``vocab.json`` and ``merges.txt`` (Hugging Face CLIP format) from open_clip's BPE file.
+
+    Files are written to a temporary name and renamed, so concurrent writers never expose a
+    partial file."""
+    lines = gzip.open(_open_clip_bpe_path()).read().decode("utf-8").split("\n")
+    merges = lines[1 : _CLIP_NUM_MERGES + 1]
+    symbols = list(_bytes_to_unicode().values())
+    vocab = symbols + [s + "</w>" for s in symbols] + ["".join(m.split()) for m in merges] + [_CLIP_BOS, _CLIP_EOS]
+    assert len(vocab) == _CLIP_VOCAB_SIZE, len(vocab)
+    folder.mkdir(parents=True, exist_ok=True)
+    contents = {
+        "vocab.json": json.dumps({tok: i for i, tok in enumerate(vocab)}, ensure_ascii=False),
+        "merges.txt": "#version: 0.2\n" + "\n".join(merges) + "\n",
+    }
+    for name, text in contents.items():
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name}.")
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, folder / name)
+
+
+def _clip_tokenizer_folder() -> Path:
+    """The folder holding the CLIP tokenizer files, written on first use."""
+    candidates = [_cache_root() / _TOKENIZER_FOLDER_NAME, Path(tempfile.gettempdir()) / f"snell_bench_{_TOKENIZER_FOLDER_NAME}"]
+    for folder in candidates:
+        if (folder / "vocab.json").is_file() and (folder / "merges.txt").is_file():
+            return folder
+        try:
+            _write_clip_tokenizer_files(folder)
+            return folder
+        except OSError:
+            continue
+    raise RuntimeError(f"could not write the CLIP tokenizer files to any of {[str(c) for c in candidates]}")
+
+
+@functools.lru_cache(maxsize=1)
+def clip_tokenizer_from_open_clip_vocab():
+    """A ``CLIPTokenizer`` equal to OpenAI CLIP's, built without a download (memoized: tokenizers
+    are not modified by encoding, so one instance is shared)."""
+    from transformers import CLIPTokenizer
+
+    return CLIPTokenizer.from_pretrained(str(_clip_tokenizer_folder()), model_max_length=77)
+
+
+def build_tiny_flux_pipeline(seed: int = 0):
+    """A ``FluxPipeline`` with FLUX.1-dev's architecture at toy size and random weights.
+
+    Convention
+    ----------
+    - Transformer: ``in_channels=64`` (16 latent channels x 2x2 patches), 1 double + 1 single
+      block, 2 heads of 16, text width 32, pooled width 32, RoPE axes (4, 6, 6), guidance-embedded.
+    - VAE: 16 latent channels, 4 blocks (downscale 8), channels (8, 16, 16, 16), 4 norm groups,
+      no quant convs, scaling 0.3611 / shift 0.1159 (FLUX.1-dev's values).
+    - Text: CLIP text model (width 32, projection 32, CLIP's 49408-token vocabulary, 77 tokens);
+      T5 encoder (``d_model`` 32) over ByT5 bytes.
+    - Weights are drawn from ``torch.manual_seed(seed)`` in a forked RNG; every module is in eval mode.
+    """
+    from diffusers import AutoencoderKL, FlowMatchEulerDiscreteScheduler, FluxPipeline, FluxTransformer2DModel
+    from transformers import ByT5Tokenizer, CLIPTextConfig, CLIPTextModel, T5Config, T5EncoderModel
+
+    tokenizer = clip_tokenizer_from_open_clip_vocab()
+    tokenizer_2 = ByT5Tokenizer()
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        transformer = FluxTransformer2DModel(
+            patch_size=1,
+            in_channels=64,
+            num_layers=1,
+            num_single_layers=1,
+            attention_head_dim=16,
+            num_attention_heads=2,
+            joint_attention_dim=32,
+            pooled_projection_dim=32,
+            axes_dims_rope=(4, 6, 6),
+            guidance_embeds=True,
+        )
+        vae = AutoencoderKL(
+            in_channels=3,
+            out_channels=3,
+            down_block_types=("DownEncoderBlock2D",) * 4,
+            up_block_types=("UpDecoderBlock2D",) * 4,
+            block_out_channels=(8, 16, 16, 16),
+            layers_per_block=1,
+            latent_channels=16,
+            norm_num_groups=4,
+            sample_size=1024,
+            scaling_factor=FLUX_VAE_SCALING_FACTOR,
+            shift_factor=FLUX_VAE_SHIFT_FACTOR,
+            use_quant_conv=False,
+            use_post_quant_conv=False,
+        )
+        text_encoder = CLIPTextModel(
+            CLIPTextConfig(
+                vocab_size=_CLIP_VOCAB_SIZE,
+                hidden_size=32,
+                intermediate_size=37,
+                projection_dim=32,
+                num_hidden_layers=2,
+                num_attention_heads=4,
+                max_position_embeddings=77,
+                hidden_act="quick_gelu",
+                bos_token_id=tokenizer.bos_token_id,
+                eos_token_id=tokenizer.eos_token_id,
+                pad_token_id=tokenizer.pad_token_id,
+            )
+        )
+        text_encoder_2 = T5EncoderModel(
+            T5Config(
+                vocab_size=len(tokenizer_2),
+                d_model=32,
+                d_kv=8,
+                d_ff=37,
+                num_layers=2,
+                num_heads=4,
+                relative_attention_num_buckets=8,
+                relative_attention_max_distance=32,
+                feed_forward_proj="gated-gelu",
+                dropout_rate=0.0,
+                is_encoder_decoder=False,
+                pad_token_id=tokenizer_2.pad_token_id,
+                eos_token_id=tokenizer_2.eos_token_id,
+            )
+        )
+    scheduler = FlowMatchEulerDiscreteScheduler(
+        base_image_seq_len=256,
+        base_shift=0.5,
+        max_image_seq_len=4096,
+        max_shift=1.15,
+        use_dynamic_shifting=True,
+    )
+    for module in (transformer, vae, text_encoder, text_encoder_2):
+        module.eval().requires_grad_(False)
+    return FluxPipeline(
+        scheduler=scheduler,
+        vae=vae,
+        text_encoder=text_encoder,
+        tokenizer=tokenizer,
+        text_encoder_2=text_encoder_2,
+        tokenizer_2=tokenizer_2,
+        transformer=transformer,
+    )
+
+
+class TinyFluxGenerator(FluxGenerator):
+    """:class:`FluxGenerator` around :func:`build_tiny_flux_pipeline` (CPU, float32 by default).
+
+    Convention
+    ----------
+    - ``name == "tiny_flux"``; same geometry (16 channels, downscale 8, sizes multiple of 16),
+      latent normalisation, packing, timestep and guidance conventions as FLUX.1-dev.
+    - Outputs are deterministic functions of ``seed`` and the inputs; they mean nothing.
+    """
+
+    name = "tiny_flux"
+
+    def __init__(
+        self,
+        seed: int = 0,
+        *,
+        device: str | torch.device = "cpu",
+        dtype: torch.dtype = torch.float32,
+        guidance: float = 3.5,
+        max_sequence_length: int = 512,
+        vae_tiling: bool = True,
+        vae_slicing: bool = True,
+    ):
+        super().__init__(
+            build_tiny_flux_pipeline(seed),
+            device=device,
+            dtype=dtype,
+            guidance=guidance,
+            max_sequence_length=max_sequence_length,
+            vae_tiling=vae_tiling,
+            vae_slicing=vae_slicing,
+        )
+        self.seed = seed

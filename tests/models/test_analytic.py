@@ -1,0 +1,100 @@
+"""The analytic generator: exact latent transform, exact velocity of a Gaussian data distribution."""
+
+import numpy as np
+import pytest
+import torch
+
+from snell_bench.models.analytic import AnalyticGenerator, glass_blob_prior
+from snell_bench.models.base import Generator
+from snell_bench.sampler import linear_sigmas
+
+
+def prior(h=16, w=24, seed=0):
+    return torch.rand(1, 3, h, w, generator=torch.Generator().manual_seed(seed))
+
+
+def test_protocol_and_geometry():
+    g = AnalyticGenerator(prior(), prior(8, 16, 1), downscale=4)
+    assert isinstance(g, Generator)
+    assert g.geometry.latent_shape(16, 24) == (48, 4, 6)
+    with pytest.raises(ValueError, match="multiple of 4"):
+        g.geometry.latent_shape(18, 24)
+
+
+def test_encode_decode_round_trip_is_exact():
+    g = AnalyticGenerator(prior(), downscale=8, seed=3)
+    img = prior(32, 48, 5)
+    lat = g.encode(img)
+    assert lat.shape == (1, 192, 4, 6)
+    torch.testing.assert_close(g.decode(lat), img, atol=2e-6, rtol=0)
+    # an orthogonal transform: distances are kept (up to the 2x scale of 2x - 1)
+    other = prior(32, 48, 6)
+    assert float((g.encode(other) - lat).norm()) == pytest.approx(2 * float((other - img).norm()), rel=1e-5)
+
+
+def test_posterior_mean_matches_bayes():
+    """Scalar check of E[x0 | z] for x0 ~ N(mu, s^2), z = (1 - sigma) x0 + sigma eps."""
+    g = AnalyticGenerator(prior(8, 8), downscale=8, prior_std=0.4)
+    mu = g._priors["main"]
+    cond = g.condition(["p"], ["main"])
+    z = torch.randn(mu.shape, generator=torch.Generator().manual_seed(0))
+    sigma, s2 = 0.35, 0.16
+    # Bayes: precision-weighted combination of the prior and the observation z / (1 - sigma)
+    obs_var = sigma**2 / (1 - sigma) ** 2
+    post = (mu / s2 + (z / (1 - sigma)) / obs_var) / (1 / s2 + 1 / obs_var)
+    torch.testing.assert_close(g.posterior_mean(z, sigma, cond), post, atol=1e-5, rtol=1e-5)
+    v = g.velocity(z, sigma, cond)
+    torch.testing.assert_close(z - sigma * v, post, atol=1e-5, rtol=1e-5)
+
+
+def test_ode_transports_noise_to_the_data_distribution():
+    """The exact velocity's ODE turns N(0, 1) into N(mu, s^2) per coordinate."""
+    g = AnalyticGenerator(prior(8, 8), downscale=8, prior_std=0.25)
+    mu = g._priors["main"]
+    cond = g.condition(["p"], ["main"])
+    n = 4000
+    z = torch.randn((n,) + mu.shape[1:], generator=torch.Generator().manual_seed(1))
+    sig = linear_sigmas(400)
+    for a, b in zip(sig[:-1], sig[1:]):
+        if b == 0:
+            z = g.posterior_mean(z, float(a), cond)
+            break
+        z = z + (float(b) - float(a)) * g.velocity(z, float(a), cond)
+    torch.testing.assert_close(z.mean(0), mu[0], atol=0.03, rtol=0)
+    assert float(z.std(0).mean()) == pytest.approx(0.25, rel=0.05)
+
+
+def test_strength_sets_resistance():
+    """A strong prior (small s) pulls the estimate to mu, a weak one follows the latent."""
+    img = prior(8, 8)
+    z = torch.zeros(1, 192, 1, 1)
+    for s, expect_close_to_mu in [(0.01, True), (10.0, False)]:
+        g = AnalyticGenerator(img, downscale=8, prior_std=s)
+        mu = g._priors["main"]
+        est = g.posterior_mean(z, 0.5, g.condition(["p"], ["main"]))
+        assert (float((est - mu).abs().mean()) < 0.05) == expect_close_to_mu
+
+
+def test_views_and_errors():
+    g = AnalyticGenerator(prior(8, 8), prior(8, 16, 1), downscale=8)
+    cond = g.condition(["a", "b"], ["main", "main"])
+    z = torch.randn(2, 192, 1, 1)
+    assert g.velocity(z, 0.5, cond).shape == z.shape
+    with pytest.raises(ValueError, match="no prior for view"):
+        g.condition(["a"], ["side"])
+    with pytest.raises(ValueError, match="sigma = 0"):
+        g.velocity(z, 0.0, cond)
+    with pytest.raises(ValueError, match="does not match"):
+        g.velocity(torch.randn(1, 192, 1, 2), 0.5, g.condition(["a"], ["main"]))
+    with pytest.raises(ValueError, match="prior_std"):
+        AnalyticGenerator(prior(8, 8), prior_std=0.0)
+
+
+def test_glass_blob_is_wrong_only_inside_the_object():
+    img = prior(32, 32)
+    mask = np.zeros((32, 32), bool)
+    mask[8:20, 10:22] = True
+    out = glass_blob_prior(img, mask)
+    assert torch.equal(out[..., ~torch.from_numpy(mask)], img[..., ~torch.from_numpy(mask)])
+    assert float((out - img)[..., torch.from_numpy(mask)].abs().mean()) > 0.05
+    assert torch.equal(glass_blob_prior(img, np.zeros((32, 32), bool)), img)  # empty mask
