@@ -1,0 +1,73 @@
+"""Sampler settings: every knob of the synchronized sampler, the ablations as single switches.
+
+Also the structured-config schema of the ``sampler`` node (``conf/``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+__all__ = ["SamplerSettings", "SYNC_MODES"]
+
+SYNC_MODES = ("snellcaster", "none")
+
+
+@dataclass
+class SamplerSettings:
+    """Every knob of the sampler; the ablations are single switches."""
+
+    #: Denoising steps T (the paper: 20).
+    steps: int = 20
+    #: ``flux`` (FLUX's resolution-shifted schedule) or ``linear``.
+    schedule: str = "flux"
+    #: ``snellcaster`` (synchronized) or ``none`` (the generator alone from the full prompt).
+    sync: str = "snellcaster"
+    #: Stochastic steps (fresh noise each step, from the run's generator) instead of deterministic.
+    stochastic: bool = False
+    #: Share of fresh noise in a stochastic step (1: renoise fully).
+    eta: float = 1.0
+    #: Ablation switches.
+    reflection: bool = True
+    panorama: bool = True
+    dpa: bool = True
+    lpw: bool = True
+    time_travel: bool = True
+    #: Detail-preserving average weight lambda (0 = masked mean; ``dpa: false`` forces 0).
+    lam: float = 0.5
+    #: Laplacian pyramid levels (``lpw: false`` forces 1: a single-level remap).
+    levels: int = 5
+    #: Time-travel window as fractions of T, travel length in steps, repeats per branch.
+    tt_window: list[float] = field(default_factory=lambda: [0.2, 0.8])
+    tt_length: int = 1
+    tt_repeats_main: int = 3
+    tt_repeats_pano: int = 1
+    #: Keep the decoded estimates every k steps (0: never).
+    dump_every: int = 0
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.sync not in SYNC_MODES:
+            raise ValueError(f"sampler.sync={self.sync!r} is unknown; use one of {SYNC_MODES}")
+        for name in ("steps", "levels", "tt_length", "tt_repeats_main", "tt_repeats_pano"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ValueError(f"sampler.{name} must be an integer >= 1, got {v!r}")
+        lo, hi = self.tt_window
+        if not 0.0 <= lo <= hi <= 1.0:
+            raise ValueError(f"sampler.tt_window must satisfy 0 <= start <= end <= 1, got {self.tt_window}")
+        if not 0.0 <= self.lam <= 1.0:
+            raise ValueError(f"sampler.lam must be in [0, 1], got {self.lam}")
+
+    @property
+    def effective_lam(self) -> float:
+        return self.lam if self.dpa else 0.0
+
+    @property
+    def effective_levels(self) -> int:
+        return self.levels if self.lpw else 1
+
+    @property
+    def uses_panorama(self) -> bool:
+        return self.sync == "snellcaster" and self.panorama
+
+
