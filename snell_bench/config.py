@@ -8,6 +8,8 @@ from typing import Any, Optional
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING
 
+from snell_bench.sampler.settings import SamplerSettings
+
 
 @dataclass
 class SceneConfig:
@@ -24,6 +26,12 @@ class SceneConfig:
     height: int = 720
     #: Sub-pixel samples per side when rendering procedural images (anti-aliasing).
     supersample: int = 2
+    #: The full prompt p (with the object phrase) and the panorama prompt p³⁶⁰.
+    prompt: str = "A cozy living room with a polished wooden coffee table close to the camera, with a big glass sphere on top."
+    pano_prompt: str = (
+        "A high resolution equirectangular 360 degree panorama captured on top of a polished wooden coffee table "
+        "in a cozy living room."
+    )
 
 
 @dataclass
@@ -58,6 +66,28 @@ class WarpConfig:
 
 
 @dataclass
+class ModelConfig:
+    """The generator backend."""
+
+    #: ``analytic`` (CPU stand-in with an exact velocity), ``tiny_flux`` (random weights, tests),
+    #: ``flux`` (FLUX.1-dev through diffusers, GPU).
+    name: str = "analytic"
+    #: analytic: std of the data distribution around its prior where the model is sure (the room).
+    prior_std: float = 0.05
+    #: analytic: the same inside the glass, the model's strength: smaller resists synchronisation more.
+    glass_std: float = 0.1
+    #: flux: a local folder with the diffusers layout, or a model id found in the Hugging Face cache.
+    path: Optional[str] = None
+    #: flux: ``cuda`` (default when available) or ``cpu``; dtype ``bfloat16`` on GPU by default.
+    device: Optional[str] = None
+    dtype: Optional[str] = None
+    guidance: float = 3.5
+    vae_tiling: bool = True
+    #: Seed of the model's own construction (analytic latent transform, tiny random weights).
+    seed: int = 0
+
+
+@dataclass
 class Config:
     #: Which job ``python -m snell_bench`` runs.
     job: str = "preview"
@@ -65,6 +95,8 @@ class Config:
     scene: SceneConfig = field(default_factory=SceneConfig)
     object: ObjectConfig = field(default_factory=ObjectConfig)
     warps: WarpConfig = field(default_factory=WarpConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    sampler: SamplerSettings = field(default_factory=SamplerSettings)
     #: Where the job writes; defaults to Hydra's run directory.
     output_dir: str = MISSING
 
@@ -74,3 +106,4 @@ def register_configs() -> None:
     cs.store(name="base_config", node=Config)
     cs.store(group="scene", name="base_scene", node=SceneConfig)
     cs.store(group="object", name="base_object", node=ObjectConfig)
+    cs.store(group="model", name="base_model", node=ModelConfig)

@@ -1,4 +1,4 @@
-"""Jobs run by ``python -m snell_bench``: scene inputs, the refraction preview."""
+"""Jobs run by ``python -m snell_bench``: the refraction preview, generation."""
 
 from __future__ import annotations
 
@@ -13,7 +13,13 @@ def _preview(cfg: DictConfig) -> None:
     run_preview(cfg)
 
 
-JOBS = {"preview": _preview}
+def _generate(cfg: DictConfig) -> None:
+    from snell_bench.experiment.generate import run_generate
+
+    run_generate(cfg)
+
+
+JOBS = {"preview": _preview, "generate": _generate}
 
 
 def run_job(cfg: DictConfig) -> None:

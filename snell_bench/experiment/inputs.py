@@ -79,3 +79,48 @@ def place_from_config(obj: GlassObject, inputs: SceneInputs, obj_cfg: DictConfig
         yaw_deg=float(obj_cfg.yaw_deg),
         **kwargs,
     )
+
+
+def scene_panorama(inputs: SceneInputs, pano, supersample: int = 1) -> np.ndarray:
+    """The source's true panorama seen by a :class:`~snell_bench.imaging.PanoramaCamera` (sRGB)."""
+    if not hasattr(inputs.source, "render_panorama"):
+        raise ValueError("this scene source cannot render panoramas")
+    return inputs.source.render_panorama(
+        center=pano.center,
+        height=pano.height,
+        up=-pano.rotation[:, 1],
+        forward=pano.rotation[:, 2],
+        supersample=supersample,
+    )
+
+
+def make_generator(model_cfg: DictConfig, inputs: SceneInputs, warps):
+    """The generator a config names. The analytic backend is built from the scene: its main prior
+    is I⁻ with a wrong glass blob in the object, its panorama prior the true panorama."""
+    name = model_cfg.name
+    if name == "analytic":
+        from snell_bench.models.analytic import AnalyticGenerator
+
+        pano = scene_panorama(inputs, warps.pano)
+        return AnalyticGenerator.from_scene(
+            inputs.image,
+            warps.object_mask,
+            pano,
+            prior_std=float(model_cfg.prior_std),
+            glass_std=float(model_cfg.glass_std),
+            seed=int(model_cfg.seed),
+        )
+    from snell_bench.models import build_generator
+
+    if name == "tiny_flux":
+        return build_generator("tiny_flux", seed=int(model_cfg.seed))
+    if name in ("flux", "flux_dev"):
+        kwargs = {"guidance": float(model_cfg.guidance), "vae_tiling": bool(model_cfg.vae_tiling)}
+        if model_cfg.device:
+            kwargs["device"] = model_cfg.device
+        if model_cfg.dtype:
+            import torch
+
+            kwargs["dtype"] = getattr(torch, model_cfg.dtype)
+        return build_generator("flux", model_id_or_path=model_cfg.path or "black-forest-labs/FLUX.1-dev", **kwargs)
+    raise ValueError(f"model.name={name!r} is unknown; use analytic, tiny_flux or flux")

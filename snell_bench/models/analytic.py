@@ -98,7 +98,7 @@ class AnalyticGenerator:
         pano_prior=None,
         *,
         prior_std: float = 0.05,
-        glass_std: float = 0.5,
+        glass_std: float = 0.1,
         glass_mask=None,
         downscale: int = 8,
         seed: int = 0,

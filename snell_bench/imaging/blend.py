@@ -1,0 +1,133 @@
+"""Blending warped estimates: the detail-preserving average (DPA), per pyramid level, and the
+Fresnel combination of reflection and refraction colours (DESIGN §4).
+
+Convention
+----------
+- Images: float tensors ``(B, C, H, W)`` (any value range; Laplacian bands are signed). Colours for
+  :func:`fresnel_combine` are sRGB-encoded in ``[0, 1]``.
+- Masks: bool ``(B, 1, H, W)`` or ``(H, W)`` (broadcast over batch and channels); ``None`` means
+  valid everywhere. Returned masks are ``(B, 1, H, W)``.
+- Values of an input where its mask is False are never read (they may be NaN or inf).
+- Pyramids: lists of levels, finest first, the last entry the low-pass residual
+  (:mod:`snell_bench.imaging.pyramid`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear
+from snell_bench.imaging.pyramid import _as_mask, collapse
+
+__all__ = ["detail_preserving_average", "blend_pyramids", "fresnel_combine"]
+
+
+def _mask_like(mask, x: torch.Tensor) -> torch.Tensor:
+    """A mask broadcast to ``(B, 1, H, W)`` of ``x``; ``None`` is all-valid."""
+    if mask is None:
+        return torch.ones_like(x[:, :1], dtype=torch.bool)
+    return _as_mask(mask, x).expand(x.shape[0], 1, *x.shape[-2:])
+
+
+def detail_preserving_average(inputs: Sequence[torch.Tensor], masks: Sequence | None = None, lam: float = 0.5,
+                              fallback: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Detail-preserving average of the valid inputs of each pixel.
+
+    With masks ``M_i``: ``avg = sum M_i x_i / sum M_i``, ``vavg = sum M_i |x_i| x_i / sum M_i |x_i|``
+    and ``phi = avg + lam (vavg - avg)``; ``vavg = avg`` where ``sum M_i |x_i| = 0``. ``lam = 0`` is the
+    masked mean; larger ``lam`` favours inputs of larger magnitude (detail, on band-pass levels).
+
+    Args:
+        inputs: ``N`` tensors ``(B, C, H, W)``.
+        masks: ``N`` masks (or ``None`` entries, or ``None`` for all-valid).
+        lam: detail weight ``lambda``.
+        fallback: value where no input is valid; default the first input (its non-finite values
+            replaced by 0).
+
+    Returns:
+        ``(blended (B, C, H, W), any_valid (B, 1, H, W) bool)``.
+    """
+    if len(inputs) == 0:
+        raise ValueError("detail_preserving_average needs at least one input")
+    if masks is None:
+        masks = [None] * len(inputs)
+    if len(masks) != len(inputs):
+        raise ValueError(f"{len(inputs)} inputs but {len(masks)} masks")
+    x = torch.stack(torch.broadcast_tensors(*inputs))
+    m = torch.stack([_mask_like(mk, x[0]) for mk in masks])
+    x = torch.where(m, x, torch.zeros_like(x))
+    w = m.to(x.dtype)
+    count = w.sum(0)
+    any_valid = count > 0
+    avg = x.sum(0) / count.clamp_min(1.0)
+    a = x.abs()
+    norm = a.sum(0)
+    has_norm = norm > 0
+    vavg = torch.where(has_norm, (a * x).sum(0) / torch.where(has_norm, norm, torch.ones_like(norm)), avg)
+    phi = avg + lam * (vavg - avg)
+    if fallback is None:
+        first = inputs[0]
+        fallback = torch.where(torch.isfinite(first), first, torch.zeros_like(first))
+    return torch.where(any_valid, phi, fallback), any_valid
+
+
+def blend_pyramids(level_lists: Sequence[Sequence[torch.Tensor]], mask_lists: Sequence | None = None,
+                   lam: float = 0.5, fallback_levels: Sequence[torch.Tensor] | None = None, *,
+                   wrap_x: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """Detail-preserving average of several pyramids, level by level, then collapsed.
+
+    Args:
+        level_lists: one pyramid per input (e.g. ``pyramid_warp(..., collapse=False)[0]`` or
+            ``laplacian_pyramid``), all with the same level sizes.
+        mask_lists: one list of per-level masks per input (``pyramid_warp(..., collapse=False)[1]``);
+            ``None`` (for an input, or for all) means valid everywhere.
+        lam: detail weight of :func:`detail_preserving_average`.
+        fallback_levels: a pyramid used at pixels of a level where no input is valid; default the
+            first input's levels.
+        wrap_x: the destination is a panorama (circular collapse).
+
+    Returns:
+        ``(image (B, C, H, W), any_valid (B, 1, H, W) bool)``; ``any_valid`` is the finest level's.
+    """
+    n_levels = len(level_lists[0])
+    if any(len(levels) != n_levels for levels in level_lists):
+        raise ValueError("all pyramids must have the same number of levels")
+    if mask_lists is None:
+        mask_lists = [None] * len(level_lists)
+    blended, any_valid = [], None
+    for k in range(n_levels):
+        inputs = [levels[k] for levels in level_lists]
+        masks = [None if ml is None else ml[k] for ml in mask_lists]
+        fb = None if fallback_levels is None else fallback_levels[k]
+        level, ok = detail_preserving_average(inputs, masks, lam, fb)
+        blended.append(level)
+        any_valid = ok if k == 0 else any_valid
+    return collapse(blended, wrap_x=wrap_x), any_valid
+
+
+def fresnel_combine(reflection_srgb: torch.Tensor, refraction_srgb: torch.Tensor, R, mask=None) -> torch.Tensor:
+    """Fresnel-weighted colour ``c = R (c_refl - c_refr) + c_refr``, computed in linear RGB.
+
+    Args:
+        reflection_srgb, refraction_srgb: ``(B, C, H, W)`` sRGB colours.
+        R: reflectance ``(B, 1, H, W)`` or ``(H, W)`` (torch or numpy) in ``[0, 1]``.
+        mask: where to combine (bool, ``(B, 1, H, W)`` or ``(H, W)``); default everywhere.
+
+    Returns:
+        sRGB ``(B, C, H, W)``; ``refraction_srgb`` itself (bit for bit) outside ``mask`` and where
+        ``R = 0``.
+    """
+    ref = refraction_srgb
+    R = torch.as_tensor(np.asarray(R) if not isinstance(R, torch.Tensor) else R)
+    R = R.to(device=ref.device, dtype=ref.dtype)
+    if R.ndim == 2:
+        R = R[None, None]
+    refl, refr = srgb_to_linear(reflection_srgb), srgb_to_linear(refraction_srgb)
+    c = linear_to_srgb(R * (refl - refr) + refr)
+    use = R != 0
+    if mask is not None:
+        use = use & _as_mask(mask, ref)
+    return torch.where(use, c, refraction_srgb)

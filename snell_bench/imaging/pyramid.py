@@ -1,0 +1,364 @@
+"""Gaussian and Laplacian pyramids without padding, and warping through them (DESIGN §4).
+
+Convention
+----------
+- Images: float tensors ``(B, C, H, W)``. Level ``k + 1`` of a pyramid is ``pyrdown`` of level ``k``:
+  size ``floor(H_k / 2) x floor(W_k / 2)``, no padding to powers of two (720 x 1280 gives 360 x 640,
+  ..., 45 x 80). Pyramids are lists, finest first; the last entry of a Laplacian pyramid is the
+  low-pass residual (the coarsest Gaussian level).
+- Coordinate maps: ``(H', W', 2)`` or ``(B, H', W', 2)`` (torch or numpy) SOURCE pixel coordinates
+  ``(x, y)`` of every destination pixel, integer values at pixel centres, NaN where the warp is invalid
+  (backward warps, as :func:`~snell_bench.imaging.remap.remap`).
+- Masks: bool ``(B, 1, H, W)`` or ``(H, W)`` (broadcast over the batch); returned masks are
+  ``(B, 1, H, W)``.
+- Level geometry: a level-0 pixel coordinate ``x`` is ``x_k = (x + 0.5) * W_k / W - 0.5`` at level
+  ``k`` (and likewise for ``y``). That is ``(x + 0.5) / 2**k - 0.5`` when sizes halve exactly; for odd
+  sizes the actual size ratio is used, which is the geometry of ``pyrdown``'s resampling.
+- ``wrap_x=True`` marks a 360° panorama, periodic in x: pyramids are blurred with circular padding in
+  x (exact for even widths) and sampling wraps around the seam.
+
+Warping through a pyramid
+-------------------------
+The destination pyramid's geometry comes from the coordinate map itself: level ``k + 1`` of the map
+averages the coordinates of the valid pixels of each 2 x 2 block of level ``k``; level sizes are
+``floor(n / 2)`` like ``pyrdown``'s, so the bands line up with any image's own
+:func:`laplacian_pyramid` and can be blended with it (an odd last row / column lives only at the
+finer level; the coarse coordinate of an odd-sized level is off by at most half a coarse pixel from
+``pyrdown``'s resampling geometry). Across the seam of a panorama source, x is unwrapped relative to
+the block's first valid pixel before averaging. A coarse destination pixel is valid if ANY of its
+fine pixels is valid, and masked upsampling (normalised by the upsampled mask) never mixes invalid
+pixels into valid ones.
+
+Each destination level ``k`` samples the source's Gaussian pyramid at the level whose pixel size
+matches the map's local footprint: ``log2 s`` with ``s`` the local stretch (level-0 source pixels per
+destination level-``k`` pixel: the larger column norm of the map's finite-difference Jacobian),
+clamped to ``[0, levels - 1]``, fractional levels blending the two nearest linearly. For the identity
+map that is level ``k``; where the map compresses it is coarser (no aliasing), where it magnifies it is
+finer (no blur). :func:`lod_warp` returns the finest such level, a per-pixel level-of-detail
+(trilinear mip-map) warp. :func:`pyramid_warp` returns the destination's Laplacian pyramid
+``D_k = A_k - up(A_{k+1})`` of the warped Gaussian levels ``A_k`` (masked upsampling), for blending
+band by band. For the identity map (sizes divisible by ``2**(levels - 1)``) ``D`` is the source's
+Laplacian pyramid; whatever the map, ``D`` collapses (masked :func:`collapse`) to ``A_0``, which
+``pyramid_warp(..., collapse=True)`` returns directly: it equals ``lod_warp``, and equals :func:`remap`
+wherever the map does not compress, so integer translations and magnifications are exactly remap's.
+Warping the source's Laplacian bands instead (band ``k`` at level ``k``) does not have this property:
+the destination's upsampling differs from the source's where the map stretches, which sharpens
+magnified regions and blurs the coarse bands of sub-pixel moves.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from kornia.geometry.transform import pyrdown, pyrup
+
+from snell_bench.imaging.remap import remap
+
+__all__ = ["gaussian_pyramid", "laplacian_pyramid", "collapse", "pyramid_warp", "lod_warp"]
+
+Size = tuple[int, int]
+
+
+# ----------------------------------------------------------------------------------- pyramids
+def _circular_cols(img: torch.Tensor, pad: int) -> torch.Tensor:
+    """``img`` with ``pad`` columns wrapped around on each side (any width)."""
+    W = img.shape[-1]
+    idx = torch.arange(-pad, W + pad, device=img.device) % W
+    return img.index_select(-1, idx)
+
+
+def _down(img: torch.Tensor, wrap_x: bool) -> torch.Tensor:
+    if not wrap_x:
+        return pyrdown(img)
+    # 4 wrapped columns per side cover the 5-tap blur; pyrdown halves them to 2 per side
+    return pyrdown(_circular_cols(img, 4))[..., 2:-2]
+
+
+def _up(img: torch.Tensor, size: Size, wrap_x: bool) -> torch.Tensor:
+    """``pyrup`` of ``img`` brought to ``size``: cropped when the doubled size is larger, resampled
+    when it is smaller (a level of floor(n / 2) pixels under an odd-sized one)."""
+    if wrap_x:
+        up = pyrup(_circular_cols(img, 2))[..., 4:-4]
+    else:
+        up = pyrup(img)
+    up = up[..., : size[0], : size[1]]
+    if tuple(up.shape[-2:]) != tuple(size):
+        up = F.interpolate(up, size=size, mode="bilinear", align_corners=False)
+    return up
+
+
+def _check_levels(img: torch.Tensor, levels: int) -> None:
+    if img.ndim != 4:
+        raise ValueError(f"image must be (B, C, H, W), got shape {tuple(img.shape)}")
+    if levels < 1:
+        raise ValueError(f"levels must be >= 1, got {levels}")
+    H, W = img.shape[-2:]
+    if min(H, W) >> (levels - 1) < 1:
+        raise ValueError(f"a {H}x{W} image has fewer than {levels} pyramid levels")
+
+
+def gaussian_pyramid(img: torch.Tensor, levels: int, *, wrap_x: bool = False) -> list[torch.Tensor]:
+    """Gaussian pyramid ``[img, pyrdown(img), ...]`` with ``levels`` entries, finest first."""
+    _check_levels(img, levels)
+    pyr = [img]
+    for _ in range(levels - 1):
+        pyr.append(_down(pyr[-1], wrap_x))
+    return pyr
+
+
+def laplacian_pyramid(img: torch.Tensor, levels: int, *, wrap_x: bool = False) -> list[torch.Tensor]:
+    """Laplacian pyramid: ``levels - 1`` band-pass levels ``G_k - up(G_{k+1})``, then the residual
+    ``G_{levels-1}``. :func:`collapse` inverts it to float precision."""
+    g = gaussian_pyramid(img, levels, wrap_x=wrap_x)
+    return _bands(g, wrap_x) + [g[-1]]
+
+
+def _bands(g: Sequence[torch.Tensor], wrap_x: bool) -> list[torch.Tensor]:
+    """The band-pass levels ``G_k - up(G_{k+1})`` of a Gaussian pyramid."""
+    return [g[k] - _up(g[k + 1], g[k].shape[-2:], wrap_x) for k in range(len(g) - 1)]
+
+
+def _as_mask(mask, like: torch.Tensor) -> torch.Tensor:
+    """A bool mask ``(H, W)``, ``(B, H, W)`` or ``(B, 1, H, W)`` as ``(B or 1, 1, H, W)`` on ``like``'s device."""
+    m = torch.as_tensor(np.asarray(mask) if not isinstance(mask, torch.Tensor) else mask, device=like.device)
+    m = m.bool()
+    if m.ndim == 2:
+        m = m[None, None]
+    elif m.ndim == 3:
+        m = m[:, None]
+    if m.ndim != 4 or m.shape[1] != 1:
+        raise ValueError(f"mask must be (H, W) or (B, 1, H, W), got shape {tuple(m.shape)}")
+    return m
+
+
+def collapse(pyr: Sequence[torch.Tensor], masks: Sequence | None = None, *, wrap_x: bool = False) -> torch.Tensor:
+    """Sum a Laplacian pyramid back into an image (finest level's size).
+
+    With ``masks`` (one per level, bool), the upsampling is normalised by the upsampled mask, so values
+    at invalid pixels never reach valid ones; pixels invalid at level 0 are 0.
+    """
+    img = pyr[-1]
+    if masks is None:
+        for band in reversed(pyr[:-1]):
+            img = band + _up(img, band.shape[-2:], wrap_x)
+        return img
+    m = _as_mask(masks[-1], img)
+    img = torch.where(m, img, torch.zeros_like(img))
+    for band, mask in zip(reversed(pyr[:-1]), reversed(masks[:-1])):
+        mk = _as_mask(mask, band)
+        img = torch.where(mk, band + _up_masked(img, m, band.shape[-2:], wrap_x), torch.zeros_like(band))
+        m = mk
+    return img
+
+
+def _up_masked(img: torch.Tensor, mask: torch.Tensor, size: Size, wrap_x: bool) -> torch.Tensor:
+    """:func:`_up` normalised by the upsampled ``mask``: only valid pixels of ``img`` are read."""
+    if bool(mask.all()):
+        return _up(img, size, wrap_x)
+    B = max(img.shape[0], mask.shape[0])
+    img = torch.where(mask, img, torch.zeros_like(img)).expand(B, -1, -1, -1)
+    w = mask.to(img.dtype).expand(B, -1, -1, -1)
+    up, w = _up(torch.cat([img, w], 1), size, wrap_x).split([img.shape[1], 1], 1)  # one pyrup for both
+    return up / torch.where(w > 0, w, torch.ones_like(w))
+
+
+# ---------------------------------------------------------------------------- coordinate maps
+def _unwrap(d: torch.Tensor, period: float | None) -> torch.Tensor:
+    """x differences taken the short way around a panorama of width ``period``."""
+    return d if period is None else torch.remainder(d + period / 2, period) - period / 2
+
+
+def _prepare(coords, mask, src: torch.Tensor, wrap_x: bool) -> torch.Tensor:
+    """``(Bc, H', W', 2)`` coordinates on ``src``'s device/dtype, NaN wherever the warp is invalid:
+    non-finite, outside ``mask``, or outside the source (x only when not ``wrap_x``)."""
+    c = torch.as_tensor(np.asarray(coords) if not isinstance(coords, torch.Tensor) else coords)
+    c = c.to(device=src.device, dtype=src.dtype)
+    if c.ndim == 3:
+        c = c.unsqueeze(0)
+    if c.ndim != 4 or c.shape[-1] != 2:
+        raise ValueError(f"coords must be (H, W, 2) or (B, H, W, 2), got shape {tuple(c.shape)}")
+    H, W = src.shape[-2:]
+    x, y = c[..., 0], c[..., 1]
+    ok = torch.isfinite(c).all(-1) & (y >= -0.5) & (y <= H - 0.5)
+    if not wrap_x:
+        ok &= (x >= -0.5) & (x <= W - 0.5)
+    if mask is not None:
+        m = _as_mask(mask, c)[:, 0]
+        ok = ok & m
+    if ok.shape[0] != c.shape[0]:
+        c = c.expand(ok.shape[0], -1, -1, -1)
+    return torch.where(ok[..., None], c, torch.full_like(c, float("nan")))
+
+
+def _downsample_coords(c: torch.Tensor, period: float | None) -> torch.Tensor:
+    """The next destination level of a coordinate map: NaN-aware mean of each 2 x 2 block. Sizes
+    follow ``pyrdown`` (``floor(n / 2)``), so the destination's bands line up with any image's own
+    :func:`laplacian_pyramid`; an odd last row / column is left to the finer level."""
+    for dim in (1, 2):
+        n = c.shape[dim]
+        if n % 2 and n > 1:
+            c = c.narrow(dim, 0, n - 1)
+    Bc, H, W, _ = c.shape
+    blk = c.view(Bc, H // 2, 2, W // 2, 2, 2).permute(0, 1, 3, 2, 4, 5).reshape(Bc, H // 2, W // 2, 4, 2)
+    ok = torch.isfinite(blk).all(-1)
+    if period is not None:  # unwrap x relative to the block's first valid pixel
+        first = ok.to(torch.uint8).argmax(-1, keepdim=True)
+        ref = blk[..., 0].gather(-1, first)
+        x = ref + _unwrap(blk[..., 0] - ref, period)
+        blk = torch.stack([x, blk[..., 1]], -1)
+    n = ok.sum(-1, keepdim=True)
+    total = torch.where(ok[..., None], blk, torch.zeros_like(blk)).sum(-2)
+    mean = total / n.clamp_min(1)
+    mean = torch.where(n > 0, mean, torch.full_like(mean, float("nan")))
+    if period is not None:
+        mean = torch.stack([torch.remainder(mean[..., 0] + 0.5, period) - 0.5, mean[..., 1]], -1)
+    return mean
+
+
+def _stretch(c: torch.Tensor, period: float | None, dest_wrap_x: bool) -> torch.Tensor:
+    """Local stretch ``(Bc, H', W')`` of a map: the larger norm of its two finite-difference columns
+    (central where both neighbours are valid, else one-sided; NaN where no neighbour is valid)."""
+
+    def derivative(dim: int, circular: bool) -> torch.Tensor:
+        if circular:
+            fwd = c.roll(-1, dim) - c
+            bwd = c - c.roll(1, dim)
+        else:
+            d = c.narrow(dim, 1, c.shape[dim] - 1) - c.narrow(dim, 0, c.shape[dim] - 1)
+            pad = torch.full_like(c.narrow(dim, 0, 1), float("nan"))
+            fwd, bwd = torch.cat([d, pad], dim), torch.cat([pad, d], dim)
+        fwd = torch.stack([_unwrap(fwd[..., 0], period), fwd[..., 1]], -1)
+        bwd = torch.stack([_unwrap(bwd[..., 0], period), bwd[..., 1]], -1)
+        return torch.nanmean(torch.stack([fwd, bwd]), 0).norm(dim=-1)
+
+    return torch.fmax(derivative(2, dest_wrap_x), derivative(1, False))
+
+
+def _match_level(c: torch.Tensor, k: int, period: float | None, dest_wrap_x: bool) -> torch.Tensor:
+    """The source level whose pixel size matches a destination level-``k`` pixel of map ``c``:
+    ``log2`` of the local stretch in level-0 source pixels (``k`` where the stretch is unknown)."""
+    level = torch.log2(_stretch(c, period, dest_wrap_x))
+    return torch.where(torch.isnan(level), torch.full_like(level, float(k)), level)
+
+
+def _to_level(c: torch.Tensor, size0: Size, size: Size, wrap_x: bool) -> torch.Tensor:
+    """Level-0 source coordinates scaled to a source level of ``size`` (see the module docstring)."""
+    if tuple(size) == tuple(size0):
+        return c
+    (H, W), (h, w) = size0, size
+    x = (c[..., 0] + 0.5) * (w / W) - 0.5
+    y = ((c[..., 1] + 0.5) * (h / H) - 0.5).clamp(-0.5, h - 0.5)
+    if not wrap_x:
+        x = x.clamp(-0.5, w - 0.5)
+    return torch.stack([x, y], -1)
+
+
+def _sample(images: Sequence[torch.Tensor], c: torch.Tensor, level: torch.Tensor, *, size0: Size,
+            wrap_x: bool) -> torch.Tensor:
+    """Sample ``images[j]`` at the fractional per-pixel ``level`` ``(Bc, H', W')`` in
+    ``[0, len(images) - 1]``, blending the two nearest levels linearly (bilinear within a level). Each
+    level is only sampled at the pixels that use it."""
+    Bc, h, w, _ = c.shape
+    B, C = max(images[0].shape[0], Bc), images[0].shape[1]
+    out = images[0].new_zeros(B, C, h * w)
+    lo = level.floor()
+    frac = level - lo
+    for j, im in enumerate(images):
+        wj = torch.where(lo == j, 1 - frac, torch.where(lo == j - 1, frac, torch.zeros_like(frac)))
+        use = (wj > 0).any(0)
+        if not bool(use.any()):
+            continue
+        cj = _to_level(c, size0, im.shape[-2:], wrap_x)
+        if im.shape[0] < B:
+            im = im.expand(B, -1, -1, -1)
+        if bool(use.all()):
+            s, _ = remap(im, cj, wrap_x=wrap_x)
+            out = out + (s * wj[:, None]).flatten(2)
+        else:
+            idx = use.flatten().nonzero().squeeze(1)
+            s, _ = remap(im, cj.flatten(1, 2)[:, idx][:, None], wrap_x=wrap_x)
+            out = out.index_add(2, idx, s[:, :, 0] * wj.flatten(1)[:, idx][:, None])
+    return out.view(B, C, h, w)
+
+
+def _valid(c: torch.Tensor, B: int) -> torch.Tensor:
+    ok = torch.isfinite(c[..., 0])[:, None]
+    return ok.expand(B, -1, -1, -1) if ok.shape[0] < B else ok
+
+
+# ------------------------------------------------------------------------------------ warps
+def _source_levels(maps: Sequence[torch.Tensor], levels: int, *, match_scale: bool, period: float | None,
+                   dest_wrap_x: bool) -> list[torch.Tensor]:
+    """The fractional source level sampled at each pixel of each destination level ``maps[k]``."""
+    if not match_scale:
+        return [torch.full_like(c[..., 0], float(k)) for k, c in enumerate(maps)]
+    return [_match_level(c, k, period, dest_wrap_x).clamp(0, levels - 1) for k, c in enumerate(maps)]
+
+
+def _warp_levels(src: torch.Tensor, maps: Sequence[torch.Tensor], levels: int, *, wrap_x: bool,
+                 match_scale: bool, dest_wrap_x: bool) -> list[torch.Tensor]:
+    """Each destination level ``maps[k]`` sampled from ``src``'s Gaussian pyramid, which is only built
+    as deep as the sampled levels reach."""
+    period = float(src.shape[-1]) if wrap_x else None
+    lvls = _source_levels(maps, levels, match_scale=match_scale, period=period, dest_wrap_x=dest_wrap_x)
+    depth = max(int(lv.max().ceil()) for lv in lvls) + 1
+    gauss = gaussian_pyramid(src, depth, wrap_x=wrap_x)
+    size0 = tuple(src.shape[-2:])
+    return [_sample(gauss, c, lv, size0=size0, wrap_x=wrap_x) for c, lv in zip(maps, lvls)]
+
+
+def pyramid_warp(src: torch.Tensor, coords, *, levels: int = 5, wrap_x: bool = False, collapse: bool = True,
+                 mask=None, match_scale: bool = True, dest_wrap_x: bool = False):
+    """Laplacian pyramid warp of ``src`` through the backward map ``coords`` (module docstring).
+
+    Args:
+        src: ``(B, C, H, W)`` source image.
+        coords: ``(H', W', 2)`` or ``(B, H', W', 2)`` source coordinates, NaN where invalid.
+        levels: pyramid levels (1: plain :func:`remap`).
+        wrap_x: the source is a panorama (periodic in x).
+        collapse: return the collapsed warp, or the destination's Laplacian pyramid (to blend band by
+            band, then :func:`collapse`).
+        mask: optional bool ``(H', W')`` / ``(B, 1, H', W')``, ANDed with the map's validity.
+        match_scale: sample each destination level from the source level matching the map's local
+            stretch; ``False`` samples level ``k`` for level ``k`` (no anti-aliasing).
+        dest_wrap_x: the destination is a panorama (circular upsampling and finite differences).
+
+    Returns:
+        ``(warped (B, C, H', W'), valid (B, 1, H', W') bool)`` with ``collapse=True``, else
+        ``(levels bands, levels masks)``: a Laplacian pyramid, finest first, with the sizes of
+        :func:`laplacian_pyramid` (``floor(n / 2)`` per level),
+        whose masked :func:`collapse` is ``warped``. Invalid pixels are 0.
+    """
+    _check_levels(src, levels)
+    c = _prepare(coords, mask, src, wrap_x)
+    B = max(src.shape[0], c.shape[0])
+    opts = dict(wrap_x=wrap_x, match_scale=match_scale, dest_wrap_x=dest_wrap_x)
+    if collapse:  # the destination pyramid collapses exactly to its finest level
+        return _warp_levels(src, [c], levels, **opts)[0], _valid(c, B)
+    maps = [c]
+    for _ in range(levels - 1):
+        maps.append(_downsample_coords(maps[-1], float(src.shape[-1]) if wrap_x else None))
+    warped = _warp_levels(src, maps, levels, **opts)
+    masks = [_valid(ck, B) for ck in maps]
+    bands = []
+    for k in range(levels - 1):
+        up = _up_masked(warped[k + 1], masks[k + 1], warped[k].shape[-2:], dest_wrap_x)
+        bands.append(torch.where(masks[k], warped[k] - up, torch.zeros_like(warped[k])))
+    return bands + [warped[-1]], masks
+
+
+def lod_warp(src: torch.Tensor, coords, *, levels: int = 5, wrap_x: bool = False, mask=None,
+             dest_wrap_x: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-pixel level-of-detail warp: sample ``src``'s Gaussian pyramid at level ``log2`` of the map's
+    local stretch (clamped to ``[0, levels - 1]``), blending the two nearest levels.
+
+    Arguments as :func:`pyramid_warp`. Returns ``(warped (B, C, H', W'), valid (B, 1, H', W') bool)``;
+    invalid pixels are 0. Where the map does not compress this is exactly :func:`remap`.
+    """
+    _check_levels(src, levels)
+    c = _prepare(coords, mask, src, wrap_x)
+    out = _warp_levels(src, [c], levels, wrap_x=wrap_x, match_scale=True, dest_wrap_x=dest_wrap_x)[0]
+    return out, _valid(c, out.shape[0])

@@ -1,0 +1,27 @@
+"""Flow-matching sampling: schedules, pure steps, and the synchronized Snellcaster loop."""
+
+from snell_bench.sampler.schedule import flux_shift, flux_sigmas, linear_sigmas, make_sigmas
+from snell_bench.sampler.settings import SYNC_MODES, SamplerSettings
+from snell_bench.sampler.steps import euler_estimate, renoise, stochastic_step, sync_step
+
+__all__ = [
+    "flux_shift",
+    "flux_sigmas",
+    "linear_sigmas",
+    "make_sigmas",
+    "euler_estimate",
+    "renoise",
+    "stochastic_step",
+    "sync_step",
+    "SamplerSettings",
+    "SampleResult",
+    "sample",
+]
+
+
+def __getattr__(name):  # the loop pulls in the imaging stack; load it on first use
+    if name in ("SampleResult", "sample"):
+        from snell_bench.sampler import snellcaster
+
+        return getattr(snellcaster, name)
+    raise AttributeError(name)
