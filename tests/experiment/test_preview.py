@@ -70,3 +70,29 @@ def test_experiment_overrides_compose():
     cfg = make_cfg(["+experiment=quick", "output_dir=/tmp/x"])
     assert (cfg.scene.width, cfg.scene.height, cfg.warps.pano_height) == (640, 360, 256)
     assert cfg.object.shape == "sphere"  # untouched groups keep their defaults
+
+
+@pytest.mark.parametrize("model", ["analytic", "tiny_flux"])
+def test_generate_job_writes_images(tmp_path, model):
+    from snell_bench.experiment.generate import run_generate
+
+    cfg = make_cfg(
+        [
+            "job=generate",
+            f"model={model}",
+            "scene.width=128",
+            "scene.height=64",
+            "scene.supersample=1",
+            "warps.pano_height=64",
+            "warps.cache_dir=null",
+            "sampler.steps=4",
+            "sampler.progress=false",
+            "sampler.dump_every=2",
+            f"output_dir={tmp_path}",
+        ]
+    )
+    summary = run_generate(cfg)
+    for name in ("image.png", "panorama.png", "I_minus.png", "mask.png", "summary.json", "step000_main_sync.png"):
+        assert (tmp_path / name).is_file(), name
+    assert summary["model"] == model and summary["model_calls"]["pano"] == 4
+    assert np.asarray(Image.open(tmp_path / "image.png")).shape == (64, 128, 3)
