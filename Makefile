@@ -32,7 +32,7 @@ $(STAMP): pyproject.toml | system-deps
 	touch $(STAMP)
 
 demo: setup
-	$(PY) -m snell_bench
+	HF_HUB_OFFLINE=1 $(PY) -m snell_bench +experiment=smoke
 
 test: setup
 	HF_HUB_OFFLINE=1 $(PY) -m pytest -q

@@ -13,21 +13,31 @@ from snell_bench.sampler.settings import SamplerSettings
 
 @dataclass
 class SceneConfig:
-    """Where I⁻, its depth and K come from."""
+    """Where I⁻, its depth and K come from, and the prompts that describe the scene."""
 
+    #: Scene id (a file in conf/scene/), used in output paths.
+    name: str = "living_room"
     #: ``procedural`` (CPU, exact geometry); generated and photo sources come with the generators.
     source: str = "procedural"
-    #: Procedural scene kind (``room``, ``outdoor``, ...).
+    #: Procedural stand-in kind (``room``, ``kitchen``, ``outdoor``).
     kind: str = "room"
-    #: The variation: a seed of the procedural scene.
+    #: The variation; the procedural seed is ``seed_offset + variation``.
     variation: int = 0
+    seed_offset: int = 0
+    #: Whether the paper counts it among the indoor scenes (the ablation grid).
+    indoor: bool = True
     #: Image size of I⁻ (the paper uses 720 x 1280).
     width: int = 1280
     height: int = 720
     #: Sub-pixel samples per side when rendering procedural images (anti-aliasing).
     supersample: int = 2
-    #: The full prompt p (with the object phrase) and the panorama prompt p³⁶⁰.
-    prompt: str = "A cozy living room with a polished wooden coffee table close to the camera, with a big glass sphere on top."
+    #: The full prompt p (``{object}`` stands for the object's noun), the object-free p⁻ and p³⁶⁰.
+    prompt: str = (
+        "A cozy living room with a polished wooden coffee table close to the camera, with a big glass {object} on top, "
+        "surrounded by a beige sofa, a patterned rug, plants, bookshelves, framed wall art, and sunlight through sheer "
+        "curtains."
+    )
+    prompt_minus: str = ""
     pano_prompt: str = (
         "A high resolution equirectangular 360 degree panorama captured on top of a polished wooden coffee table "
         "in a cozy living room."
@@ -39,6 +49,8 @@ class ObjectConfig:
     """The glass object and where it stands."""
 
     name: str = "sphere"
+    #: The word for it in the prompt ("a big glass {noun}").
+    noun: str = "sphere"
     #: ``sphere``, ``cylinder``, ``pyramid`` or ``mesh`` (then ``path`` names the file).
     shape: str = "sphere"
     path: Optional[str] = None
@@ -88,6 +100,63 @@ class ModelConfig:
 
 
 @dataclass
+class MethodConfig:
+    """A method: Snellcaster, an ablation, or a baseline (conf/method/)."""
+
+    name: str = "snellcaster"
+    #: Label in tables and figures.
+    label: str = "Snellcaster"
+    #: ``snellcaster`` (the synchronized sampler), ``t2i`` (the generator alone from p), ``inpaint``
+    #: (fill the object region of I⁻; CPU stand-in without optics), ``external`` (another model).
+    kind: str = "snellcaster"
+    #: What it needs to run (``gpu``, ``weights``); a method that cannot run is skipped with the reason.
+    requires: list = field(default_factory=list)
+    #: Overrides of the ``sampler`` node for this method (the ablation switches).
+    sampler: dict = field(default_factory=dict)
+    #: For ``external`` methods: the diffusers model id or local folder.
+    model_id: Optional[str] = None
+
+
+@dataclass
+class MetricsConfig:
+    """Scorers that need weights read them from these local files (never downloaded)."""
+
+    #: torchvision VGG16 state dict for LPIPS (e.g. vgg16-397923af.pth).
+    lpips_weights: Optional[str] = None
+    #: open_clip ViT-B-16 weights file.
+    clip_weights: Optional[str] = None
+    #: A python executable of a separate environment with image-reward installed.
+    image_reward_python: Optional[str] = None
+
+
+@dataclass
+class ReferenceConfig:
+    """The independent reference render (Mitsuba 3)."""
+
+    enabled: bool = True
+    spp: int = 16
+    #: A pixel counts for the metrics if less than this share of its light comes from unobserved space.
+    unobserved_threshold: float = 0.05
+    #: Also render the full procedural scene with the object (the unmasked second reference).
+    true_render: bool = True
+    true_spp: int = 4
+
+
+@dataclass
+class GridConfig:
+    """The cells of an experiment: scenes x variations x objects x methods."""
+
+    scenes: list = field(default_factory=lambda: ["living_room"])
+    variations: list = field(default_factory=lambda: [0])
+    objects: list = field(default_factory=lambda: ["sphere"])
+    methods: list = field(default_factory=lambda: ["snellcaster", "t2i"])
+    #: Recompute cells that already finished (else they are skipped).
+    recompute: bool = False
+    #: Build the report tables after the sweep.
+    report: bool = True
+
+
+@dataclass
 class Config:
     #: Which job ``python -m snell_bench`` runs.
     job: str = "preview"
@@ -97,6 +166,14 @@ class Config:
     warps: WarpConfig = field(default_factory=WarpConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
+    method: MethodConfig = field(default_factory=MethodConfig)
+    metrics: MetricsConfig = field(default_factory=MetricsConfig)
+    reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+    grid: GridConfig = field(default_factory=GridConfig)
+    #: The experiment's name (its folder under runs/ and reports/).
+    experiment_name: str = "default"
+    runs_dir: str = "runs"
+    reports_dir: str = "reports"
     #: Where the job writes; defaults to Hydra's run directory.
     output_dir: str = MISSING
 
@@ -107,3 +184,4 @@ def register_configs() -> None:
     cs.store(group="scene", name="base_scene", node=SceneConfig)
     cs.store(group="object", name="base_object", node=ObjectConfig)
     cs.store(group="model", name="base_model", node=ModelConfig)
+    cs.store(group="method", name="base_method", node=MethodConfig)

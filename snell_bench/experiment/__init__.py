@@ -1,4 +1,4 @@
-"""Jobs run by ``python -m snell_bench``: the refraction preview, generation."""
+"""Jobs run by ``python -m snell_bench``: the refraction preview, generation, the experiment grid."""
 
 from __future__ import annotations
 
@@ -19,7 +19,13 @@ def _generate(cfg: DictConfig) -> None:
     run_generate(cfg)
 
 
-JOBS = {"preview": _preview, "generate": _generate}
+def _grid(cfg: DictConfig) -> None:
+    from snell_bench.experiment.runner import run_grid
+
+    run_grid(cfg)
+
+
+JOBS = {"preview": _preview, "generate": _generate, "grid": _grid}
 
 
 def run_job(cfg: DictConfig) -> None:

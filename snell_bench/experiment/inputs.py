@@ -36,7 +36,7 @@ def make_scene_inputs(scene_cfg: DictConfig) -> SceneInputs:
         )
     from snell_bench.scene.procedural import ProceduralScene
 
-    scene = ProceduralScene(kind=scene_cfg.kind, seed=int(scene_cfg.variation))
+    scene = ProceduralScene(kind=scene_cfg.kind, seed=int(scene_cfg.seed_offset) + int(scene_cfg.variation))
     r = scene.render(width=int(scene_cfg.width), height=int(scene_cfg.height), supersample=int(scene_cfg.supersample))
     return SceneInputs(image=r.image, depth=r.depth, camera=r.camera, up=scene.up, source=scene)
 

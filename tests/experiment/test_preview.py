@@ -37,7 +37,7 @@ def test_unknown_object_shape_and_missing_mesh_are_clear(tmp_path):
         make_object(cfg.object)
 
 
-@pytest.mark.parametrize("scene,obj", [("room", "sphere"), ("outdoor", "spot")])
+@pytest.mark.parametrize("scene,obj", [("living_room", "sphere"), ("landscape", "spot")])
 def test_preview_writes_a_glass_composite(tmp_path, scene, obj):
     from snell_bench.experiment.preview import run_preview
 

@@ -1,0 +1,162 @@
+"""The grid runner: the smoke experiment end to end, resume, failures, skips, parallel launchers."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hydra import compose, initialize_config_dir
+
+from snell_bench.config import register_configs
+
+REPO = Path(__file__).resolve().parents[2]
+CONF = str(REPO / "conf")
+register_configs()
+
+TINY = [
+    "scene.width=160",
+    "scene.height=96",
+    "warps.pano_height=64",
+    "warps.cache_dir=null",
+    "sampler.steps=8",
+    "reference.spp=4",
+    "reference.true_spp=1",
+]
+
+
+def make_cfg(tmp_path, overrides):
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        return compose(
+            "config",
+            overrides=["+experiment=smoke", *TINY, f"runs_dir={tmp_path / 'runs'}",
+                       f"reports_dir={tmp_path / 'reports'}", f"output_dir={tmp_path}", *overrides],
+        )
+
+
+def metrics_of(root: Path) -> dict:
+    return {str(p.parent.relative_to(root)): json.loads(p.read_text()) for p in sorted(root.rglob("metrics.json"))}
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory):
+    from snell_bench.experiment.runner import run_grid
+
+    tmp = tmp_path_factory.mktemp("smoke")
+    summary = run_grid(make_cfg(tmp, []))
+    return tmp, summary
+
+
+def test_smoke_runs_and_snellcaster_beats_t2i(smoke):
+    tmp, summary = smoke
+    assert summary["ok"] == 4 and summary["failed"] == 0, summary
+    m = metrics_of(tmp / "runs" / "smoke")
+    for scene in ("living_room-0", "kitchen-0"):
+        snell, t2i = m[f"{scene}/sphere/snellcaster"], m[f"{scene}/sphere/t2i"]
+        assert snell["status"] == t2i["status"] == "ok"
+        assert snell["metrics"]["psnr"] > t2i["metrics"]["psnr"], (scene, snell["metrics"], t2i["metrics"])
+        assert snell["model"] == "analytic" and snell["scene_source"] == "procedural"
+
+
+def test_cells_hold_everything_to_rescore(smoke):
+    tmp, _ = smoke
+    cell = tmp / "runs" / "smoke" / "living_room-0" / "sphere" / "snellcaster"
+    for name in ("image.png", "reference.png", "mask.png", "metrics.json", "config.yaml", "I_minus.png",
+                 "depth.npy", "camera.json", "object.ply"):
+        assert (cell / name).is_file(), name
+    cam = json.loads((cell / "camera.json").read_text())
+    assert cam["width"] == 160 and cam["height"] == 96 and cam["ior"] == 1.5 and len(cam["K"]) == 3
+    assert np.load(cell / "depth.npy").shape == (96, 160)
+    import trimesh
+
+    assert trimesh.load(cell / "object.ply").is_watertight
+
+
+def test_missing_weights_are_reported_not_faked(smoke):
+    tmp, _ = smoke
+    rec = json.loads((tmp / "runs" / "smoke" / "kitchen-0" / "sphere" / "t2i" / "metrics.json").read_text())
+    assert rec["metrics"]["lpips"] is None and "lpips_weights" in rec["missing"]["lpips"]
+    assert rec["metrics"]["clip"] is None and "clip_weights" in rec["missing"]["clip"]
+    assert rec["metrics"]["image_reward"] is None and rec["missing"]["image_reward"]
+
+
+def test_reports_written(smoke):
+    tmp, _ = smoke
+    out = tmp / "reports" / "smoke"
+    for name in ("method_table.md", "method_table.tex", "method_table.csv", "qualitative.png"):
+        assert (out / name).is_file(), name
+    assert "analytic" in (out / "method_table.md").read_text()
+
+
+def test_rerun_skips_finished_cells_and_recompute_is_deterministic(smoke):
+    from snell_bench.experiment.runner import run_grid
+
+    tmp, _ = smoke
+    again = run_grid(make_cfg(tmp, ["grid.report=false"]))
+    assert again["cached"] == 4 and again["ok"] == 0
+    # an interrupted cell has no metrics.json: only it is redone
+    root = tmp / "runs" / "smoke"
+    before = metrics_of(root)
+    (root / "kitchen-0" / "sphere" / "t2i" / "metrics.json").unlink()
+    redo = run_grid(make_cfg(tmp, ["grid.report=false"]))
+    assert redo["cached"] == 3 and redo["ok"] == 1
+    after = metrics_of(root)
+    assert after["kitchen-0/sphere/t2i"]["metrics"] == before["kitchen-0/sphere/t2i"]["metrics"]
+
+
+def test_failures_and_skips_are_recorded_and_the_sweep_goes_on(tmp_path):
+    from snell_bench.experiment.runner import run_grid
+
+    cfg = make_cfg(tmp_path, ["grid.scenes=[living_room]", "grid.objects=[sphere,fox]",
+                              "grid.methods=[t2i,flux2_dev]", "reference.enabled=false", "reference.true_render=false"])
+    summary = run_grid(cfg)
+    m = metrics_of(tmp_path / "runs" / "smoke")
+    assert m["living_room-0/sphere/t2i"]["status"] == "ok"
+    assert m["living_room-0/sphere/flux2_dev"]["status"] == "skipped"
+    assert "GPU" in m["living_room-0/sphere/flux2_dev"]["reason"]
+    fox = m["living_room-0/fox/t2i"]
+    assert fox["status"] == "failed" and "object.path" in fox["reason"]
+    assert summary["failed"] == 2 and any("fox" in c for c, _ in summary["failures"])
+
+
+def test_unknown_names_fail_before_any_work(tmp_path):
+    from snell_bench.experiment.runner import run_grid
+
+    with pytest.raises(ValueError, match="unknown method"):
+        run_grid(make_cfg(tmp_path, ["grid.methods=[snellcaster,magic]"]))
+
+
+def test_ior_spec_and_cell_config():
+    from snell_bench.experiment.runner import cell_config, object_dir_name, parse_object_spec
+
+    assert parse_object_spec("sphere:1.333") == ("sphere", 1.333) and object_dir_name("sphere:1.333") == "sphere-ior1.333"
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        cfg = compose("config", overrides=["+experiment=ablation", "output_dir=/tmp/x"])
+    c = cell_config(cfg, "office", 2, "cylinder:1.333", "no_dpa")
+    assert c.scene.name == "office" and c.scene.variation == 2 and c.scene.width == 640
+    assert c.object.shape == "cylinder" and c.object.ior == 1.333
+    assert c.sampler.dpa is False and c.sampler.lpw is True and c.method.label == "w/o DPA"
+
+
+def test_submitit_local_launcher(tmp_path):
+    """Two scene subsets in two processes through Hydra's submitit_local launcher, disjoint cells."""
+    cmd = [sys.executable, "-m", "snell_bench", "-m", "+experiment=smoke", *TINY, "grid.methods=[t2i]",
+           "reference.enabled=false", "reference.true_render=false", "grid.report=false",
+           f"runs_dir={tmp_path / 'runs'}", "grid.scenes=[living_room],[kitchen]", "hydra/launcher=submitit_local",
+           f"hydra.sweep.dir={tmp_path / 'multirun'}"]
+    subprocess.run(cmd, cwd=REPO, check=True, timeout=600, env={**__import__("os").environ, "HF_HUB_OFFLINE": "1"})
+    m = metrics_of(tmp_path / "runs" / "smoke")
+    assert sorted(m) == ["kitchen-0/sphere/t2i", "living_room-0/sphere/t2i"]
+    assert all(r["status"] == "ok" for r in m.values())
+
+
+def test_joblib_launcher(tmp_path):
+    """Local parallel processes (joblib): each handles its own scenes, outputs are disjoint."""
+    cmd = [sys.executable, "-m", "snell_bench", "-m", "+experiment=smoke", *TINY, "grid.methods=[t2i]",
+           "reference.enabled=false", "reference.true_render=false", "grid.report=false",
+           f"runs_dir={tmp_path / 'runs'}", "grid.scenes=[living_room],[kitchen]", "hydra/launcher=local_processes",
+           f"hydra.sweep.dir={tmp_path / 'multirun'}"]
+    subprocess.run(cmd, cwd=REPO, check=True, timeout=600, env={**__import__("os").environ, "HF_HUB_OFFLINE": "1"})
+    m = metrics_of(tmp_path / "runs" / "smoke")
+    assert sorted(m) == ["kitchen-0/sphere/t2i", "living_room-0/sphere/t2i"]
