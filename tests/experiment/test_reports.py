@@ -1,0 +1,277 @@
+"""Reports from a fake run directory: means, counts, marks, provenance, notes, figure, files."""
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from PIL import Image
+
+from snell_bench.experiment.reports import (
+    METRICS,
+    ablation_table,
+    build_reports,
+    collect,
+    method_table,
+    qualitative_figure,
+    scene_table,
+    to_csv,
+    to_latex,
+    to_markdown,
+)
+
+W, H = 32, 24
+LPIPS_REASON = "no VGG weights: set metrics.lpips_weights"
+OOM = "CUDA out of memory"
+OOM_RAW = "CUDA out of\n   memory"  # multi-line reasons are reported on one line
+SKIP = "panorama branch disabled for this scene"
+
+# (scene, method, label, status, reason, metrics); every cell has variation 0 and object sphere
+CELLS = [
+    ("kitchen", "snellcaster", "Snellcaster", "ok", None, dict(psnr=18.0, mae=0.12, lpips=0.30, clip=28.0, image_reward=0.3)),
+    ("living_room", "snellcaster", "Snellcaster", "ok", None, dict(psnr=20.0, mae=0.10, lpips=0.20, clip=30.0, image_reward=0.5)),
+    ("kitchen", "flux", "FLUX-dev", "ok", None, dict(psnr=14.0, mae=0.3, lpips=None, clip=27.0, image_reward=0.2)),
+    ("living_room", "flux", "FLUX-dev", "ok", None, dict(psnr=12.0, mae=0.2, lpips=None, clip=31.0, image_reward=0.1)),
+    ("kitchen", "inpaint", "FLUX Fill", "failed", OOM_RAW, dict(psnr=None, mae=None, lpips=None, clip=None, image_reward=None)),
+    ("living_room", "inpaint", "FLUX Fill", "ok", None, dict(psnr=16.0, mae=0.2, lpips=0.4, clip=25.0, image_reward=-0.1)),
+    ("living_room", "no_tt", "Snellcaster w/o TT", "ok", None, dict(psnr=17.0, mae=0.15, lpips=0.28, clip=29.5, image_reward=0.45)),
+    ("living_room", "no_dpa", "Snellcaster w/o DPA", "ok", None, dict(psnr=18.5, mae=0.11, lpips=0.26, clip=29.0, image_reward=0.4)),
+    ("living_room", "no_pano", "Snellcaster w/o panorama", "skipped", SKIP, dict(psnr=None, mae=None, lpips=None, clip=None, image_reward=None)),
+]
+PROVENANCE = "model: analytic (CPU stand-in for FLUX) · scenes: procedural · 9 cells (7 ok, 1 failed, 1 skipped)"
+
+
+def _png(path, rgb):
+    Image.fromarray(np.asarray(rgb, np.uint8)).save(path)
+
+
+def make_runs(root):
+    """A run directory with the cells of ``CELLS`` (images only for ok cells)."""
+    rng = np.random.default_rng(0)
+    for scene, method, label, status, reason, metrics in CELLS:
+        d = root / f"{scene}-0" / "sphere" / method
+        d.mkdir(parents=True)
+        missing = {"image_reward": None, "clip": None}
+        if metrics["lpips"] is None:
+            missing["lpips"] = LPIPS_REASON if status == "ok" else reason
+        rec = {
+            "experiment": "ablation", "scene": scene, "variation": 0, "object": "sphere", "method": method,
+            "method_label": label, "status": status, "reason": reason, "model": "analytic",
+            "scene_source": "procedural", "metrics": {**metrics, "psnr_true": None}, "missing": missing,
+            "timings_s": {"warps": 2.0, "sampling": 60.0, "reference": 5.0, "metrics": 0.5},
+        }
+        (d / "metrics.json").write_text(json.dumps(rec))
+        (d / "config.yaml").write_text(f"method: {method}\n")
+        if status != "ok":
+            continue
+        _png(d / "image.png", rng.integers(0, 255, (H, W, 3)))
+        _png(d / "reference.png", rng.integers(0, 255, (H, W, 3)))
+        _png(d / "I_minus.png", rng.integers(0, 255, (H, W, 3)))
+        mask = np.zeros((H, W, 3), np.uint8)
+        mask[8:16, 10:20] = 255
+        _png(d / "mask.png", mask)
+    return root
+
+
+@pytest.fixture
+def runs(tmp_path):
+    return make_runs(tmp_path / "runs" / "ablation")
+
+
+@pytest.fixture
+def df(runs):
+    return collect(runs)
+
+
+def _latex_rows(tex):
+    """{row label: [cell texts]} of a LaTeX tabular body."""
+    body = tex.split(r"\midrule")[1].split(r"\bottomrule")[0]
+    rows = {}
+    for line in body.strip().splitlines():
+        cells = [c.strip() for c in line.rstrip().removesuffix(r"\\").split(" & ")]
+        rows[cells[0]] = cells[1:]
+    return rows
+
+
+def _latex_header(tex):
+    return [c.strip() for c in tex.split(r"\toprule")[1].split(r"\midrule")[0].strip().removesuffix(r"\\").split(" & ")]
+
+
+def test_collect_one_row_per_cell_with_flat_columns(df):
+    assert len(df) == len(CELLS)
+    for col in ("status", "reason", "method", "method_label", "scene", "variation", "object", "model",
+                "scene_source", "psnr", "mae", "lpips", "clip", "image_reward", "psnr_true",
+                "missing.lpips", "timings_s.sampling", "cell_dir"):
+        assert col in df.columns, col
+    assert list(df["scene"]) == sorted(df["scene"])  # sorted rows
+    r = df[(df.scene == "kitchen") & (df.method == "inpaint")].iloc[0]
+    assert r.status == "failed" and r.reason == OOM_RAW and math.isnan(r.psnr)
+    assert r.cell_dir == "kitchen-0/sphere/inpaint"
+    assert df["timings_s.sampling"].eq(60.0).all()
+    assert set(df.loc[df.method == "flux", "missing.lpips"]) == {LPIPS_REASON}
+
+
+def test_collect_keeps_broken_cells_as_failed(runs):
+    bad = runs / "office-3" / "cylinder" / "snellcaster"
+    bad.mkdir(parents=True)
+    (bad / "metrics.json").write_text("{not json")
+    unfinished = runs / "office-3" / "cylinder" / "flux"
+    unfinished.mkdir(parents=True)
+    (unfinished / "config.yaml").write_text("x: 1\n")
+    shared = runs / "office-3" / "cylinder" / "_inputs"
+    shared.mkdir(parents=True)
+    (shared / "config.yaml").write_text("x: 1\n")
+    df = collect(runs)
+    assert len(df) == len(CELLS) + 2
+    office = df[df.scene == "office"].set_index("method")
+    assert (office.status == "failed").all() and (office.variation == 3).all()
+    assert office.loc["snellcaster", "reason"].startswith("metrics.json unreadable")
+    assert office.loc["flux", "reason"] == "incomplete cell: config.yaml but no metrics.json"
+
+
+def test_method_table_means_and_counts(df):
+    t = method_table(df, metrics=("clip", "image_reward", "psnr", "lpips", "mae"))
+    assert list(t.index) == ["FLUX-dev", "FLUX Fill", "Snellcaster w/o DPA", "Snellcaster w/o panorama",
+                             "Snellcaster w/o TT", "Snellcaster"]  # sorted by method name
+    assert list(t.columns) == ["clip", "image_reward", "psnr", "lpips", "mae", "n"]
+    assert t.loc["Snellcaster"].to_dict() == pytest.approx(
+        dict(clip=29.0, image_reward=0.4, psnr=19.0, lpips=0.25, mae=0.11, n=2))
+    flux = t.loc["FLUX-dev"]
+    assert flux["psnr"] == pytest.approx(13.0) and flux["clip"] == pytest.approx(29.0) and flux["n"] == 2
+    assert math.isnan(flux["lpips"])
+    fill = t.loc["FLUX Fill"]  # the failed kitchen cell is not averaged
+    assert fill["n"] == 1 and fill["psnr"] == pytest.approx(16.0)
+    skipped = t.loc["Snellcaster w/o panorama"]
+    assert skipped["n"] == 0 and skipped[["clip", "psnr", "lpips"]].isna().all()
+    assert t["n"].dtype.kind == "i"
+
+    ordered = method_table(df, order=["snellcaster", "flux"])
+    assert list(ordered.index[:3]) == ["Snellcaster", "FLUX-dev", "FLUX Fill"]
+
+
+def test_latex_marks_best_and_second_best_with_ties(df):
+    t = method_table(df, metrics=("clip", "image_reward", "psnr", "lpips", "mae"))
+    tex = to_latex(t, "Methods")
+    assert _latex_header(tex) == ["Method", r"CLIP $\uparrow$", r"ImageReward $\uparrow$", r"PSNR $\uparrow$",
+                                  r"LPIPS $\downarrow$", r"MAE $\downarrow$", "$n$"]
+    rows = _latex_rows(tex)
+    snell, flux, fill = rows["Snellcaster"], rows["FLUX-dev"], rows["FLUX Fill"]
+    tt, dpa, pano = rows["Snellcaster w/o TT"], rows["Snellcaster w/o DPA"], rows["Snellcaster w/o panorama"]
+    # CLIP (higher is better): 29.50 best; 29.00 shared by three methods is second
+    assert tt[0] == r"\textbf{29.50}"
+    assert snell[0] == flux[0] == dpa[0] == r"\underline{29.00}"
+    assert fill[0] == "25.00"
+    # ImageReward: 0.450 best, 0.400 (tie) second
+    assert tt[1] == r"\textbf{0.450}" and snell[1] == dpa[1] == r"\underline{0.400}" and flux[1] == "0.150"
+    # PSNR: 19.00 best, 18.50 second
+    assert snell[2] == r"\textbf{19.00}" and dpa[2] == r"\underline{18.50}" and tt[2] == "17.00"
+    # LPIPS (lower is better): 0.250 best, 0.260 second, missing everywhere for FLUX-dev
+    assert snell[3] == r"\textbf{0.250}" and dpa[3] == r"\underline{0.260}" and fill[3] == "0.400"
+    assert flux[3] == "—"
+    # MAE (lower is better): 0.1100 tie for best, 0.1500 second
+    assert snell[4] == dpa[4] == r"\textbf{0.1100}" and tt[4] == r"\underline{0.1500}" and flux[4] == "0.2500"
+    # counts are never marked; a method without ok cells is all dashes
+    assert snell[5] == "2" and fill[5] == "1" and pano == ["—"] * 5 + ["0"]
+    assert r"\caption{Methods. " + PROVENANCE.replace("·", r"$\cdot$") + ".}" in tex
+    assert "failed: kitchen-0 / sphere / inpaint — CUDA out of memory" in tex
+
+
+def test_ranking_ties_all_equal_and_single_value():
+    t = pd.DataFrame({"psnr": [10.0, 10.0, 10.004], "lpips": [0.5, float("nan"), float("nan")], "n": [1, 1, 1]},
+                     index=pd.Index(["a", "b", "c"], name="Method"))
+    rows = _latex_rows(to_latex(t, "T", provenance=""))
+    # 10.004 prints as 10.00: all tie for best, nothing second; one LPIPS value: no mark
+    assert [rows[k][0] for k in "abc"] == [r"\textbf{10.00}"] * 3
+    assert rows["a"][1] == "0.500" and rows["b"][1] == "—"
+
+
+def test_markdown_provenance_missing_and_notes(df):
+    t = method_table(df)
+    md = to_markdown(t, "Table 1")
+    lines = md.splitlines()
+    assert lines[0] == "## Table 1"
+    assert f"_{PROVENANCE}_" in lines
+    assert "| Method | CLIP ↑ | ImageReward ↑ | PSNR ↑ | LPIPS ↓ | n |" in lines
+    assert "| FLUX-dev | _29.00_ | 0.150 | 13.00 | — | 2 |" in lines
+    assert "| Snellcaster | _29.00_ | _0.400_ | **19.00** | **0.250** | 2 |" in lines
+    notes = md.split("### Notes")[1]
+    assert "- failed: kitchen-0 / sphere / inpaint — CUDA out of memory" in notes
+    assert f"- skipped: living_room-0 / sphere / no_pano — {SKIP}" in notes
+    assert f"- LPIPS: no value in 2 of 7 ok cells (flux ×2) — {LPIPS_REASON}" in notes
+    assert "nan" not in md.lower()
+    # explicit provenance wins over the stored one
+    assert "_custom source_" in to_markdown(t, "T", provenance="custom source")
+
+
+def test_scene_table_marks_best_per_scene(df):
+    t = scene_table(df, "psnr")
+    assert list(t.index) == ["kitchen", "living_room"]
+    assert t.loc["kitchen", "Snellcaster"] == pytest.approx(18.0)
+    assert t.loc["living_room", "FLUX Fill"] == pytest.approx(16.0)
+    assert math.isnan(t.loc["kitchen", "FLUX Fill"])  # its only kitchen cell failed
+    rows = _latex_rows(to_latex(t, "PSNR per scene"))
+    cols = list(t.columns)
+    k, lr = rows["kitchen"], rows["living\\_room"]
+    assert k[cols.index("Snellcaster")] == r"\textbf{18.00}" and k[cols.index("FLUX-dev")] == r"\underline{14.00}"
+    assert lr[cols.index("Snellcaster")] == r"\textbf{20.00}"
+    assert lr[cols.index("Snellcaster w/o DPA")] == r"\underline{18.50}"
+    assert k[cols.index("FLUX Fill")] == "—"
+
+
+def test_ablation_rows_in_paper_order(df):
+    t = ablation_table(df)
+    assert list(t.index) == ["Full", "w/o panorama", "w/o DPA", "w/o time travel"]
+    assert list(t.columns) == ["mae", "psnr", "lpips", "clip", "image_reward", "n"]
+    assert t.loc["Full", "psnr"] == pytest.approx(19.0) and t.loc["w/o time travel", "mae"] == pytest.approx(0.15)
+    assert list(t["n"]) == [2, 0, 1, 1]
+    md = to_markdown(t, "Ablation")
+    # provenance counts only the ablation cells; baselines are not part of it
+    assert "_model: analytic (CPU stand-in for FLUX) · scenes: procedural · 5 cells (4 ok, 1 skipped)_" in md
+    assert "inpaint" not in md
+
+
+def test_csv_round_trips(df, tmp_path):
+    for t in (method_table(df), scene_table(df), ablation_table(df)):
+        path = tmp_path / "t.csv"
+        to_csv(t, path)
+        back = pd.read_csv(path, index_col=0)
+        pd.testing.assert_frame_equal(back, t, check_exact=False, rtol=1e-12, check_flags=False)
+
+
+def test_qualitative_figure_size(runs, tmp_path):
+    out = qualitative_figure(runs, tmp_path / "fig.png", methods=["snellcaster", "flux", "inpaint"], dpi=100)
+    with Image.open(out) as im:
+        w, h = im.size
+    # 4 columns (reference + 3 methods) of 2.4 in, 2 rows of 2.4 * 24/32 in, 0.3 in margins
+    assert abs(w - 100 * (0.3 + 4 * 2.4)) <= 2 and abs(h - 100 * (0.3 + 2 * 1.8)) <= 2
+    arr = np.asarray(Image.open(out).convert("RGB"))
+    assert arr.std() > 10  # not blank
+    no_inset = qualitative_figure(runs, tmp_path / "plain.png", cells=[("living_room", 0, "sphere")], inset=False)
+    with Image.open(no_inset) as im:
+        assert abs(im.size[0] - 100 * (0.3 + 7 * 2.4)) <= 2 and abs(im.size[1] - 100 * (0.3 + 1.8)) <= 2
+
+
+def test_build_reports_writes_everything_deterministically(runs, tmp_path):
+    out = tmp_path / "reports"
+    paths = build_reports(runs, out, "ablation")
+    names = sorted(p.name for p in paths)
+    expected = sorted(f"{s}.{e}" for s in ("method_table", "scene_table", "ablation_table") for e in ("md", "tex", "csv"))
+    assert names == sorted(expected + ["qualitative.png", "README.md"])
+    assert all(p.is_file() and p.parent == out for p in paths)
+    readme = (out / "README.md").read_text()
+    for n in expected + ["qualitative.png"]:
+        assert f"({n})" in readme
+    assert PROVENANCE in readme and "CUDA out of memory" in readme
+    method_md = (out / "method_table.md").read_text()
+    assert "MAE ↓" in method_md and "PSNR (true)" not in method_md  # psnr_true is null in every cell
+    first = {p.name: p.read_bytes() for p in paths}
+    build_reports(runs, out, "ablation")
+    assert {p.name: p.read_bytes() for p in paths} == first
+
+
+def test_metric_spec():
+    assert {m: (s.higher_is_better, s.format) for m, s in METRICS.items()} == {
+        "psnr": (True, "{:.2f}"), "mae": (False, "{:.4f}"), "lpips": (False, "{:.3f}"),
+        "clip": (True, "{:.2f}"), "image_reward": (True, "{:.3f}"), "psnr_true": (True, "{:.2f}"),
+    }
