@@ -25,7 +25,18 @@ def _grid(cfg: DictConfig) -> None:
     run_grid(cfg)
 
 
-JOBS = {"preview": _preview, "generate": _generate, "grid": _grid}
+def _report(cfg: DictConfig) -> None:
+    from pathlib import Path
+
+    from snell_bench.experiment.reports import build_reports
+
+    name = str(cfg.experiment_name)
+    out = Path(cfg.reports_dir) / name
+    paths = build_reports(Path(cfg.runs_dir) / name, out, name)
+    print(f"reports: {out} ({len(paths)} files)")
+
+
+JOBS = {"preview": _preview, "generate": _generate, "grid": _grid, "report": _report}
 
 
 def run_job(cfg: DictConfig) -> None:
