@@ -1,0 +1,234 @@
+"""The Mitsuba reference renderer: camera and texture conventions, the cross-check against our own
+tracer (π^R, Fresnel, the unobserved mask), and the true render of procedural scenes."""
+
+import os
+import sys
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+mi = pytest.importorskip("mitsuba")
+
+import scipy.ndimage as nd  # noqa: E402
+import torch  # noqa: E402
+
+from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear  # noqa: E402
+from snell_bench.imaging.remap import remap  # noqa: E402
+from snell_bench.optics import HitKind, compute_warps  # noqa: E402
+from snell_bench.render import mitsuba_ref  # noqa: E402
+from snell_bench.render.mitsuba_ref import VARIANT_ENV, mitsuba_variant, render_reference, render_true  # noqa: E402
+from snell_bench.scene.camera import Camera  # noqa: E402
+from snell_bench.scene.objects import GlassObject  # noqa: E402
+from snell_bench.scene.placement import place_object  # noqa: E402
+from snell_bench.scene.procedural import ProceduralScene  # noqa: E402
+
+H, W = 128, 224
+
+
+@pytest.fixture(scope="module", autouse=True)
+def cpu_variant():
+    """Render with ``scalar_rgb`` unless a variant is forced (the probe has its own test)."""
+    old = os.environ.get(VARIANT_ENV)
+    if not old:
+        os.environ[VARIANT_ENV] = "scalar_rgb"
+    yield
+    if old is None:
+        os.environ.pop(VARIANT_ENV, None)
+    else:
+        os.environ[VARIANT_ENV] = old
+
+
+@pytest.fixture(scope="module")
+def room():
+    """A glass sphere on the table of a procedural room; I⁻ supersampled 2 x 2."""
+    scene = ProceduralScene("room", 0)
+    r = scene.render(W, H, supersample=2)
+    obj = place_object(GlassObject.sphere(subdivisions=4), r.depth, r.camera)
+    ws = compute_warps(r.depth, r.camera, obj, pano_height=16)
+    return SimpleNamespace(scene=scene, image=r.image, depth=r.depth, camera=r.camera, obj=obj, ws=ws)
+
+
+@pytest.fixture(scope="module")
+def reference(room):
+    return render_reference(room.image, room.depth, room.camera, room.obj, spp=16, seed=0)
+
+
+@pytest.fixture(scope="module")
+def geometric(room):
+    return render_reference(room.image, room.depth, room.camera, room.obj, spp=16, seed=0, fresnel=False)
+
+
+def warp(image: np.ndarray, coords: np.ndarray) -> np.ndarray:
+    """(H, W, 3) image through a backward warp (bilinear, 0 where invalid)."""
+    out, _ = remap(torch.from_numpy(np.ascontiguousarray(image, np.float32)).permute(2, 0, 1)[None], coords)
+    return out[0].permute(1, 2, 0).numpy()
+
+
+def psnr(a: np.ndarray, b: np.ndarray, m: np.ndarray) -> float:
+    return float(10 * np.log10(1.0 / np.mean((a[m] - b[m]) ** 2)))
+
+
+def far_from_object(object_mask: np.ndarray, px: int = 2) -> np.ndarray:
+    """Pixels whose footprints cannot touch the object (its mask grown by ``px``)."""
+    return ~nd.binary_dilation(object_mask, iterations=px)
+
+
+def metric_pixels(ref, ws) -> np.ndarray:
+    """The metric mask where our warp is valid, eroded by one pixel: pixels on the mask's rim mix
+    the light of neighbouring regions (silhouette, borders of unobserved regions) in their footprint,
+    which a warp through the pixel centre cannot show."""
+    return nd.binary_erosion(ref.mask & ws.refraction_valid & ws.object_mask, iterations=1)
+
+
+# ============================================================================ conventions
+class TestConventions:
+    def test_background_reproduces_texture_exactly(self):
+        """Random texture (any flip or shift shows), off-centre principal point, a tilted plane and a
+        depth step (cut edge): outside the object the render is I⁻, texel for texel."""
+        h, w = 64, 96
+        K = np.array([[80.0, 0.0, 0.43 * w], [0.0, 80.0, 0.58 * h], [0.0, 0.0, 1.0]])
+        cam = Camera(K=K, width=w, height=h)
+        x, y = np.meshgrid(np.arange(w), np.arange(h))
+        depth = np.where(x < 50, 2.0 + 0.02 * x, 5.0 + 0.01 * y)
+        img = np.random.default_rng(0).random((h, w, 3)).astype(np.float32)
+        T = np.eye(4)
+        T[:3, :3] *= 0.2
+        T[:3, 3] = cam.pixel_rays(np.array([10.0, 10.0]), normalize=False) * 1.5 - [0.0, 0.1, 0.0]
+        obj = GlassObject.sphere(subdivisions=2).transformed(T)
+        # fresnel=False renders the object's window separately (crop windows of the same film)
+        for fresnel in (True, False):
+            ref = render_reference(img, depth, cam, obj, spp=4, fresnel=fresnel)
+            out = far_from_object(ref.object_mask)
+            err = np.abs(ref.image - img).max(axis=-1)[out]
+            assert ref.object_mask.sum() > 10
+            assert err.mean() < 0.1 / 255
+            assert np.mean(err < 1 / 255) > 0.999
+            # the camera sees only observed surfaces there (flaps cover the cut edge)
+            assert np.mean(ref.unobserved[out] == 0) > 0.999
+
+    def test_outside_object_equals_i_minus(self, room, reference):
+        out = far_from_object(reference.object_mask)
+        assert np.abs(reference.image - room.image)[out].mean() < 1 / 255
+
+    def test_object_mask_matches_warps(self, room, reference):
+        assert np.mean(reference.object_mask == room.ws.object_mask) > 0.999
+        assert reference.mask.sum() > 0.5 * reference.object_mask.sum()
+        assert not (reference.mask & ~reference.object_mask).any()
+
+    def test_outputs(self, reference):
+        assert reference.image.shape == (H, W, 3) and reference.image.dtype == np.float32
+        assert reference.image.min() >= 0 and reference.image.max() <= 1
+        assert reference.unobserved.shape == (H, W) and reference.unobserved.dtype == np.float32
+        assert reference.unobserved.min() >= 0 and reference.unobserved.max() <= 1
+        assert reference.variant == os.environ[VARIANT_ENV] and reference.spp == 16
+
+
+# ============================================================================ cross-checks
+class TestCrossCheck:
+    def test_refraction_matches_self_warp(self, room, geometric):
+        """Mitsuba's refraction path (Fresnel off) against π^R(I⁻) from our tracer."""
+        m = metric_pixels(geometric, room.ws)
+        assert m.sum() > 500
+        assert psnr(geometric.image, warp(room.image, room.ws.refraction), m) > 30
+
+    def test_physical_render_matches_fresnel_combination(self, room, reference):
+        """Mitsuba's dielectric against ``R π^-R + (1 - R) π^R`` in linear RGB (our Fresnel)."""
+        ws = room.ws
+        lin = srgb_to_linear(room.image)
+        refl = warp(lin, np.where(ws.reflection_valid[..., None], ws.reflection, np.nan))
+        F = ws.fresnel[..., None]
+        expected = linear_to_srgb(F * refl + (1 - F) * warp(lin, ws.refraction))
+        m = metric_pixels(reference, ws)
+        assert psnr(reference.image, expected, m) > 28
+
+    def test_unobserved_share_matches_warp_validity(self, room, reference):
+        """~0 where our refracted ray reaches observed surfaces, ~1 where it hits the box. Compared
+        away from the borders between the two (a footprint there mixes both)."""
+        ws = room.ws
+        valid = nd.binary_erosion(ws.object_mask & ws.refraction_valid)
+        unobserved = nd.binary_erosion(ws.object_mask & (ws.refraction_kind == HitKind.UNOBSERVED))
+        assert valid.sum() > 500 and unobserved.sum() > 50
+        share = reference.unobserved
+        agree = np.concatenate([share[valid] < 0.05, share[unobserved] > 0.95])
+        assert agree.mean() > 0.95
+        assert share[valid].mean() < 0.05 and share[unobserved].mean() > 0.95
+
+
+# ============================================================================ properties
+class TestProperties:
+    def test_deterministic_for_a_seed(self, room):
+        args = (room.image, room.depth, room.camera, room.obj)
+        a = render_reference(*args, spp=2, seed=3)
+        b = render_reference(*args, spp=2, seed=3)
+        c = render_reference(*args, spp=2, seed=4)
+        assert np.array_equal(a.image, b.image) and np.array_equal(a.unobserved, b.unobserved)
+        assert not np.array_equal(a.image, c.image)
+
+    def test_ior_one_object_vanishes(self, room):
+        ref = render_reference(room.image, room.depth, room.camera, room.obj.with_ior(1.0), spp=4)
+        err = np.abs(ref.image - room.image).max(axis=-1)
+        assert err.mean() < 0.1 / 255
+        assert np.mean(err < 1 / 255) > 0.999
+        assert ref.mask.sum() > 0.99 * ref.object_mask.sum()
+
+    def test_non_square_pixels_rejected(self, room):
+        K = room.camera.K.copy()
+        K[1, 1] *= 1.01
+        cam = Camera(K=K, width=W, height=H)
+        with pytest.raises(ValueError, match="square pixels"):
+            render_reference(room.image, room.depth, cam, room.obj)
+
+    def test_missing_mitsuba_names_the_extra(self, room, monkeypatch):
+        monkeypatch.setitem(sys.modules, "mitsuba", None)
+        with pytest.raises(ImportError, match=r"snell_bench\[render\]"):
+            render_reference(room.image, room.depth, room.camera, room.obj)
+
+
+# ============================================================================ the true render
+class TestTrueRender:
+    def test_outside_object_equals_procedural_render(self, room):
+        true = render_true(room.scene, room.camera, room.obj, spp=4, jitter=False)
+        out = far_from_object(room.ws.object_mask)
+        assert true.shape == (H, W, 3) and true.dtype == np.float32
+        assert np.abs(true - room.image)[out].max() < 1e-5
+
+    def test_inside_agrees_with_reference(self, room, reference):
+        true = render_true(room.scene, room.camera, room.obj, spp=4, seed=0)
+        m = metric_pixels(reference, room.ws)
+        assert psnr(true, reference.image, m) > 25
+
+    def test_deterministic_and_sample_patterns(self, room):
+        cam = room.camera.scaled(0.25)
+        a = render_true(room.scene, cam, room.obj, spp=2, seed=1)
+        b = render_true(room.scene, cam, room.obj, spp=2, seed=1)
+        assert np.array_equal(a, b)
+        with pytest.raises(ValueError, match="square spp"):
+            render_true(room.scene, cam, room.obj, spp=2, jitter=False)
+
+
+# ============================================================================ the Mitsuba variant
+class TestVariant:
+    def test_environment_forces_a_variant(self, monkeypatch):
+        monkeypatch.setenv(VARIANT_ENV, "scalar_rgb")
+        assert mitsuba_variant() == "scalar_rgb"
+        monkeypatch.setenv(VARIANT_ENV, "no_such_variant")
+        with pytest.raises(ValueError, match="not a Mitsuba variant"):
+            mitsuba_variant()
+
+    def test_probe_returns_a_working_variant(self, monkeypatch):
+        """The LLVM variant is tried in a subprocess: a broken JIT backend aborts that process, not
+        this one, and the scalar variant is used instead."""
+        monkeypatch.delenv(VARIANT_ENV, raising=False)
+        monkeypatch.setattr(mitsuba_ref, "_probed_variant", None)
+        variant = mitsuba_variant()
+        assert variant in ("llvm_ad_rgb", "scalar_rgb")
+
+        def no_second_probe(v):
+            raise AssertionError("the probe result is memoized")
+
+        monkeypatch.setattr(mitsuba_ref, "_probe", no_second_probe)
+        assert mitsuba_variant() == variant
+        # and it renders here, in this process
+        monkeypatch.setenv(VARIANT_ENV, variant)
+        mitsuba_ref._probe_render()
