@@ -19,7 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from snell_bench.experiment.preview import save_png
 from snell_bench.imaging.remap import remap
-from snell_bench.optics.warps import WarpSet, compute_warps
+from snell_bench.optics.warps import WarpSet
 from snell_bench.sampler.settings import SamplerSettings
 
 log = logging.getLogger(__name__)
@@ -39,7 +39,13 @@ def refraction_psnr(image: torch.Tensor, i_minus: torch.Tensor, ws: WarpSet) -> 
 
 
 def run_generate(cfg: DictConfig) -> dict:
-    from snell_bench.experiment.inputs import make_generator, make_object, make_scene_inputs, place_from_config
+    from snell_bench.experiment.inputs import (
+        make_generator,
+        make_object,
+        make_scene_inputs,
+        place_from_config,
+        warps_from_config,
+    )
     from snell_bench.sampler.snellcaster import sample
 
     out = Path(cfg.output_dir)
@@ -48,11 +54,7 @@ def run_generate(cfg: DictConfig) -> dict:
     t0 = time.perf_counter()
     inputs = make_scene_inputs(cfg.scene)
     obj = place_from_config(make_object(cfg.object), inputs, cfg.object, seed=int(cfg.seed))
-    w = cfg.warps
-    ws = compute_warps(
-        inputs.depth, inputs.camera, obj, pano_height=int(w.pano_height), max_bounces=int(w.max_bounces),
-        normals=str(w.normals), edge_threshold=float(w.edge_threshold), cache_dir=w.cache_dir,
-    )
+    ws = warps_from_config(inputs, obj, cfg.warps)
     t["inputs_and_warps"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     gen = make_generator(cfg.model, inputs, ws)

@@ -15,7 +15,7 @@ from snell_bench.scene.placement import place_object
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SceneInputs", "make_scene_inputs", "make_object"]
+__all__ = ["SceneInputs", "make_scene_inputs", "make_object", "place_from_config", "warps_from_config", "scene_panorama", "make_generator"]
 
 _REPO = Path(__file__).resolve().parents[2]
 
@@ -78,6 +78,23 @@ def place_from_config(obj: GlassObject, inputs: SceneInputs, obj_cfg: DictConfig
         relative_size=float(obj_cfg.relative_size),
         yaw_deg=float(obj_cfg.yaw_deg),
         **kwargs,
+    )
+
+
+def warps_from_config(inputs: SceneInputs, obj: GlassObject, warps_cfg: DictConfig):
+    """:func:`~snell_bench.optics.compute_warps` with the ``warps`` node of a config."""
+    from snell_bench.optics.warps import compute_warps
+
+    w = warps_cfg
+    return compute_warps(
+        inputs.depth,
+        inputs.camera,
+        obj,
+        pano_height=int(w.pano_height),
+        max_bounces=int(w.max_bounces),
+        normals=str(w.normals),
+        edge_threshold=float(w.edge_threshold),
+        cache_dir=w.cache_dir,
     )
 
 

@@ -26,7 +26,7 @@ from PIL import Image
 
 from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear
 from snell_bench.imaging.remap import remap
-from snell_bench.optics.warps import WarpSet, compute_warps
+from snell_bench.optics.warps import WarpSet
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +77,13 @@ def warp_to_rgb(coords: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def run_preview(cfg: DictConfig) -> dict:
-    from snell_bench.experiment.inputs import make_object, make_scene_inputs, place_from_config
+    from snell_bench.experiment.inputs import (
+        make_object,
+        make_scene_inputs,
+        place_from_config,
+        scene_panorama,
+        warps_from_config,
+    )
 
     out = Path(cfg.output_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -91,28 +97,12 @@ def run_preview(cfg: DictConfig) -> dict:
     timings["placement"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    w = cfg.warps
-    ws = compute_warps(
-        inputs.depth,
-        inputs.camera,
-        obj,
-        pano_height=int(w.pano_height),
-        max_bounces=int(w.max_bounces),
-        normals=str(w.normals),
-        edge_threshold=float(w.edge_threshold),
-        cache_dir=w.cache_dir,
-    )
+    ws = warps_from_config(inputs, obj, cfg.warps)
     timings["warps"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     # the source's true panorama, in the orientation of the warps' panorama camera
-    panorama = inputs.source.render_panorama(
-        center=ws.pano.center,
-        height=ws.pano.height,
-        up=-ws.pano.rotation[:, 1],
-        forward=ws.pano.rotation[:, 2],
-        supersample=int(cfg.scene.supersample),
-    )
+    panorama = scene_panorama(inputs, ws.pano, supersample=int(cfg.scene.supersample))
     timings["panorama"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

@@ -143,8 +143,7 @@ class Shared:
 
 
 def prepare_shared(cfg: DictConfig, group_dir: Path) -> Shared:
-    from snell_bench.experiment.inputs import make_object, make_scene_inputs, place_from_config
-    from snell_bench.optics.warps import compute_warps
+    from snell_bench.experiment.inputs import make_object, make_scene_inputs, place_from_config, warps_from_config
 
     d = group_dir / "_inputs"
     d.mkdir(parents=True, exist_ok=True)
@@ -155,10 +154,7 @@ def prepare_shared(cfg: DictConfig, group_dir: Path) -> Shared:
     t["scene"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     w = cfg.warps
-    ws = compute_warps(
-        inputs.depth, inputs.camera, obj, pano_height=int(w.pano_height), max_bounces=int(w.max_bounces),
-        normals=str(w.normals), edge_threshold=float(w.edge_threshold), cache_dir=w.cache_dir,
-    )
+    ws = warps_from_config(inputs, obj, w)
     t["warps"] = time.perf_counter() - t0
     files = {}
     save_png(d / "I_minus.png", inputs.image)

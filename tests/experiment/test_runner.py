@@ -1,6 +1,7 @@
 """The grid runner: the smoke experiment end to end, resume, failures, skips, parallel launchers."""
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -139,24 +140,15 @@ def test_ior_spec_and_cell_config():
     assert c.sampler.dpa is False and c.sampler.lpw is True and c.method.label == "w/o DPA"
 
 
-def test_submitit_local_launcher(tmp_path):
-    """Two scene subsets in two processes through Hydra's submitit_local launcher, disjoint cells."""
+@pytest.mark.parametrize("launcher", ["submitit_local", "local_processes"])
+def test_parallel_launchers(tmp_path, launcher):
+    """Two scene subsets in two processes through Hydra's submitit_local (the Slurm launcher's local
+    twin) and joblib launchers: each process writes its own, disjoint cells."""
     cmd = [sys.executable, "-m", "snell_bench", "-m", "+experiment=smoke", *TINY, "grid.methods=[t2i]",
            "reference.enabled=false", "reference.true_render=false", "grid.report=false",
-           f"runs_dir={tmp_path / 'runs'}", "grid.scenes=[living_room],[kitchen]", "hydra/launcher=submitit_local",
+           f"runs_dir={tmp_path / 'runs'}", "grid.scenes=[living_room],[kitchen]", f"hydra/launcher={launcher}",
            f"hydra.sweep.dir={tmp_path / 'multirun'}"]
-    subprocess.run(cmd, cwd=REPO, check=True, timeout=600, env={**__import__("os").environ, "HF_HUB_OFFLINE": "1"})
+    subprocess.run(cmd, cwd=REPO, check=True, timeout=600, env={**os.environ, "HF_HUB_OFFLINE": "1"})
     m = metrics_of(tmp_path / "runs" / "smoke")
     assert sorted(m) == ["kitchen-0/sphere/t2i", "living_room-0/sphere/t2i"]
     assert all(r["status"] == "ok" for r in m.values())
-
-
-def test_joblib_launcher(tmp_path):
-    """Local parallel processes (joblib): each handles its own scenes, outputs are disjoint."""
-    cmd = [sys.executable, "-m", "snell_bench", "-m", "+experiment=smoke", *TINY, "grid.methods=[t2i]",
-           "reference.enabled=false", "reference.true_render=false", "grid.report=false",
-           f"runs_dir={tmp_path / 'runs'}", "grid.scenes=[living_room],[kitchen]", "hydra/launcher=local_processes",
-           f"hydra.sweep.dir={tmp_path / 'multirun'}"]
-    subprocess.run(cmd, cwd=REPO, check=True, timeout=600, env={**__import__("os").environ, "HF_HUB_OFFLINE": "1"})
-    m = metrics_of(tmp_path / "runs" / "smoke")
-    assert sorted(m) == ["kitchen-0/sphere/t2i", "living_room-0/sphere/t2i"]
