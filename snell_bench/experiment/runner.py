@@ -64,7 +64,7 @@ def parse_object_spec(spec: str) -> tuple[str, float | None]:
 
 def object_dir_name(spec: str) -> str:
     name, ior = parse_object_spec(spec)
-    return name if ior is None else f"{name}-ior{ior:g}"
+    return name if ior is None else f"{name}-ior{format(ior, '.10g')}"
 
 
 def cell_config(cfg: DictConfig, scene: str, variation: int, obj_spec: str, method: str) -> DictConfig:

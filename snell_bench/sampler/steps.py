@@ -40,15 +40,19 @@ def stochastic_step(
     """Stochastic step: ``z' = (1 - sigma') x0 + sigma' eps'`` with
     ``eps' = sqrt(1 - eta^2) eps_hat + eta n``, ``eps_hat = (z - (1 - sigma) x0) / sigma`` the implied
     noise and ``n ~ N(0, I)`` from ``generator``. ``eta = 0`` is :func:`sync_step`; ``eta = 1``
-    renoises fully."""
+    renoises fully (and needs no implied noise, so it may start from ``sigma = 0``)."""
     sigma, sigma_next = float(sigma), float(sigma_next)
     if not 0.0 <= eta <= 1.0:
         raise ValueError(f"eta must be in [0, 1], got {eta}")
     if sigma_next <= 0.0:
         return x0.clone()
-    eps_hat = (z - (1.0 - sigma) * x0) / sigma
+    keep = math.sqrt(1.0 - eta * eta)
+    if keep > 0.0 and sigma <= 0.0:
+        raise ValueError("cannot step from sigma = 0 with eta < 1 (the implied noise is undefined)")
     n = torch.randn(z.shape, generator=generator, dtype=z.dtype, device=z.device)
-    eps = math.sqrt(1.0 - eta * eta) * eps_hat + eta * n
+    eps = eta * n
+    if keep > 0.0:
+        eps = keep * ((z - (1.0 - sigma) * x0) / sigma) + eps
     return (1.0 - sigma_next) * x0 + sigma_next * eps
 
 
