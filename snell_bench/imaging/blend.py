@@ -1,5 +1,5 @@
 """Blending warped estimates: the detail-preserving average (DPA), per pyramid level, and the
-Fresnel combination of reflection and refraction colours (DESIGN §4).
+Fresnel combination of reflection and refraction colours.
 
 Convention
 ----------

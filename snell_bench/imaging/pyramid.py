@@ -1,4 +1,4 @@
-"""Gaussian and Laplacian pyramids without padding, and warping through them (DESIGN §4).
+"""Gaussian and Laplacian pyramids without padding, and warping through them.
 
 Convention
 ----------

@@ -2,7 +2,7 @@
 
 Convention
 ----------
-Every warp is a *backward* map (DESIGN §3): for each destination pixel it stores the source pixel
+Every warp is a *backward* map: for each destination pixel it stores the source pixel
 coordinate ``(x, y)`` (float32, integer values at pixel centres), NaN where invalid, plus a bool
 mask. Perspective arrays are ``(H, W, ...)``, panorama arrays ``(Hp, 2 Hp, ...)``. The panorama
 is an equirectangular image centred at the object (:class:`~snell_bench.imaging.PanoramaCamera`,
@@ -34,7 +34,7 @@ import logging
 import os
 import tempfile
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +42,7 @@ import numpy as np
 from snell_bench.imaging.equirect import PanoramaCamera
 from snell_bench.optics.tracer import HitKind, SceneTracer
 from snell_bench.scene.camera import Camera
-from snell_bench.scene.depth_mesh import build_background, valid_depth_mask
+from snell_bench.scene.depth_mesh import build_background
 from snell_bench.scene.objects import GlassObject
 
 log = logging.getLogger(__name__)

@@ -13,6 +13,7 @@ __all__ = [
     "renoise",
     "stochastic_step",
     "sync_step",
+    "SYNC_MODES",
     "SamplerSettings",
     "SampleResult",
     "sample",

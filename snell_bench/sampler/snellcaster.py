@@ -1,6 +1,6 @@
 """The synchronized two-branch sampler (Snellcaster), its ablations, and the plain baseline.
 
-Per denoising step (DESIGN §4):
+Per denoising step (the paper's §4):
 
 1. the generator's velocity for the main view and the panorama (one batched call when both latents
    have the same size) gives Euler estimates ``x0_hat = z - sigma v``;

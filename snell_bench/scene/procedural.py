@@ -1110,7 +1110,7 @@ class ProceduralScene:
         top_h = rng.uniform(0.74, 0.82)
         t_yaw = heading + rng.uniform(-0.2, 0.2)
         Rt = _rot_y(t_yaw)
-        tx, tz = Rt[:, 0], Rt[:, 2]
+        tx = Rt[:, 0]
         tlen, tdep = rng.uniform(1.2, 1.6), rng.uniform(0.75, 0.95)
         target = tc + [0, top_h, 0]
         camera = self._set_camera(cam, target, math.radians(rng.uniform(-1.5, 1.5)), top_h, tdist, offset=0.65)
@@ -1188,7 +1188,6 @@ class ProceduralScene:
         P = np.stack([np.sin(TH) * R_ + cam[0], Y, np.cos(TH) * R_ + cam[2]], -1)
         rock_c = _hsv(rng.uniform(0.05, 0.12), rng.uniform(0.1, 0.3), rng.uniform(0.35, 0.5))
         snow_line = hmax * rng.uniform(0.55, 0.8)
-        haze_col = hor
 
         def mountain(p, n):
             c = _mix(rock_c * 0.6, rock_c, nz.fbm(p, 0.02, 3))

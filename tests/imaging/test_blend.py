@@ -10,7 +10,7 @@ from snell_bench.imaging.pyramid import collapse, laplacian_pyramid, pyramid_war
 
 
 def dpa_reference(xs, ms, lam):
-    """Per-pixel numpy DPA (DESIGN §4), NaN where no input is valid."""
+    """Per-pixel numpy detail-preserving average, NaN where no input is valid."""
     xs, ms = np.asarray(xs, np.float64), np.asarray(ms, bool)
     out = np.full(xs.shape[1:], np.nan)
     for idx in np.ndindex(*xs.shape[1:]):
