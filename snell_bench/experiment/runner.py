@@ -399,7 +399,8 @@ def run_grid(cfg: DictConfig) -> dict:
                 record.update(status="failed", reason=f"{type(e).__name__}: {e}", traceback=traceback.format_exc())
                 failures.append((str(cdir), record["reason"]))
                 log.error("cell %s failed: %s", cdir, record["reason"])
-            _atomic_write_bytes(cdir / "config.yaml", OmegaConf.to_yaml(ccfg, resolve=False).encode())
+            ccfg.output_dir = str(cdir)
+            _atomic_write_bytes(cdir / "config.yaml", OmegaConf.to_yaml(ccfg, resolve=True).encode())
             write_json(cdir / "metrics.json", record)  # last: marks the cell complete
             counts[record["status"]] += 1
             bar.update(1)

@@ -66,6 +66,11 @@ def test_cells_hold_everything_to_rescore(smoke):
     for name in ("image.png", "reference.png", "mask.png", "metrics.json", "config.yaml", "I_minus.png",
                  "depth.npy", "camera.json", "object.ply"):
         assert (cell / name).is_file(), name
+    from omegaconf import OmegaConf
+
+    resolved = OmegaConf.load(cell / "config.yaml")  # fully resolved: no interpolation left
+    assert resolved.scene.name == "living_room" and resolved.method.name == "snellcaster"
+    assert resolved.output_dir == str(cell) and "${" not in (cell / "config.yaml").read_text()
     cam = json.loads((cell / "camera.json").read_text())
     assert cam["width"] == 160 and cam["height"] == 96 and cam["ior"] == 1.5 and len(cam["K"]) == 3
     assert np.load(cell / "depth.npy").shape == (96, 160)
