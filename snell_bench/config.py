@@ -75,6 +75,12 @@ class WarpConfig:
     edge_threshold: float = 0.05
     #: Cache folder for warps (content-hashed); ``null`` disables caching.
     cache_dir: Optional[str] = "runs/cache/warps"
+    #: Cast primary rays only inside the object's projected bounding box (exact: no pixel outside it
+    #: can see the object); ``false`` casts the whole frame.
+    roi: bool = True
+    #: Treat background farther than the distance at which doing so moves any warp by less than this
+    #: many pixels as an environment at infinity (rays reach it by direction); ``null``: exact geometry.
+    infinity_tolerance_px: Optional[float] = None
 
 
 @dataclass
@@ -115,6 +121,8 @@ class MethodConfig:
     sampler: dict = field(default_factory=dict)
     #: For ``external`` methods: the diffusers model id or local folder.
     model_id: Optional[str] = None
+    #: Overrides of the ``warps`` node for this method (e.g. ``infinity_tolerance_px``).
+    warps: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -157,6 +165,24 @@ class GridConfig:
 
 
 @dataclass
+class TradeoffConfig:
+    """The speed/accuracy sweep (``job=tradeoff``): knobs varied one at a time from the base setting."""
+
+    scenes: list = field(default_factory=lambda: ["living_room", "kitchen"])
+    variation: int = 0
+    #: An object spec (``sphere`` or ``sphere:1.33``) and a method (conf/method/).
+    object: str = "sphere"
+    method: str = "snellcaster"
+    #: Axis name -> ``{key: <dotted config key>, values: [...]}``, or ``{values: [{<dotted key>: v, ...}]}``
+    #: for a compound knob such as the resolution.
+    axes: dict = field(default_factory=dict)
+    #: Presets (conf/preset/) measured as extra points of the sweep.
+    presets: list = field(default_factory=lambda: ["fast", "balanced", "paper"])
+    #: Recompute settings that already finished (else they are reused).
+    recompute: bool = False
+
+
+@dataclass
 class Config:
     #: Which job ``python -m snell_bench`` runs.
     job: str = "preview"
@@ -170,6 +196,7 @@ class Config:
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
     grid: GridConfig = field(default_factory=GridConfig)
+    tradeoff: TradeoffConfig = field(default_factory=TradeoffConfig)
     #: The experiment's name (its folder under runs/ and reports/).
     experiment_name: str = "default"
     runs_dir: str = "runs"
