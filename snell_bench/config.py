@@ -148,6 +148,8 @@ class ReferenceConfig:
     #: Also render the full procedural scene with the object (the unmasked second reference).
     true_render: bool = True
     true_spp: int = 4
+    #: Bounces of the true render; ``null``: ``warps.max_bounces`` (set it to compare bounce counts).
+    true_max_bounces: Optional[int] = None
 
 
 @dataclass

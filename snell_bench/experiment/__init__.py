@@ -1,4 +1,5 @@
-"""Jobs run by ``python -m snell_bench``: the refraction preview, generation, the experiment grid."""
+"""Jobs run by ``python -m snell_bench``: the refraction preview, generation, the experiment grid,
+the speed/accuracy sweep."""
 
 from __future__ import annotations
 
@@ -25,6 +26,12 @@ def _grid(cfg: DictConfig) -> None:
     run_grid(cfg)
 
 
+def _tradeoff(cfg: DictConfig) -> None:
+    from snell_bench.experiment.tradeoff import run_tradeoff
+
+    run_tradeoff(cfg)
+
+
 def _report(cfg: DictConfig) -> None:
     from pathlib import Path
 
@@ -36,7 +43,7 @@ def _report(cfg: DictConfig) -> None:
     print(f"reports: {out} ({len(paths)} files)")
 
 
-JOBS = {"preview": _preview, "generate": _generate, "grid": _grid, "report": _report}
+JOBS = {"preview": _preview, "generate": _generate, "grid": _grid, "tradeoff": _tradeoff, "report": _report}
 
 
 def run_job(cfg: DictConfig) -> None:

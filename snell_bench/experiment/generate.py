@@ -54,12 +54,16 @@ def run_generate(cfg: DictConfig) -> dict:
     t0 = time.perf_counter()
     inputs = make_scene_inputs(cfg.scene)
     obj = place_from_config(make_object(cfg.object), inputs, cfg.object, seed=int(cfg.seed))
-    ws = warps_from_config(inputs, obj, cfg.warps)
+    # the method's switches (conf/method/) apply on top of the sampler and warps nodes
+    method = cfg.get("method") or {}
+    warps_cfg = OmegaConf.merge(cfg.warps, method.get("warps") or {})
+    sampler_cfg = OmegaConf.merge(cfg.sampler, method.get("sampler") or {})
+    ws = warps_from_config(inputs, obj, warps_cfg)
     t["inputs_and_warps"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     gen = make_generator(cfg.model, inputs, ws)
     t["generator"] = time.perf_counter() - t0
-    settings: SamplerSettings = OmegaConf.to_object(cfg.sampler)
+    settings: SamplerSettings = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(SamplerSettings), sampler_cfg))
     i_minus = torch.from_numpy(inputs.image).permute(2, 0, 1)[None].float()
     t0 = time.perf_counter()
     res = sample(gen, ws, i_minus, cfg.scene.prompt, cfg.scene.pano_prompt, settings, seed=int(cfg.seed))
@@ -77,8 +81,10 @@ def run_generate(cfg: DictConfig) -> dict:
                 save_png(out / f"step{d['step']:03d}_{key}.png", d[key][0].permute(1, 2, 0).numpy())
     summary = {
         "model": cfg.model.name,
-        "sampler": OmegaConf.to_container(cfg.sampler),
+        "sampler": OmegaConf.to_container(sampler_cfg),
         "model_calls": res.model_calls,
+        "decisions": res.decisions,
+        "warps": {k: ws.stats.get(k) for k in ("roi", "traced_primary_rays", "far_background") if k in ws.stats},
         "sampler_timings_s": {k: round(v, 3) for k, v in res.timings.items()},
         "timings_s": {k: round(v, 3) for k, v in t.items()},
         "refraction_psnr_db": refraction_psnr(res.image, i_minus, ws),

@@ -95,6 +95,8 @@ def warps_from_config(inputs: SceneInputs, obj: GlassObject, warps_cfg: DictConf
         normals=str(w.normals),
         edge_threshold=float(w.edge_threshold),
         cache_dir=w.cache_dir,
+        roi=bool(w.get("roi", True)),
+        infinity_tolerance_px=w.get("infinity_tolerance_px"),
     )
 
 

@@ -184,8 +184,21 @@ def _row_from_record(rec: dict, rel: Path) -> dict:
         row[f"missing.{k}"] = None if v is None else str(v)
     for k, v in (rec.get("timings_s") or {}).items():
         row[f"timings_s.{k}"] = _float_or_nan(v)
+    for group in ("decisions", "warps"):  # what the cell modelled (flattened: decisions.panorama.used)
+        row.update(_flatten(rec.get(group) or {}, group))
     row["cell_dir"] = rel.as_posix()
     return row
+
+
+def _flatten(d: dict, prefix: str) -> dict:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}.{k}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, key))
+        elif not isinstance(v, list):
+            out[key] = v
+    return out
 
 
 def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
@@ -797,6 +810,88 @@ def qualitative_figure(
 # --------------------------------------------------------------------------------------------
 
 
+SAVING_METHODS = ("full_frame", "adaptive")
+"""Methods compared with ``snellcaster`` in :func:`savings_table` (same images, or modelling less)."""
+
+
+def _stage_time(df: pd.DataFrame) -> pd.Series:
+    """Per-cell time of what a method controls: its warps plus its sampling (seconds)."""
+    cols = [c for c in ("timings_s.warps", "timings_s.sampling") if c in df.columns]
+    return df[cols].sum(axis=1, min_count=1) if cols else pd.Series(np.nan, index=df.index)
+
+
+def savings_table(df: pd.DataFrame, reference: str = "snellcaster",
+                  methods: Sequence[str] = SAVING_METHODS) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Time saved against fidelity lost, per method, over the cells it shares with ``reference``.
+
+    Returns ``(summary, per_cell)``. ``per_cell`` pairs every ok cell of a method with the
+    ``reference`` cell of the same scene, variation and object: time (warps + sampling) of both,
+    PSNR of both and the difference, and the decisions the method took. ``summary`` has one row
+    per method: cells, mean times, time saved (share of the reference's), mean and largest
+    |ΔPSNR|, cells without the panorama branch, cells without any reflection, mean share of object
+    pixels that kept a reflection, mean share of background treated as at infinity.
+    """
+    ok = df[df["status"] == "ok"].copy()
+    ok["_time"] = _stage_time(ok)
+    keys = ["scene", "variation", "object"]
+    ref = ok[ok["method"] == reference].set_index(keys)
+    rows, summary = [], []
+    labels = _method_labels(df)
+    for m in methods:
+        sub = ok[ok["method"] == m]
+        if sub.empty or ref.empty:
+            continue
+        cells = []
+        for _, r in sub.iterrows():
+            k = tuple(r[c] for c in keys)
+            if k not in ref.index:
+                continue
+            b = ref.loc[k]
+            if isinstance(b, pd.DataFrame):
+                b = b.iloc[0]
+            cell = {
+                "method": m, "scene": r["scene"], "variation": r["variation"], "object": r["object"],
+                "time_s": r["_time"], "reference_time_s": b["_time"],
+                "psnr": r.get("psnr", np.nan), "reference_psnr": b.get("psnr", np.nan),
+                "panorama_used": r.get("decisions.panorama.used", np.nan),
+                "panorama_observed_share": r.get("decisions.panorama.observed_share", np.nan),
+                "reflection_kept": r.get("decisions.reflection.kept", np.nan),
+                "reflection_share_kept": r.get("decisions.reflection.share_kept", np.nan),
+                "far_fraction": r.get("warps.far_background.far_fraction", np.nan),
+            }
+            cell["delta_psnr"] = cell["psnr"] - cell["reference_psnr"]
+            cells.append(cell)
+        if not cells:
+            continue
+        c = pd.DataFrame(cells)
+        rows.append(c)
+        t, tr = c["time_s"].mean(), c["reference_time_s"].mean()
+        summary.append({
+            "method": labels.get(m, m), "cells": len(c), "time (s)": t, f"{labels.get(reference, reference)} (s)": tr,
+            "time saved": 1 - t / tr if tr > 0 else np.nan,
+            "mean ΔPSNR (dB)": c["delta_psnr"].mean(), "max |ΔPSNR| (dB)": c["delta_psnr"].abs().max(),
+            "panorama skipped": int((c["panorama_used"] == False).sum()),  # noqa: E712 (NaN is neither)
+            "reflection off": int((c["reflection_kept"] == False).sum()),  # noqa: E712
+            "reflection kept (share of px)": c["reflection_share_kept"].mean(),
+            "far background (share of px)": c["far_fraction"].mean(),
+        })
+    per_cell = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame()
+    return pd.DataFrame(summary), per_cell
+
+
+def _plain_markdown(table: pd.DataFrame, title: str, note: str = "") -> str:
+    def fmt(v):
+        if isinstance(v, (float, np.floating)):
+            return MISSING if not np.isfinite(v) else f"{v:.3f}"
+        return str(v)
+
+    cols = list(table.columns)
+    lines = [f"## {title}", ""] + ([note, ""] if note else [])
+    lines += ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in table.itertuples(index=False)]
+    return "\n".join(lines) + "\n"
+
+
 def build_reports(run_dir: str | os.PathLike, out_dir: str | os.PathLike, experiment_name: str) -> list[Path]:
     """Write every table and the figure of one experiment from its run directory alone.
 
@@ -825,6 +920,17 @@ def build_reports(run_dir: str | os.PathLike, out_dir: str | os.PathLike, experi
         tex.write_text(to_latex(table, title, label=f"tab:{_slug(experiment_name)}_{stem}"))
         to_csv(table, csv)
         written += [md, tex, csv]
+    savings = None
+    if df["method"].isin(SAVING_METHODS).any() and (df["method"] == "snellcaster").any():
+        summary, per_cell = savings_table(df)
+        if not summary.empty:
+            note = ("Time = warps + sampling per cell, against Snellcaster on the same scene and object; "
+                    "ΔPSNR = method − Snellcaster (masked, against the reference).")
+            (out_dir / "savings.md").write_text(_plain_markdown(summary, f"Time saved against fidelity lost ({experiment_name})", note))
+            summary.to_csv(out_dir / "savings.csv", index=False)
+            per_cell.to_csv(out_dir / "savings_per_cell.csv", index=False)
+            written += [out_dir / "savings.md", out_dir / "savings.csv", out_dir / "savings_per_cell.csv"]
+            savings = summary
     fig = qualitative_figure(run_dir, out_dir / "qualitative.png")
     written.append(fig)
 
@@ -837,6 +943,9 @@ def build_reports(run_dir: str | os.PathLike, out_dir: str | os.PathLike, experi
     ]
     for stem, title, _ in tables:
         lines.append(f"- {title}: [{stem}.md]({stem}.md) · [{stem}.tex]({stem}.tex) · [{stem}.csv]({stem}.csv)")
+    if savings is not None:
+        lines.append("- Time saved against fidelity lost: [savings.md](savings.md) · [savings.csv](savings.csv) · "
+                     "[savings_per_cell.csv](savings_per_cell.csv)")
     lines += ["- Qualitative comparison: [qualitative.png](qualitative.png)", ""]
     lines += [to_markdown(tables[0][2], tables[0][1])]
     lines += ["![qualitative comparison](qualitative.png)", ""]

@@ -50,7 +50,7 @@ def load_group(group: str, name: str) -> DictConfig:
     path = _CONF / group / f"{name}.yaml"
     if not path.is_file():
         options = sorted(p.stem for p in (_CONF / group).glob("*.yaml"))
-        raise ValueError(f"grid: unknown {group} {name!r}; choose from {options} (conf/{group}/)")
+        raise ValueError(f"unknown {group} {name!r}; choose from {options} (conf/{group}/)")
     node = OmegaConf.load(path)
     node.pop("defaults", None)
     return node
@@ -77,6 +77,7 @@ def cell_config(cfg: DictConfig, scene: str, variation: int, obj_spec: str, meth
     c.object = OmegaConf.merge(c.object, load_group("object", obj_name), {} if ior is None else {"ior": ior})
     c.method = OmegaConf.merge(c.method, load_group("method", method))
     c.sampler = OmegaConf.merge(c.sampler, c.method.get("sampler") or {})
+    c.warps = OmegaConf.merge(c.warps, c.method.get("warps") or {})
     return c
 
 
@@ -196,7 +197,8 @@ def prepare_shared(cfg: DictConfig, group_dir: Path) -> Shared:
             from snell_bench.render.mitsuba_ref import render_true
 
             true = render_true(inputs.source, inputs.camera, obj, spp=int(cfg.reference.true_spp),
-                               max_bounces=int(w.max_bounces), seed=int(cfg.seed))
+                               max_bounces=int(cfg.reference.get("true_max_bounces") or w.max_bounces),
+                               seed=int(cfg.seed))
             save_png(d / "true.png", true)
             files["true.png"] = d / "true.png"
         except ImportError as e:
@@ -204,6 +206,20 @@ def prepare_shared(cfg: DictConfig, group_dir: Path) -> Shared:
     t["true_render"] = time.perf_counter() - t0
     i_minus = torch.from_numpy(inputs.image).permute(2, 0, 1)[None].float()
     return Shared(inputs, obj, ws, i_minus, reference, mask, true, files, t, reason)
+
+
+def _with_method_warps(ccfg: DictConfig, base: DictConfig, shared: Shared) -> Shared:
+    """``shared`` itself, or a copy with the warps of a method whose warp options differ from the
+    group's (e.g. far background at infinity); its warp time replaces the group's."""
+    if OmegaConf.to_container(ccfg.warps, resolve=True) == OmegaConf.to_container(base.warps, resolve=True):
+        return shared
+    import dataclasses
+
+    from snell_bench.experiment.inputs import warps_from_config
+
+    t0 = time.perf_counter()
+    ws = warps_from_config(shared.inputs, shared.obj, ccfg.warps)
+    return dataclasses.replace(shared, warps=ws, timings={**shared.timings, "warps": time.perf_counter() - t0})
 
 
 # ---------------------------------------------------------------------------- methods
@@ -219,8 +235,9 @@ def _requirements(cfg: DictConfig) -> None:
         )
 
 
-def generate_image(cfg: DictConfig, shared: Shared, gen_cache: dict) -> tuple[torch.Tensor, dict]:
-    """The method's image ``(1, 3, H, W)`` and its statistics."""
+def generate_image(cfg: DictConfig, shared: Shared, gen_cache: dict, gen_key: int | None = None) -> tuple[torch.Tensor, dict]:
+    """The method's image ``(1, 3, H, W)`` and its statistics. ``gen_key`` identifies the scene whose
+    generator ``gen_cache`` may hold (default: ``shared`` itself)."""
     from snell_bench.experiment.inputs import make_generator
     from snell_bench.sampler.snellcaster import sample
 
@@ -241,7 +258,7 @@ def generate_image(cfg: DictConfig, shared: Shared, gen_cache: dict) -> tuple[to
         img = inpaint_external(cfg.method.model_id, prompt, shared.i_minus, shared.warps.object_mask,
                                seed=int(cfg.seed), steps=int(cfg.sampler.steps))
         return img, {}
-    key = (cfg.model.name, id(shared))
+    key = (cfg.model.name, id(shared) if gen_key is None else gen_key)
     if key not in gen_cache:
         gen_cache.clear()  # one scene's generator at a time (the analytic one is built from the scene)
         gen_cache[key] = make_generator(cfg.model, shared.inputs, shared.warps)
@@ -253,7 +270,8 @@ def generate_image(cfg: DictConfig, shared: Shared, gen_cache: dict) -> tuple[to
     if kind == "inpaint":  # CPU stand-in: the generator fills the object region of I⁻, no optics
         m = torch.from_numpy(shared.warps.object_mask)[None, None]
         img = torch.where(m, img, shared.i_minus)
-    return img, {"model_calls": res.model_calls, "sampler_timings_s": {k: round(v, 3) for k, v in res.timings.items()}}
+    return img, {"model_calls": res.model_calls, "sampler_timings_s": {k: round(v, 3) for k, v in res.timings.items()},
+                 "decisions": res.decisions}
 
 
 def _settings_schema():
@@ -360,6 +378,7 @@ def run_grid(cfg: DictConfig) -> dict:
         if not todo:
             continue
         base = cell_config(cfg, scene, variation, obj_spec, todo[0])
+        base.warps = cfg.warps  # the group's warps; a method with its own warp options gets its own
         try:
             shared = prepare_shared(base, group_dir)
             shared_error = None
@@ -382,15 +401,19 @@ def run_grid(cfg: DictConfig) -> dict:
                     raise shared_error
                 for name, path in shared.files.items():
                     _link(path, cdir / name)
-                img, stats = generate_image(ccfg, shared, gen_cache)
+                cell_shared = _with_method_warps(ccfg, base, shared)
+                t0 = time.perf_counter()
+                img, stats = generate_image(ccfg, cell_shared, gen_cache, gen_key=id(shared))
                 record["timings_s"]["sampling"] = round(time.perf_counter() - t0, 3)
                 save_png(cdir / "image.png", img[0].permute(1, 2, 0).numpy())
                 t1 = time.perf_counter()
                 prompt = str(ccfg.scene.prompt).replace("{object}", str(ccfg.object.noun))
                 record.update(score(img, shared, prompt, scorers, cdir / "image.png"))
                 record["timings_s"]["metrics"] = round(time.perf_counter() - t1, 3)
-                record["timings_s"].update({k: round(v, 3) for k, v in shared.timings.items()})
+                record["timings_s"].update({k: round(v, 3) for k, v in cell_shared.timings.items()})
                 record.update(stats)
+                record["warps"] = {k: cell_shared.warps.stats.get(k) for k in ("roi", "traced_primary_rays", "far_background")
+                                   if k in cell_shared.warps.stats}
             except Skip as e:
                 record.update(status="skipped", reason=str(e))
             except KeyboardInterrupt:

@@ -57,7 +57,7 @@ from kornia.geometry.transform import pyrdown, pyrup
 
 from snell_bench.imaging.remap import remap
 
-__all__ = ["gaussian_pyramid", "laplacian_pyramid", "collapse", "pyramid_warp", "lod_warp"]
+__all__ = ["gaussian_pyramid", "laplacian_pyramid", "laplacian_from_gaussian", "collapse", "pyramid_warp", "lod_warp"]
 
 Size = tuple[int, int]
 
@@ -113,6 +113,11 @@ def laplacian_pyramid(img: torch.Tensor, levels: int, *, wrap_x: bool = False) -
     """Laplacian pyramid: ``levels - 1`` band-pass levels ``G_k - up(G_{k+1})``, then the residual
     ``G_{levels-1}``. :func:`collapse` inverts it to float precision."""
     g = gaussian_pyramid(img, levels, wrap_x=wrap_x)
+    return _bands(g, wrap_x) + [g[-1]]
+
+
+def laplacian_from_gaussian(g: Sequence[torch.Tensor], *, wrap_x: bool = False) -> list[torch.Tensor]:
+    """The Laplacian pyramid of an image from its Gaussian pyramid ``g`` (as :func:`laplacian_pyramid`)."""
     return _bands(g, wrap_x) + [g[-1]]
 
 
@@ -299,19 +304,71 @@ def _source_levels(maps: Sequence[torch.Tensor], levels: int, *, match_scale: bo
 
 
 def _warp_levels(src: torch.Tensor, maps: Sequence[torch.Tensor], levels: int, *, wrap_x: bool,
-                 match_scale: bool, dest_wrap_x: bool) -> list[torch.Tensor]:
+                 match_scale: bool, dest_wrap_x: bool,
+                 src_pyramid: Sequence[torch.Tensor] | None = None) -> list[torch.Tensor]:
     """Each destination level ``maps[k]`` sampled from ``src``'s Gaussian pyramid, which is only built
-    as deep as the sampled levels reach."""
+    as deep as the sampled levels reach (or taken from ``src_pyramid``)."""
     period = float(src.shape[-1]) if wrap_x else None
     lvls = _source_levels(maps, levels, match_scale=match_scale, period=period, dest_wrap_x=dest_wrap_x)
     depth = max(int(lv.max().ceil()) for lv in lvls) + 1
-    gauss = gaussian_pyramid(src, depth, wrap_x=wrap_x)
+    if src_pyramid is not None and len(src_pyramid) >= depth:
+        gauss = list(src_pyramid[:depth])
+    else:
+        gauss = gaussian_pyramid(src, depth, wrap_x=wrap_x)
     size0 = tuple(src.shape[-2:])
     return [_sample(gauss, c, lv, size0=size0, wrap_x=wrap_x) for c, lv in zip(maps, lvls)]
 
 
+def _level_sizes(size: Size, levels: int) -> list[Size]:
+    sizes = [tuple(size)]
+    for _ in range(levels - 1):
+        h, w = sizes[-1]
+        sizes.append((max(h // 2, 1) if h > 1 else 1, max(w // 2, 1) if w > 1 else 1))
+    return sizes
+
+
+def _roi_window(c: torch.Tensor, levels: int, dest_wrap_x: bool, margin: int) -> tuple[slice, slice, bool] | None:
+    """The destination window that holds every valid pixel of map ``c`` with ``margin`` invalid
+    pixels of the coarsest level around it, aligned to ``2**(levels - 1)`` so that every level of the
+    window is a sub-window of the full level. ``None`` when that is (almost) the whole destination.
+    The bool says whether the window keeps the full (periodic) width of a panorama destination."""
+    ok = torch.isfinite(c[..., 0]).any(0)
+    Hd, Wd = ok.shape
+    if not bool(ok.any()):
+        return None
+    step = 2 ** (levels - 1)
+    pad = max(margin * step, 8)
+
+    def span(v: torch.Tensor, n: int) -> tuple[int, int]:
+        idx = v.nonzero().squeeze(1)
+        lo, hi = int(idx.min()) - pad, int(idx.max()) + 1 + pad
+        lo, hi = max(lo // step * step, 0), min(-(-hi // step) * step, n)
+        if hi == n and n % step:  # a level of odd size is resampled as a whole: keep the full extent
+            return 0, n
+        return lo, hi
+
+    y0, y1 = span(ok.any(1), Hd)
+    xv = ok.any(0)
+    x0, x1 = span(xv, Wd)
+    full_width = False
+    if dest_wrap_x and (x0 == 0 or x1 == Wd):  # the valid region may cross the seam: keep the width
+        x0, x1, full_width = 0, Wd, True
+    if (y1 - y0) * (x1 - x0) > 0.8 * Hd * Wd:
+        return None
+    return slice(y0, y1), slice(x0, x1), full_width
+
+
+def _paste(part: torch.Tensor, size: Size, ys: slice, xs: slice, k: int, fill) -> torch.Tensor:
+    """``part`` (a level-``k`` window) placed into a full level of ``size`` filled with ``fill``."""
+    out = part.new_full(part.shape[:-2] + tuple(size), fill)
+    y0, x0 = ys.start >> k, xs.start >> k
+    out[..., y0 : y0 + part.shape[-2], x0 : x0 + part.shape[-1]] = part
+    return out
+
+
 def pyramid_warp(src: torch.Tensor, coords, *, levels: int = 5, wrap_x: bool = False, collapse: bool = True,
-                 mask=None, match_scale: bool = True, dest_wrap_x: bool = False):
+                 mask=None, match_scale: bool = True, dest_wrap_x: bool = False, roi: bool = False,
+                 roi_margin: int = 4, src_pyramid: Sequence[torch.Tensor] | None = None):
     """Laplacian pyramid warp of ``src`` through the backward map ``coords`` (module docstring).
 
     Args:
@@ -325,6 +382,12 @@ def pyramid_warp(src: torch.Tensor, coords, *, levels: int = 5, wrap_x: bool = F
         match_scale: sample each destination level from the source level matching the map's local
             stretch; ``False`` samples level ``k`` for level ``k`` (no anti-aliasing).
         dest_wrap_x: the destination is a panorama (circular upsampling and finite differences).
+        roi: compute only in a window around the map's valid pixels (``roi_margin`` invalid pixels of
+            the coarsest level around them, aligned to ``2**(levels - 1)``) and place it into the full
+            destination: the same result (every operation reaches fewer pixels than the margin), at
+            a cost proportional to the window when the valid region is small (an object's pixels).
+        src_pyramid: ``gaussian_pyramid(src, levels, wrap_x=wrap_x)`` if already built (several warps
+            of one image, or its own :func:`laplacian_pyramid`, share it).
 
     Returns:
         ``(warped (B, C, H', W'), valid (B, 1, H', W') bool)`` with ``collapse=True``, else
@@ -335,7 +398,18 @@ def pyramid_warp(src: torch.Tensor, coords, *, levels: int = 5, wrap_x: bool = F
     _check_levels(src, levels)
     c = _prepare(coords, mask, src, wrap_x)
     B = max(src.shape[0], c.shape[0])
-    opts = dict(wrap_x=wrap_x, match_scale=match_scale, dest_wrap_x=dest_wrap_x)
+    win = _roi_window(c, levels, dest_wrap_x, roi_margin) if roi else None
+    if win is not None:
+        ys, xs, full_width = win
+        part = pyramid_warp(src, c[:, ys, xs], levels=levels, wrap_x=wrap_x, collapse=collapse,
+                            match_scale=match_scale, dest_wrap_x=dest_wrap_x and full_width,
+                            src_pyramid=src_pyramid)
+        sizes = _level_sizes(tuple(c.shape[1:3]), levels)
+        if collapse:
+            return _paste(part[0], sizes[0], ys, xs, 0, 0.0), _paste(part[1], sizes[0], ys, xs, 0, False)
+        return ([_paste(b, sizes[k], ys, xs, k, 0.0) for k, b in enumerate(part[0])],
+                [_paste(m, sizes[k], ys, xs, k, False) for k, m in enumerate(part[1])])
+    opts = dict(wrap_x=wrap_x, match_scale=match_scale, dest_wrap_x=dest_wrap_x, src_pyramid=src_pyramid)
     if collapse:  # the destination pyramid collapses exactly to its finest level
         return _warp_levels(src, [c], levels, **opts)[0], _valid(c, B)
     maps = [c]

@@ -24,6 +24,17 @@ field                  paper       meaning
 
 Panorama coordinates of a ray are those of *its end point* seen from the panorama centre (exact
 parallax for the scene's geometry); only a ray that hits nothing uses its direction.
+
+Far background at infinity (``infinity_tolerance_px``): a background pixel whose depth is so large
+that replacing its surface by a surface at infinity moves *any* warp that could land on it by less
+than the tolerance (bound of :func:`far_background_mask`) leaves the mesh; a ray that leaves the
+scene's geometry (the bounding box or nothing) then sees the pixel its *direction* projects to, if
+that pixel is such a far one. Rays need no intersection with the far surface, and estimated depth
+of the sky or the horizon (often unreliable) no longer matters.
+
+Region of interest (``roi``): only pixels inside the projected bounding box of the object's
+vertices can see it (perspective projection maps the convex hull into the convex hull of the
+projected vertices), so primary rays are cast there only; the warps are identical.
 """
 
 from __future__ import annotations
@@ -47,7 +58,7 @@ from snell_bench.scene.objects import GlassObject
 
 log = logging.getLogger(__name__)
 
-__all__ = ["WarpSet", "compute_warps", "warp_inputs_hash", "WARPS_VERSION"]
+__all__ = ["WarpSet", "compute_warps", "warp_inputs_hash", "far_background_mask", "object_pixel_box", "WARPS_VERSION"]
 
 #: Bump when the meaning or computation of any warp changes (invalidates caches).
 WARPS_VERSION = 1
@@ -226,6 +237,62 @@ def _check_object_in_view(obj: GlassObject, camera: Camera) -> None:
         )
 
 
+def object_pixel_box(obj: GlassObject, camera: Camera) -> tuple[int, int, int, int]:
+    """``(x0, y0, x1, y1)``, inclusive pixel-centre bounds of the object's projection, clipped to the
+    image (every pixel whose camera ray can hit the object lies inside)."""
+    pix, _ = camera.project(obj.vertices)
+    lo, hi = np.floor(pix.min(axis=0)), np.ceil(pix.max(axis=0))
+    x0, y0 = int(max(lo[0], 0)), int(max(lo[1], 0))
+    x1, y1 = int(min(hi[0], camera.width - 1)), int(min(hi[1], camera.height - 1))
+    return x0, y0, x1, y1
+
+
+def far_background_mask(
+    depth: np.ndarray,
+    camera: Camera,
+    center: np.ndarray,
+    radius: float,
+    tolerance_px: float,
+    pano_height: int | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Background pixels that may be treated as at infinity, and the bound behind the decision.
+
+    A ray leaving a point ``p`` of the object's bounding ball ``|p - c| <= r`` with direction ``d``
+    ends on the background at ``q = p + t d``; at infinity it would be seen at the pixel ``u`` that
+    ``d`` projects to. With ``u'`` the normalised coordinates of ``u`` (``d ∝ (u'_x, u'_y, 1)``), the
+    exact pixel is ``u + f (p_xy - p_z u') / q_z``, so the error is at most
+    ``f (|c_xy - c_z u'| + r sqrt(1 + |u'|²)) / q_z`` (``f`` the larger focal length). ``q_z`` is
+    bounded below by the smallest depth around the pixel (3 x 3). The panorama's straight rays
+    start at ``c`` (covered by the same bound); its angular coordinates of a refracted ray move by at
+    most ``r / (|q| - |c|)`` radians, ``pano_height / π`` pixels per radian.
+
+    Returns ``(far (H, W) bool, bound_px (H, W) float64)``: ``far`` where the bound is below
+    ``tolerance_px`` (invalid depth is never far; it stays a hole).
+    """
+    if not (tolerance_px > 0) or not np.isfinite(tolerance_px):
+        raise ValueError(
+            f"infinity_tolerance_px must be a positive number of pixels, got {tolerance_px!r}; "
+            "use null to keep the exact geometry"
+        )
+    depth = np.asarray(depth, np.float64)
+    H, W = depth.shape
+    valid = np.isfinite(depth) & (depth > 0)
+    z = np.where(valid, depth, np.inf)
+    zp = np.pad(z, 1, mode="edge")
+    zmin = np.min([zp[dy : dy + H, dx : dx + W] for dy in range(3) for dx in range(3)], axis=0)
+    c = np.asarray(center, np.float64)
+    un = camera.pixel_rays(normalize=False)[..., :2]  # (H, W, 2): u'
+    f = float(max(camera.K[0, 0], camera.K[1, 1]))
+    lateral = np.linalg.norm(c[:2] - c[2] * un, axis=-1) + radius * np.sqrt(1.0 + (un**2).sum(-1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = f * lateral / zmin
+        if pano_height is not None:
+            dist = zmin * np.sqrt(1.0 + (un**2).sum(-1)) - float(np.linalg.norm(c))
+            bound = np.maximum(bound, np.where(dist > 0, pano_height / np.pi * radius / dist, np.inf))
+    bound = np.where(valid & np.isfinite(zmin), bound, np.inf)
+    return valid & (bound < tolerance_px), bound
+
+
 def compute_warps(
     depth: np.ndarray,
     camera: Camera,
@@ -239,6 +306,8 @@ def compute_warps(
     eps: float | None = None,
     cache_dir: str | os.PathLike | None = None,
     verify_visibility: bool = False,
+    roi: bool = True,
+    infinity_tolerance_px: float | None = None,
 ) -> WarpSet:
     """Trace the camera's rays through ``obj`` placed in the scene of ``depth`` and return every warp.
 
@@ -256,6 +325,9 @@ def compute_warps(
     cache_dir: if given, warps are loaded from / saved to ``<cache_dir>/<input hash>.npz``.
     verify_visibility: also cast a camera ray to every background point a warp lands on (redundant
         for depth-map backgrounds, see ``_self_warp``; for checking).
+    roi: cast primary rays only inside the object's projected bounding box (same result, faster).
+    infinity_tolerance_px: treat background that moves no warp by more than this many pixels as at
+        infinity (see the module docs); ``None`` keeps the exact geometry.
     """
     depth = np.asarray(depth)
     if depth.ndim != 2 or depth.shape != camera.shape:
@@ -279,6 +351,8 @@ def compute_warps(
         "eps": eps,
         "verify_visibility": bool(verify_visibility),
     }
+    if infinity_tolerance_px is not None:  # keeps the hashes of exact warps unchanged
+        options["infinity_tolerance_px"] = float(infinity_tolerance_px)
     key = warp_inputs_hash(depth, camera, obj, options)
     cache_path = Path(cache_dir) / f"{key}.npz" if cache_dir is not None else None
     if cache_path is not None and cache_path.is_file():
@@ -289,19 +363,40 @@ def compute_warps(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     lo, hi = obj.mesh.bounds
-    background = build_background(depth, camera, edge_threshold, extra_points=np.stack([lo, hi]))
+    far = None
+    far_stats: dict = {}
+    if infinity_tolerance_px is not None:
+        radius = float(np.linalg.norm(obj.vertices - obj.center, axis=1).max())
+        far, bound = far_background_mask(depth, camera, obj.center, radius, float(infinity_tolerance_px), pano_height)
+        far_stats = {
+            "tolerance_px": float(infinity_tolerance_px),
+            "far_fraction": float(far.mean()),
+            "max_bound_px_of_far": float(bound[far].max()) if far.any() else None,
+            "nearest_far_depth": float(np.asarray(depth)[far].min()) if far.any() else None,
+        }
+    background = build_background(depth, camera, edge_threshold, extra_points=np.stack([lo, hi]), exclude=far)
     tracer = SceneTracer(background, obj, max_bounces=max_bounces, normals=normals, eps=eps)
+    at_inf = _AtInfinity(camera, far, background) if far is not None and far.any() else None
     timings["build"] = time.perf_counter() - t0
 
     H, W = camera.shape
     t0 = time.perf_counter()
     # ---- 1. primary rays: which pixels see the object (before the background)
-    rays = camera.pixel_rays().reshape(-1, 3)
-    t_obj = tracer.cast_camera_object(rays)
-    cand = np.flatnonzero(np.isfinite(t_obj))
-    if len(cand):
-        t_bg = tracer.cast_background(np.zeros((len(cand), 3)), rays[cand]).t
-        cand = cand[t_obj[cand] < t_bg]
+    if roi:
+        x0, y0, x1, y1 = object_pixel_box(obj, camera)
+        yy, xx = np.mgrid[y0 : y1 + 1, x0 : x1 + 1]
+        sel = (yy * W + xx).reshape(-1)
+        rays_sel = camera.pixel_rays(np.stack([xx, yy], -1).reshape(-1, 2).astype(np.float64))
+    else:
+        sel = np.arange(H * W)
+        rays_sel = camera.pixel_rays().reshape(-1, 3)
+    t_obj = tracer.cast_camera_object(rays_sel)
+    hit = np.flatnonzero(np.isfinite(t_obj))
+    if len(hit):
+        t_bg = tracer.cast_background(np.zeros((len(hit), 3)), rays_sel[hit]).t
+        hit = hit[t_obj[hit] < t_bg]
+    cand = sel[hit]
+    rays_cand = rays_sel[hit]
     mask = np.zeros(H * W, bool)
     mask[cand] = True
     if not len(cand):
@@ -310,7 +405,9 @@ def compute_warps(
 
     # ---- 2. refraction through the object (object pixels only)
     t0 = time.perf_counter()
-    tr = tracer.trace(np.zeros((len(cand), 3)), rays[cand])
+    tr = tracer.trace(np.zeros((len(cand), 3)), rays_cand)
+    if at_inf is not None:
+        at_inf.resolve(tr.kind, tr.point, tr.direction)
     timings["refraction"] = time.perf_counter() - t0
 
     grid = camera.pixel_grid().reshape(-1, 2)
@@ -329,6 +426,8 @@ def compute_warps(
 
     # ---- 3. first-bounce reflection
     refl = tracer.trace_reflection(tr)
+    if at_inf is not None:
+        at_inf.resolve(refl.kind, refl.point, tr.reflected)
     src_r, ok_r = _self_warp(camera, tracer, refl.point, refl.kind, verify_visibility)
     reflection = np.full((H * W, 2), np.nan, np.float32)
     reflection_valid = np.zeros(H * W, bool)
@@ -353,6 +452,8 @@ def compute_warps(
 
     pdirs = pano.directions().reshape(-1, 3)
     ph = tracer.cast_background(np.broadcast_to(pano.center, pdirs.shape), pdirs)
+    if at_inf is not None:
+        at_inf.resolve(ph.kind, ph.point, pdirs)
     pix, pok = _self_warp(camera, tracer, ph.point, ph.kind, verify_visibility)
     pano_to_persp = np.where(pok[:, None], pix, np.nan).astype(np.float32)
     near = np.rint(np.where(pok[:, None], pix, 0)).astype(np.int64)
@@ -387,6 +488,9 @@ def compute_warps(
             "timings_s": {k: round(v, 4) for k, v in timings.items()},
             "invalid_depth_pixels": background.invalid_pixels,
             "cut_triangles": background.cut_triangles,
+            "roi": bool(roi),
+            "traced_primary_rays": int(len(sel)),
+            **({"far_background": far_stats} if far_stats else {}),
             "background_triangles": int(len(background.faces)),
             "eps": tracer.eps,
         },
@@ -395,6 +499,45 @@ def compute_warps(
         ws.save(cache_path)
     log.info("warps: %s", ws.summary())
     return ws
+
+
+class _AtInfinity:
+    """Resolves rays that leave the scene's geometry towards far background at infinity."""
+
+    def __init__(self, camera: Camera, far: np.ndarray, background) -> None:
+        self.camera = camera
+        self.far = far.reshape(-1)
+        self.lo = background.box_vertices.min(axis=0).astype(np.float64)
+        self.hi = background.box_vertices.max(axis=0).astype(np.float64)
+        self.tol = 1e-4 * float((self.hi - self.lo).max())
+
+    def resolve(self, kind: np.ndarray, point: np.ndarray, direction: np.ndarray) -> None:
+        """In place: a ray that ends on the bounding box or nowhere, and whose direction projects
+        onto a far pixel, becomes OBSERVED at that pixel's point at infinity (its ``point`` set to
+        ``direction x 1e12`` so that every later projection uses its direction)."""
+        cand = (kind == HitKind.ESCAPED) | (kind == HitKind.UNOBSERVED)
+        if not cand.any():
+            return
+        idx = np.flatnonzero(cand)
+        p = point[idx]
+        on_box = ~np.isfinite(p).all(axis=1)  # ESCAPED: nothing hit
+        fin = ~on_box
+        on_box[fin] = (
+            (np.abs(p[fin] - self.lo) < self.tol) | (np.abs(p[fin] - self.hi) < self.tol)
+        ).any(axis=1)
+        idx = idx[on_box]
+        d = np.asarray(direction[idx], np.float64)
+        pix, z = self.camera.project(np.where(np.isfinite(d), d, 0.0))
+        ok = (z > 0) & self.camera.in_view(pix)
+        idx, pix, d = idx[ok], pix[ok], d[ok]
+        W, H = self.camera.width, self.camera.height
+        near = np.rint(pix).astype(np.int64)
+        near[:, 0] = near[:, 0].clip(0, W - 1)
+        near[:, 1] = near[:, 1].clip(0, H - 1)
+        is_far = self.far[near[:, 1] * W + near[:, 0]]
+        idx, d = idx[is_far], d[is_far]
+        kind[idx] = HitKind.OBSERVED
+        point[idx] = d / np.linalg.norm(d, axis=1, keepdims=True) * 1e12
 
 
 def _self_warp(
@@ -409,8 +552,8 @@ def _self_warp(
     """
     pix, z = camera.project(np.where(np.isfinite(points), points, 0.0))
     ok = (kind == HitKind.OBSERVED) & camera.in_view(pix) & (z > 0)
-    if verify_visibility and ok.any():
-        idx = np.flatnonzero(ok)
+    if verify_visibility and ok.any():  # points at infinity (far background) are visible by construction
+        idx = np.flatnonzero(ok & (np.linalg.norm(np.where(np.isfinite(points), points, 0.0), axis=1) < 1e11))
         ok[idx] = tracer.visible_from_camera(points[idx])
     return pix.astype(np.float32), ok
 

@@ -6,6 +6,7 @@ Also the structured-config schema of the ``sampler`` node (``conf/``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Optional
 
 __all__ = ["SamplerSettings", "SYNC_MODES"]
 
@@ -41,6 +42,17 @@ class SamplerSettings:
     tt_length: int = 1
     tt_repeats_main: int = 3
     tt_repeats_pano: int = 1
+    #: Warp into a window around each warp's valid pixels only (the object in the main view, the part
+    #: of the panorama the camera sees): the same images, less work; ``false`` warps whole frames.
+    roi: bool = True
+    #: Model only what the scene requires (each decision is reported in ``SampleResult.decisions``):
+    #: no reflection at object pixels whose Fresnel reflectance is below this (none anywhere: no
+    #: reflection warp at all); 0 keeps every pixel's reflection.
+    reflection_min_fresnel: float = 0.0
+    #: Skip the panorama branch when at least this share of object pixels sends its refracted ray
+    #: (and its mirror ray, where reflection is kept) to surfaces I⁻ observes; ``null``: never skip.
+    #: Without the panorama the reflection comes from I⁻ where the mirror ray reaches what it shows.
+    skip_panorama_above: Optional[float] = None
     #: Keep the decoded estimates every k steps (0: never).
     dump_every: int = 0
     progress: bool = True
@@ -55,6 +67,12 @@ class SamplerSettings:
         lo, hi = self.tt_window
         if not 0.0 <= lo <= hi <= 1.0:
             raise ValueError(f"sampler.tt_window must satisfy 0 <= start <= end <= 1, got {self.tt_window}")
+        if not 0.0 <= self.reflection_min_fresnel <= 1.0:
+            raise ValueError(f"sampler.reflection_min_fresnel must be in [0, 1], got {self.reflection_min_fresnel}")
+        if self.skip_panorama_above is not None and not 0.0 <= self.skip_panorama_above <= 1.0:
+            raise ValueError(
+                f"sampler.skip_panorama_above must be in [0, 1] or null (never skip), got {self.skip_panorama_above}"
+            )
         if not 0.0 <= self.lam <= 1.0:
             raise ValueError(f"sampler.lam must be in [0, 1], got {self.lam}")
 

@@ -30,9 +30,10 @@ import torch
 from tqdm.auto import tqdm
 
 from snell_bench.imaging.blend import blend_pyramids, fresnel_combine
-from snell_bench.imaging.pyramid import laplacian_pyramid, pyramid_warp
+from snell_bench.imaging.pyramid import gaussian_pyramid, laplacian_from_gaussian, pyramid_warp
 from snell_bench.models.base import Generator
 from snell_bench.optics.warps import WarpSet
+from snell_bench.sampler.adaptive import decide
 from snell_bench.sampler.schedule import make_sigmas
 from snell_bench.sampler.settings import SamplerSettings
 from snell_bench.sampler.steps import euler_estimate, renoise, stochastic_step, sync_step
@@ -48,6 +49,8 @@ class SampleResult:
     model_calls: dict[str, int] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     dumps: list[dict] = field(default_factory=list)
+    #: What the run modelled and why (:func:`snell_bench.sampler.adaptive.decide`).
+    decisions: dict = field(default_factory=dict)
 
 
 class _Clock:
@@ -67,50 +70,70 @@ def _nan_where(coords: np.ndarray, invalid: np.ndarray) -> np.ndarray:
 class _Views:
     """Warp maps as tensors and the constant warps of I⁻, prepared once per run."""
 
-    def __init__(self, ws: WarpSet, i_minus: torch.Tensor, s: SamplerSettings) -> None:
+    def __init__(self, ws: WarpSet, i_minus: torch.Tensor, s: SamplerSettings,
+                 reflection_mask: np.ndarray | None = None) -> None:
         L = s.effective_levels
         self.levels = L
+        self.roi = bool(s.roi)
         self.lam = s.effective_lam
         self.object_mask = torch.from_numpy(ws.object_mask)[None, None]
         self.fresnel = torch.from_numpy(ws.fresnel)[None, None]
         # maps: NaN marks every invalid source, so the masks follow from the maps
         self.main_from_pano = ws.pano_refraction
         self.main_refl_from_pano = ws.pano_reflection
+        refl_self = ws.reflection
+        if reflection_mask is not None:  # reflect only where it is not negligible
+            self.main_refl_from_pano = _nan_where(ws.pano_reflection, ~reflection_mask)
+            refl_self = _nan_where(ws.reflection, ~reflection_mask)
         self.pano_from_main = _nan_where(ws.pano_to_persp, ws.pano_to_persp_object)
         self.refl_iminus = None  # reflection of I⁻ itself, for runs without the panorama branch
         if s.reflection and not s.uses_panorama:
-            self.refl_iminus = pyramid_warp(i_minus, ws.reflection, levels=L)
+            self.refl_iminus = pyramid_warp(i_minus, refl_self, levels=L, roi=self.roi)
         self.imin_main, self.imin_main_m = pyramid_warp(i_minus, ws.refraction, levels=L, collapse=False)
         self.imin_pano, self.imin_pano_m = pyramid_warp(
-            i_minus, ws.pano_to_persp, levels=L, collapse=False, dest_wrap_x=True
+            i_minus, ws.pano_to_persp, levels=L, collapse=False, dest_wrap_x=True, roi=self.roi
         )
 
     @staticmethod
-    def _own(img: torch.Tensor, levels: int, wrap_x: bool = False):
-        pyr = laplacian_pyramid(img, levels, wrap_x=wrap_x)
+    def _own(gauss: list[torch.Tensor], wrap_x: bool = False):
+        pyr = laplacian_from_gaussian(gauss, wrap_x=wrap_x)
         return pyr, [torch.ones((p.shape[0], 1) + p.shape[-2:], dtype=torch.bool) for p in pyr]
 
-    def blend_main(self, x0: torch.Tensor, x0_pano: torch.Tensor | None, s: SamplerSettings) -> torch.Tensor:
-        own, own_m = self._own(x0, self.levels)
+    def gauss(self, img: torch.Tensor | None, wrap_x: bool = False) -> list[torch.Tensor] | None:
+        """The Gaussian pyramid of an estimate, built once per step and shared by its own Laplacian
+        pyramid and every warp that reads it."""
+        return None if img is None else gaussian_pyramid(img, self.levels, wrap_x=wrap_x)
+
+    def blend_main(self, x0: torch.Tensor, x0_pano: torch.Tensor | None, s: SamplerSettings,
+                   g_main: list[torch.Tensor] | None = None, g_pano: list[torch.Tensor] | None = None) -> torch.Tensor:
+        g_main = g_main if g_main is not None else self.gauss(x0)
+        g_pano = g_pano if g_pano is not None else self.gauss(x0_pano, wrap_x=True)
+        own, own_m = self._own(g_main)
         lv, ms = [own, self.imin_main], [own_m, self.imin_main_m]
         if x0_pano is not None:
-            p, pm = pyramid_warp(x0_pano, self.main_from_pano, levels=self.levels, wrap_x=True, collapse=False)
+            p, pm = pyramid_warp(x0_pano, self.main_from_pano, levels=self.levels, wrap_x=True, collapse=False,
+                                 roi=self.roi, src_pyramid=g_pano)
             lv.insert(1, p)
             ms.insert(1, pm)
         refr, _ = blend_pyramids(lv, ms, lam=self.lam, fallback_levels=own)
         if not s.reflection:
             return refr
         if x0_pano is not None:
-            refl, ok = pyramid_warp(x0_pano, self.main_refl_from_pano, levels=self.levels, wrap_x=True)
+            refl, ok = pyramid_warp(x0_pano, self.main_refl_from_pano, levels=self.levels, wrap_x=True, roi=self.roi,
+                                    src_pyramid=g_pano)
         elif self.refl_iminus is not None:  # no panorama: mirror rays that reach surfaces I⁻ shows
             refl, ok = self.refl_iminus
         else:
             return refr
         return fresnel_combine(refl, refr, self.fresnel, mask=self.object_mask & ok)
 
-    def blend_pano(self, x0_pano: torch.Tensor, x0: torch.Tensor) -> torch.Tensor:
-        own, own_m = self._own(x0_pano, self.levels, wrap_x=True)
-        m, mm = pyramid_warp(x0, self.pano_from_main, levels=self.levels, collapse=False, dest_wrap_x=True)
+    def blend_pano(self, x0_pano: torch.Tensor, x0: torch.Tensor, g_pano: list[torch.Tensor] | None = None,
+                   g_main: list[torch.Tensor] | None = None) -> torch.Tensor:
+        g_pano = g_pano if g_pano is not None else self.gauss(x0_pano, wrap_x=True)
+        g_main = g_main if g_main is not None else self.gauss(x0)
+        own, own_m = self._own(g_pano, wrap_x=True)
+        m, mm = pyramid_warp(x0, self.pano_from_main, levels=self.levels, collapse=False, dest_wrap_x=True,
+                             roi=self.roi, src_pyramid=g_main)
         out, _ = blend_pyramids(
             [own, m, self.imin_pano], [own_m, mm, self.imin_pano_m], lam=self.lam, fallback_levels=own, wrap_x=True
         )
@@ -137,12 +160,14 @@ def sample(
     Without the panorama branch, the reflection comes from I⁻ where the mirror ray reaches a
     surface it shows, and is left out elsewhere.
     """
-    s = settings
     H, W = warps.camera.shape
     if tuple(i_minus.shape) != (1, 3, H, W):
         raise ValueError(f"i_minus must be (1, 3, {H}, {W}) for these warps, got {tuple(i_minus.shape)}")
     if not torch.isfinite(i_minus).all():
         raise ValueError("i_minus holds NaN or inf")
+    s, decisions, reflection_mask = decide(warps, settings)
+    if decisions.get("panorama", {}).get("used") is False and "observed_share" in decisions["panorama"]:
+        log.info("panorama branch skipped: %.1f %% of object pixels observed in I⁻", 100 * decisions["panorama"]["observed_share"])
     g = torch.Generator().manual_seed(int(seed))
     clock = _Clock()
     use_pano = s.uses_panorama
@@ -158,7 +183,7 @@ def sample(
     cond_both = gen.condition([prompt, pano_prompt], ["main", "pano"]) if use_pano and shape_m == shape_p else None
 
     t0 = time.perf_counter()
-    views = _Views(warps, i_minus.float(), s) if s.sync == "snellcaster" else None
+    views = _Views(warps, i_minus.float(), s, reflection_mask) if s.sync == "snellcaster" else None
     clock.add("setup", t0)
 
     calls = {"main": 0, "pano": 0}
@@ -212,8 +237,9 @@ def sample(
                     xm_use, xp_use = hist_m[j], hist_p[j] if use_pano else None
                     t0 = time.perf_counter()
                     if views is not None:
-                        sm = views.blend_main(xm_use, xp_use, s) if run_m else None
-                        sp = views.blend_pano(xp_use, xm_use) if run_p else None
+                        gm, gp = views.gauss(xm_use), views.gauss(xp_use, wrap_x=True)
+                        sm = views.blend_main(xm_use, xp_use, s, gm, gp) if run_m else None
+                        sp = views.blend_pano(xp_use, xm_use, gp, gm) if run_p else None
                     else:
                         sm, sp = xm, xp
                     clock.add("warp_blend", t0)
@@ -242,4 +268,5 @@ def sample(
         image = gen.decode(z_m)
         pano = gen.decode(z_p) if use_pano else None
         clock.add("codec", t0)
-    return SampleResult(image=image, panorama=pano, model_calls=calls, timings=dict(clock.t), dumps=dumps)
+    return SampleResult(image=image, panorama=pano, model_calls=calls, timings=dict(clock.t), dumps=dumps,
+                        decisions=decisions)

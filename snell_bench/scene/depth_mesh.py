@@ -9,6 +9,8 @@ Convention
   to the nearest one (``max z / min z - 1 > edge_threshold``): it would bridge a depth
   discontinuity (an occlusion boundary) with a surface that nobody observed.
 - Invalid depth (NaN, inf, <= 0) drops every triangle touching the pixel; the count is logged.
+- Pixels passed as ``exclude`` (e.g. background far enough to be treated as at infinity) drop
+  their triangles the same way, without a warning.
 - A closed axis-aligned *bounding box* around the scene, the camera and any extra points stands
   for unobserved space: a ray that hits it sees something I⁻ does not show.
 """
@@ -35,13 +37,13 @@ def valid_depth_mask(depth: np.ndarray) -> np.ndarray:
 
 
 def depth_to_mesh(
-    depth: np.ndarray, camera: Camera, edge_threshold: float = 0.05
+    depth: np.ndarray, camera: Camera, edge_threshold: float = 0.05, exclude: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Triangulate a depth map.
 
     Returns ``(vertices (H*W, 3) float32, faces (F, 3) uint32, info)`` where ``info`` counts
-    ``invalid_pixels`` and ``cut_triangles``. Vertices of invalid pixels are set to 0 and are
-    referenced by no face.
+    ``invalid_pixels``, ``excluded_pixels`` and ``cut_triangles``. Vertices of invalid pixels are
+    set to 0 and are referenced by no face; ``exclude`` ``(H, W)`` bool leaves pixels out too.
     """
     depth = np.asarray(depth)
     if depth.ndim != 2:
@@ -64,9 +66,17 @@ def depth_to_mesh(
         log.warning("depth: %d of %d pixels are invalid (NaN, inf or <= 0) and are left out", n_invalid, valid.size)
     z = np.where(valid, depth, 0.0).astype(np.float64)
     verts = camera.unproject(z).reshape(-1, 3).astype(np.float32)
+    n_excluded = 0
+    if exclude is not None:
+        exclude = np.asarray(exclude, bool)
+        if exclude.shape != depth.shape:
+            raise ValueError(f"exclude has shape {exclude.shape}, expected the depth's {depth.shape}")
+        n_excluded = int((exclude & valid).sum())
+        valid = valid & ~exclude
+    info = {"invalid_pixels": n_invalid, "excluded_pixels": n_excluded, "cut_triangles": 0}
 
     if H < 2 or W < 2:
-        return verts, np.zeros((0, 3), np.uint32), {"invalid_pixels": n_invalid, "cut_triangles": 0}
+        return verts, np.zeros((0, 3), np.uint32), info
     idx = np.arange(H * W, dtype=np.int64).reshape(H, W)
     a, b = idx[:-1, :-1], idx[:-1, 1:]
     c, d = idx[1:, :-1], idx[1:, 1:]
@@ -80,7 +90,8 @@ def depth_to_mesh(
     n_cut = int((ok & ~smooth).sum())
     faces = tris[smooth].astype(np.uint32)
     log.debug("depth mesh: %d triangles, %d cut at depth edges", len(faces), n_cut)
-    return verts, faces, {"invalid_pixels": n_invalid, "cut_triangles": n_cut}
+    info["cut_triangles"] = n_cut
+    return verts, faces, info
 
 
 def bounding_box_mesh(points: np.ndarray, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
@@ -108,6 +119,7 @@ class BackgroundMesh:
     box_faces: np.ndarray  # (12, 3) uint32
     invalid_pixels: int
     cut_triangles: int
+    excluded_pixels: int = 0
 
 
 def build_background(
@@ -116,17 +128,21 @@ def build_background(
     edge_threshold: float = 0.05,
     extra_points: np.ndarray | None = None,
     box_margin: float = 0.1,
+    exclude: np.ndarray | None = None,
 ) -> BackgroundMesh:
-    """Depth mesh and bounding box enclosing it, the camera and ``extra_points`` (e.g. the object)."""
-    verts, faces, info = depth_to_mesh(depth, camera, edge_threshold)
+    """Depth mesh and bounding box enclosing it, the camera and ``extra_points`` (e.g. the object).
+    ``exclude``: ``(H, W)`` bool pixels left out of the mesh (and out of the box)."""
+    verts, faces, info = depth_to_mesh(depth, camera, edge_threshold, exclude=exclude)
     if len(faces):
         referenced = np.zeros(len(verts), bool)
         referenced[faces.reshape(-1)] = True
     else:
         referenced = valid_depth_mask(depth).reshape(-1)
+        if exclude is not None:
+            referenced &= ~np.asarray(exclude, bool).reshape(-1)
     used = verts[referenced]
     pts = [used, np.zeros((1, 3), np.float32)]
     if extra_points is not None:
         pts.append(np.asarray(extra_points, np.float32).reshape(-1, 3))
     bv, bf = bounding_box_mesh(np.concatenate(pts), margin=box_margin)
-    return BackgroundMesh(verts, faces, bv, bf, info["invalid_pixels"], info["cut_triangles"])
+    return BackgroundMesh(verts, faces, bv, bf, info["invalid_pixels"], info["cut_triangles"], info["excluded_pixels"])

@@ -17,7 +17,7 @@ def cam():
 def test_plane_mesh(cam):
     v, f, info = depth_to_mesh(np.full(cam.shape, 2.0), cam)
     assert v.shape == (30 * 40, 3) and len(f) == 2 * 29 * 39
-    assert info == {"invalid_pixels": 0, "cut_triangles": 0}
+    assert info == {"invalid_pixels": 0, "excluded_pixels": 0, "cut_triangles": 0}
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     n = np.cross(b - a, c - a)
     assert np.all(n[:, 2] < 0)  # every triangle faces the camera

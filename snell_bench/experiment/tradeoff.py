@@ -1,0 +1,997 @@
+"""The speed/accuracy sweep (``job=tradeoff``): the cost knobs varied one at a time.
+
+Settings
+--------
+For every scene of ``tradeoff.scenes`` (with ``tradeoff.variation``, ``tradeoff.object`` and
+``tradeoff.method``) one image is generated and scored per *setting*, and every stage is timed:
+
+- ``baseline``: the composed config as is (``conf/experiment/tradeoff.yaml`` picks the balanced
+  preset);
+- one setting per (axis, value) of ``tradeoff.axes``, labelled ``<axis>=<value label>``
+  (``steps=8``, ``resolution=320x180``): the base with that knob changed. A value equal to the base
+  value is run like any other (it shares the baseline's inputs, see *Reuse*);
+- one setting per preset of ``tradeoff.presets``, labelled ``preset:<name>``: the base with the
+  knobs of ``conf/preset/<name>.yaml`` (the file loaded with OmegaConf, ``defaults`` removed).
+
+A setting's config is ``cell_config(OmegaConf.merge(base, overrides), scene, variation, object,
+method)`` with ``warps.cache_dir = null`` (warps are traced, never read from a cache).
+
+Format of ``tradeoff.axes``
+---------------------------
+A mapping from axis name to one of::
+
+    steps: {key: sampler.steps, values: [4, 8, 12, 20, 28]}            # one knob
+    resolution:                                                        # several knobs at once
+      values:
+        - {scene.width: 320, scene.height: 180}
+        - {scene.width: 1280, scene.height: 720, scene.supersample: 2}
+      labels: [320x180, 1280x720-ss2]                                   # optional
+
+Keys are dotted paths into the composed config; YAML and Hydra's override grammar both keep a
+dotted key inside a mapping as one key (``{scene.width: 320}`` is the key ``"scene.width"``).
+Without ``labels``, a value's label is the value itself (``8``), or for a compound value its values
+joined by ``x`` in the order given (``320x180``). Every key must name a leaf of the base config;
+an unknown key, a key naming a whole node, a value of the wrong type, or duplicate labels raise
+``ValueError`` (naming the axis, the key and the fix) before any folder is written.
+
+On the command line Hydra *merges* a mapping into the existing one: ``'tradeoff.axes={steps:
+{key: sampler.steps, values: [20]}}'`` replaces the ``steps`` axis and keeps the others; drop an
+axis with ``~tradeoff.axes.<name>``.
+
+Stages and times (``timings_s``, seconds of wall time)
+------------------------------------------------------
+- ``scene``: I⁻, its depth and the placed object; ``warps``: ray tracing; ``reference``: the
+  Mitsuba reference the metrics compare against; ``true_render``: the procedural scene rendered
+  with the object (the second reference); these four come from :func:`prepare_shared`.
+- ``generator``: building the model (for the analytic backend, its prior from the scene's true
+  panorama), once per (inputs, model config); ``sampling``: :func:`generate_image` with that model
+  built; ``metrics``: :func:`score`.
+- ``total = warps + sampling + reference + metrics``: what producing and scoring one image costs
+  once the scene exists. ``scene`` (making the input), ``true_render`` (an evaluation that only
+  procedural scenes allow) and ``generator`` (loading a model once) are left out.
+- ``sampler_timings_s`` is the sampler's own breakdown (setup, model, codec, warp_blend, step).
+- Before the sweep a tiny warm-up cell runs (Mitsuba's variant probe, imports, first-call costs),
+  so that the first setting is not charged for them.
+
+Reuse
+-----
+The inputs (scene, warps, reference, true render) depend only on the resolved ``scene``,
+``object``, ``warps``, ``reference`` and ``seed`` subtrees; their SHA-256 (first 16 hex digits) is
+the *inputs key*. Within one process a setting whose key another setting already computed for the
+same scene reuses those inputs and their measured times, so reused stages carry identical numbers
+(``inputs_reused_from`` names the setting that measured them). Sampling and metrics always run.
+A resumed sweep recomputes (and re-measures) the inputs it needs.
+
+Layout of an experiment ``E`` under ``runs/``::
+
+    runs/E/<scene>-<variation>/_shared/<inputs key>/_inputs/   I⁻, depth, camera, object,
+        reference.png/.npy, mask.png, metric_mask.npy, true.png, timings.json
+    runs/E/<scene>-<variation>/<setting slug>/                 image.png, config.yaml, result.json
+
+A slug is the label with every character outside ``[A-Za-z0-9._=+-]`` replaced by ``-``
+(``preset:fast`` -> ``preset-fast``). ``result.json`` is written atomically and last; a setting
+whose ``result.json`` has ``status: ok`` is complete and skipped on a re-run unless
+``tradeoff.recompute=true``. A failing setting records ``status: failed`` with the reason, and the
+sweep goes on. Everything is deterministic for a given ``seed``.
+
+Reference convergence
+---------------------
+For an axis whose every value sets only ``reference.spp``, ``reference_psnr_vs_max_spp`` is the
+masked PSNR (:func:`snell_bench.metrics.masked_psnr`, the protocol's defaults: grayscale,
+histogram-matched) of each setting's reference against the highest-spp reference of that axis for
+the same scene, over the metric mask of the highest-spp reference. It is computed from the saved
+float references (``reference.npy``), after each scene of the sweep (written into ``result.json``)
+and again by the report, so a finished folder alone gives it. The highest-spp setting itself has
+``null`` (it is the comparison reference).
+
+Report
+------
+:func:`build_tradeoff_report` (a pure function of a run folder) writes ``tradeoff.csv`` (one row
+per scene x setting), ``tradeoff.md`` (per setting, means over the scenes where it succeeded; the
+Pareto front of (mean total time, mean PSNR)) and ``pareto.png``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import os
+import re
+import tempfile
+import time
+import traceback
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+from omegaconf import DictConfig, ListConfig, OmegaConf
+from tqdm.auto import tqdm
+
+from snell_bench.experiment.runner import (
+    Scorers,
+    Shared,
+    Skip,
+    _atomic_write_bytes,
+    cell_config,
+    generate_image,
+    load_group,
+    object_dir_name,
+    parse_object_spec,
+    prepare_shared,
+    score,
+    write_json,
+)
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "KNOBS",
+    "SHARED_SUBTREES",
+    "SPP_KEY",
+    "STAGES",
+    "Setting",
+    "parse_axes",
+    "preset_settings",
+    "build_settings",
+    "setting_config",
+    "inputs_key",
+    "resolved_knobs",
+    "expected_model_calls",
+    "run_tradeoff",
+    "pareto_front",
+    "collect_tradeoff",
+    "reference_psnr_vs_max_spp",
+    "tradeoff_table",
+    "tradeoff_markdown",
+    "pareto_figure",
+    "build_tradeoff_report",
+]
+
+#: Knob name -> config key, recorded resolved in every ``result.json`` (``knobs``).
+KNOBS: dict[str, str] = {
+    "steps": "sampler.steps",
+    "tt_repeats_main": "sampler.tt_repeats_main",
+    "tt_repeats_pano": "sampler.tt_repeats_pano",
+    "levels": "sampler.levels",
+    "max_bounces": "warps.max_bounces",
+    "width": "scene.width",
+    "height": "scene.height",
+    "supersample": "scene.supersample",
+    "pano_height": "warps.pano_height",
+    "spp": "reference.spp",
+}
+
+#: The config subtrees the shared inputs (scene, warps, references) depend on.
+SHARED_SUBTREES = ("scene", "object", "warps", "reference", "seed")
+
+#: The key of the reference-convergence axis.
+SPP_KEY = "reference.spp"
+
+#: Stage times of ``timings_s``, in pipeline order; ``total`` sums :data:`TOTAL_STAGES`.
+STAGES = ("scene", "warps", "reference", "true_render", "generator", "sampling", "metrics")
+TOTAL_STAGES = ("warps", "sampling", "reference", "metrics")
+TOTAL_NOTE = (
+    "total = warps + sampling + reference + metrics; scene (making the input), true_render "
+    "(procedural-only evaluation) and generator (building the model once) are not included"
+)
+
+#: The metrics a setting records (CLIP and ImageReward are not part of this sweep).
+RECORD_METRICS = ("psnr", "mae", "lpips", "psnr_true")
+
+BASELINE = "baseline"
+PRESET_AXIS = "preset"
+_SLUG_RE = re.compile(r"[^A-Za-z0-9._=+-]")
+_SCENE_DIR_RE = re.compile(r"^(?P<scene>.+)-(?P<variation>\d+)$")
+_MISSING_KEY = object()
+
+
+# ---------------------------------------------------------------------------- settings
+@dataclass(frozen=True)
+class Setting:
+    """One point of the sweep: a label and the dotted-key overrides it applies to the base."""
+
+    label: str
+    #: Axis name; ``None`` for the baseline, ``"preset"`` for presets.
+    axis: str | None = None
+    #: The axis value as given (a scalar, or a mapping for a compound axis; the preset's name).
+    value: Any = None
+    #: Flat ``{dotted key: value}``.
+    overrides: dict = field(default_factory=dict)
+
+    @property
+    def slug(self) -> str:
+        """The setting's folder name."""
+        return slugify(self.label)
+
+    @property
+    def is_preset(self) -> bool:
+        return self.axis == PRESET_AXIS
+
+
+def slugify(label: str) -> str:
+    """A folder name for a label: characters outside ``[A-Za-z0-9._=+-]`` become ``-``."""
+    return _SLUG_RE.sub("-", str(label))
+
+
+def _plain(v: Any) -> Any:
+    """OmegaConf containers -> Python containers (other values unchanged)."""
+    if isinstance(v, (DictConfig, ListConfig)):
+        return OmegaConf.to_container(v, resolve=True)
+    return v
+
+
+def _value_label(v: Any) -> str:
+    if isinstance(v, bool):
+        return str(v).lower()
+    if isinstance(v, float):
+        return format(v, "g")
+    return str(v)
+
+
+def _check_key(base: DictConfig, key: Any, where: str) -> None:
+    """Raise ``ValueError`` unless ``key`` is a dotted path to a leaf of ``base``."""
+    if not isinstance(key, str) or not key:
+        raise ValueError(f"{where}: the key {key!r} is not a dotted config key; write e.g. sampler.steps")
+    node = OmegaConf.select(base, key, default=_MISSING_KEY, throw_on_missing=False)
+    if node is _MISSING_KEY:
+        head = key.split(".")[0]
+        hint = f"; {head!r} has the keys {sorted(base[head].keys())}" if isinstance(base.get(head), DictConfig) else ""
+        raise ValueError(
+            f"{where}: unknown config key {key!r} (not in the base config){hint}. Fix the key, e.g. sampler.steps, "
+            "warps.max_bounces, scene.width"
+        )
+    if isinstance(node, DictConfig):
+        raise ValueError(
+            f"{where}: the key {key!r} names a whole config node ({sorted(node.keys())}); give one of its leaves, "
+            f"e.g. {key}.{next(iter(node.keys()), 'name')}"
+        )
+
+
+def parse_axes(axes: Mapping, base: DictConfig) -> list[Setting]:
+    """One :class:`Setting` per (axis, value) of ``tradeoff.axes`` (format: the module docstring).
+
+    Every key is checked against ``base``; errors name the axis, the key and the fix."""
+    axes = _plain(axes) or {}
+    if not isinstance(axes, Mapping):
+        raise ValueError(f"tradeoff.axes must be a mapping axis name -> {{key, values}}, got {axes!r}")
+    out = []
+    for name, spec in axes.items():
+        where = f"tradeoff.axes.{name}"
+        if name in (BASELINE, PRESET_AXIS):
+            raise ValueError(f"{where}: {name!r} is reserved; rename the axis")
+        if not isinstance(spec, Mapping) or "values" not in spec:
+            raise ValueError(
+                f"{where}: expected {{key: <dotted key>, values: [...]}} or {{values: [{{<dotted key>: v, ...}}]}}, "
+                f"got {spec!r}"
+            )
+        unknown = set(spec) - {"key", "values", "labels"}
+        if unknown:
+            raise ValueError(f"{where}: unknown field(s) {sorted(unknown)}; an axis has key, values and labels")
+        values = spec["values"]
+        if not isinstance(values, list) or not values:
+            raise ValueError(f"{where}.values must be a non-empty list, got {values!r}")
+        labels = spec.get("labels")
+        if labels is not None and (not isinstance(labels, list) or len(labels) != len(values)):
+            raise ValueError(f"{where}.labels must be a list with one label per value ({len(values)}), got {labels!r}")
+        key = spec.get("key")
+        if key is not None:
+            _check_key(base, key, where)
+        for i, v in enumerate(values):
+            if key is not None:
+                if isinstance(v, (Mapping, list)):
+                    raise ValueError(
+                        f"{where}: value {v!r} of key {key!r} must be a scalar; for a compound value drop 'key' and "
+                        "give mappings {<dotted key>: value}"
+                    )
+                overrides = {key: v}
+                label = _value_label(v)
+            else:
+                if not isinstance(v, Mapping) or not v:
+                    raise ValueError(
+                        f"{where}: value {v!r} needs a 'key' for the axis, or must be a mapping {{<dotted key>: value}}"
+                    )
+                for k in v:
+                    _check_key(base, k, where)
+                overrides = dict(v)
+                label = "x".join(_value_label(x) for x in v.values())
+            if labels is not None:
+                label = str(labels[i])
+            out.append(Setting(label=f"{name}={label}", axis=str(name), value=v, overrides=overrides))
+    return out
+
+
+def flatten(node: Mapping, prefix: str = "") -> dict:
+    """Nested mapping -> ``{dotted key: leaf}`` (lists are leaves)."""
+    out = {}
+    for k, v in node.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping) and v:
+            out.update(flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def nest(flat: Mapping) -> dict:
+    """``{dotted key: value}`` -> nested dict (the inverse of :func:`flatten`)."""
+    out: dict = {}
+    for key, v in flat.items():
+        d = out
+        parts = str(key).split(".")
+        for p in parts[:-1]:
+            d = d.setdefault(p, {})
+        d[parts[-1]] = v
+    return out
+
+
+def preset_settings(names: Iterable[str], base: DictConfig) -> list[Setting]:
+    """One setting per preset (``conf/preset/<name>.yaml`` without its defaults, flattened)."""
+    out = []
+    for name in names:
+        try:
+            node = load_group("preset", str(name))
+        except ValueError as e:
+            raise ValueError(f"tradeoff.presets: {e}") from None
+        flat = flatten(OmegaConf.to_container(node, resolve=True))
+        for k in flat:
+            _check_key(base, k, f"tradeoff.presets ({name}: conf/preset/{name}.yaml)")
+        out.append(Setting(label=f"{PRESET_AXIS}:{name}", axis=PRESET_AXIS, value=str(name), overrides=flat))
+    return out
+
+
+def build_settings(cfg: DictConfig) -> list[Setting]:
+    """``baseline``, the axes' settings in order, then the presets; labels and slugs unique."""
+    settings = [Setting(BASELINE)] + parse_axes(cfg.tradeoff.axes, cfg) + preset_settings(cfg.tradeoff.presets, cfg)
+    for what, names in (("label", [s.label for s in settings]), ("folder name", [s.slug for s in settings])):
+        dup = sorted(k for k, n in Counter(names).items() if n > 1)
+        if dup:
+            raise ValueError(f"tradeoff: duplicate setting {what}(s) {dup}; give the axis distinct values or labels")
+    for s in settings:
+        if s.slug.startswith((".", "_")):
+            raise ValueError(
+                f"tradeoff: setting {s.label!r} would be a hidden folder; do not start labels with '.' or '_'"
+            )
+    return settings
+
+
+def setting_config(base: DictConfig, setting: Setting, scene: str, variation: int, obj_spec: str,
+                   method: str) -> DictConfig:
+    """The config of one (scene, setting): the overrides merged into the base, then
+    :func:`cell_config`, with warps never read from a cache. Raises ``ValueError`` when a value
+    does not fit its key, or when the scene, object or method files override one of the keys."""
+    try:
+        merged = OmegaConf.merge(base, nest(setting.overrides))
+    except Exception as e:  # omegaconf ValidationError: a value of the wrong type
+        first = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise ValueError(
+            f"tradeoff setting {setting.label!r}: {first}; fix the value of {sorted(setting.overrides)}"
+        ) from None
+    c = cell_config(merged, scene, variation, obj_spec, method)
+    c.warps.cache_dir = None
+    for k, v in setting.overrides.items():
+        got = _plain(OmegaConf.select(c, k))
+        if got != _plain(v):
+            raise ValueError(
+                f"tradeoff setting {setting.label!r}: {k} resolves to {got!r}, not {v!r}, for scene {scene!r}, "
+                f"object {obj_spec!r}, method {method!r} (their files set it); vary another key or change those files"
+            )
+    return c
+
+
+def inputs_key(c: DictConfig) -> str:
+    """SHA-256 (16 hex digits) of the resolved subtrees the shared inputs depend on."""
+    payload = {k: _plain(c[k]) for k in SHARED_SUBTREES}
+    text = json.dumps(payload, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _model_key(c: DictConfig) -> str:
+    return hashlib.sha256(json.dumps(_plain(c.model), sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def resolved_knobs(c: DictConfig) -> dict:
+    """The :data:`KNOBS` as resolved in a setting's config."""
+    return {name: _plain(OmegaConf.select(c, key, default=None)) for name, key in KNOBS.items()}
+
+
+def expected_model_calls(steps: int, tt_window: Sequence[float], tt_length: int, tt_repeats_main: int,
+                         tt_repeats_pano: int, panorama: bool = True, time_travel: bool = True) -> dict:
+    """Model calls per branch of the synchronized sampler: each block of ``tt_length`` steps that
+    starts inside the window ``[w0 T, w1 T)`` runs ``tt_repeats_*`` times, every other step once."""
+    T = int(steps)
+    main = pano = 0
+    i = 0
+    while i < T:
+        travel = time_travel and tt_window[0] * T <= i < tt_window[1] * T
+        L = min(int(tt_length), T - i) if travel else 1
+        main += L * (int(tt_repeats_main) if travel else 1)
+        pano += L * (int(tt_repeats_pano) if travel else 1)
+        i += L
+    return {"main": main, "pano": pano if panorama else 0}
+
+
+# ---------------------------------------------------------------------------- the sweep
+def _result_ok(path: Path) -> bool:
+    try:
+        return json.loads(path.read_text()).get("status") == "ok"
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _r(x: float) -> float:
+    return round(float(x), 4)
+
+
+@dataclass
+class _Inputs:
+    """Shared inputs of one inputs key, with their measured times and who measured them."""
+
+    shared: Shared
+    timings: dict
+    computed_by: str
+    folder: Path
+    generators: dict = field(default_factory=dict)  # model key -> (generator, build seconds)
+
+
+def _compute_inputs(c: DictConfig, folder: Path, label: str) -> _Inputs:
+    shared = prepare_shared(c, folder)
+    d = folder / "_inputs"
+    if shared.reference is not None:
+        _save_npy(d / "reference.npy", np.asarray(shared.reference, np.float32))
+    if shared.metric_mask is not None:
+        _save_npy(d / "metric_mask.npy", np.asarray(shared.metric_mask, bool))
+    timings = {k: _r(v) for k, v in shared.timings.items()}
+    write_json(d / "timings.json", {"timings_s": timings, "computed_by": label})
+    return _Inputs(shared, timings, label, folder)
+
+
+def _save_npy(path: Path, arr: np.ndarray) -> None:
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, arr)
+    _atomic_write_bytes(path, buf.getvalue())
+
+
+def _needs_generator(c: DictConfig) -> bool:
+    kind = str(c.method.kind)
+    return kind in ("snellcaster", "t2i") or (kind == "inpaint" and str(c.model.name) == "analytic")
+
+
+def _generator(entry: _Inputs, c: DictConfig) -> tuple[Any, float]:
+    from snell_bench.experiment.inputs import make_generator
+
+    key = _model_key(c)
+    if key not in entry.generators:
+        t0 = time.perf_counter()
+        gen = make_generator(c.model, entry.shared.inputs, entry.shared.warps)
+        entry.generators[key] = (gen, _r(time.perf_counter() - t0))
+    return entry.generators[key]
+
+
+def _sweep_metrics_config(mcfg: DictConfig) -> DictConfig:
+    """The metrics config for the sweep: LPIPS as configured; CLIP and ImageReward not built."""
+    m = OmegaConf.create(_plain(mcfg))
+    m.clip_weights = None
+    m.image_reward_python = None
+    return m
+
+
+def _run_setting(c: DictConfig, setting: Setting, entry: _Inputs, scorers: Scorers, sdir: Path) -> dict:
+    """Sampling and metrics of one setting on its (possibly shared) inputs; the record's fields."""
+    shared = entry.shared
+    t = dict(entry.timings)
+    gen_cache: dict = {}
+    t["generator"] = 0.0
+    if _needs_generator(c):
+        gen, t["generator"] = _generator(entry, c)
+        gen_cache[(c.model.name, id(shared))] = gen  # the key generate_image looks up
+    t0 = time.perf_counter()
+    img, stats = generate_image(c, shared, gen_cache)
+    t["sampling"] = _r(time.perf_counter() - t0)
+    from snell_bench.experiment.preview import save_png
+
+    save_png(sdir / "image.png", img[0].permute(1, 2, 0).numpy())
+    t0 = time.perf_counter()
+    prompt = str(c.scene.prompt).replace("{object}", str(c.object.noun))
+    scored = score(img, shared, prompt, scorers, sdir / "image.png")
+    t["metrics"] = _r(time.perf_counter() - t0)
+    t["total"] = _r(sum(t[k] for k in TOTAL_STAGES))
+    metrics = {k: scored["metrics"].get(k) for k in RECORD_METRICS}
+    missing = {k: v for k, v in scored["missing"].items() if k in RECORD_METRICS}
+    if shared.true_render is None and "psnr_true" not in missing:
+        missing["psnr_true"] = (
+            "no true render (reference.true_render=false, the renderer is unavailable, or the scene source is "
+            "not procedural)"
+        )
+    for k in RECORD_METRICS:
+        if metrics[k] is None and k not in missing:
+            missing[k] = "no value"
+    return {
+        "timings_s": {k: t.get(k) for k in STAGES + ("total",)},
+        "sampler_timings_s": stats.get("sampler_timings_s", {}),
+        "model_calls": stats.get("model_calls", {}),
+        "decisions": stats.get("decisions", {}),
+        "metrics": metrics,
+        "missing": missing,
+    }
+
+
+def _warm_up(c: DictConfig) -> None:
+    """Run one tiny cell (imports, Mitsuba's variant probe, first-call costs) and discard it."""
+    w = OmegaConf.create(OmegaConf.to_container(c, resolve=False))
+    OmegaConf.set_struct(w, False)
+    w.scene.width, w.scene.height, w.scene.supersample = 64, 32, 1
+    w.warps.pano_height = 32
+    w.reference.spp, w.reference.true_spp = 1, 1
+    w.sampler.steps, w.sampler.levels = 2, 2
+    with tempfile.TemporaryDirectory(prefix="tradeoff-warmup-") as d:
+        try:
+            shared = prepare_shared(w, Path(d))
+            generate_image(w, shared, {})
+        except Exception as e:  # the sweep itself reports real failures
+            log.info("warm-up cell failed (%s: %s); timings of the first setting include first-call costs",
+                     type(e).__name__, e)
+
+
+def run_tradeoff(cfg: DictConfig) -> dict:
+    """Run the sweep of ``cfg.tradeoff`` and build its report; returns a summary."""
+    t = cfg.tradeoff
+    exp = str(cfg.experiment_name)
+    root = Path(cfg.runs_dir) / exp
+    variation = int(t.variation)
+    obj_spec, method = str(t.object), str(t.method)
+    scenes = [str(s) for s in t.scenes]
+    if not scenes:
+        raise ValueError("tradeoff.scenes is empty; give at least one scene, e.g. tradeoff.scenes=[living_room]")
+    # everything that can be checked is checked before any folder is written
+    for s in scenes:
+        load_group("scene", s)
+    load_group("object", parse_object_spec(obj_spec)[0])
+    load_group("method", method)
+    settings = build_settings(cfg)
+    plan = []  # (scene, setting, config, inputs key, folder)
+    for scene in scenes:
+        sdir = root / f"{scene}-{variation}"
+        for st in settings:
+            c = setting_config(cfg, st, scene, variation, obj_spec, method)
+            plan.append((scene, st, c, inputs_key(c), sdir / st.slug))
+    todo = [i for i, p in enumerate(plan) if t.recompute or not _result_ok(p[4] / "result.json")]
+    uses = Counter((plan[i][0], plan[i][3]) for i in todo)
+    last_todo_of_scene = {plan[i][0]: i for i in todo}
+
+    root.mkdir(parents=True, exist_ok=True)
+    print(f"tradeoff {exp}: {len(scenes)} scene(s) x {len(settings)} settings = {len(plan)} runs "
+          f"({len(plan) - len(todo)} already done) -> {root}")
+    if todo:
+        _warm_up(plan[todo[0]][2])
+    scorers = Scorers(_sweep_metrics_config(cfg.metrics))
+    counts = Counter({"ok": 0, "failed": 0, "skipped": 0, "cached": len(plan) - len(todo)})
+    failures = []
+    cache: dict[tuple[str, str], _Inputs] = {}
+    bar = tqdm(total=len(plan), desc=f"tradeoff {exp}", unit="setting", initial=counts["cached"])
+    for idx in todo:
+        scene, st, c, key, sdir = plan[idx]
+        bar.set_postfix_str(f"{scene} {st.label}")
+        sdir.mkdir(parents=True, exist_ok=True)
+        record = {
+            "experiment": exp, "scene": scene, "variation": variation, "object": object_dir_name(obj_spec),
+            "method": method, "model": str(c.model.name), "scene_source": str(c.scene.source), "seed": int(c.seed),
+            "setting": st.label, "slug": st.slug, "order": settings.index(st), "axis": st.axis,
+            "value": _plain(st.value), "overrides": {k: _plain(v) for k, v in st.overrides.items()},
+            "knobs": resolved_knobs(c), "inputs_key": key,
+            "inputs_dir": f"_shared/{key}/_inputs", "inputs_reused_from": None,
+            "status": "ok", "reason": None, "timings_note": TOTAL_NOTE,
+        }
+        try:
+            entry = cache.get((scene, key))
+            if entry is None:
+                entry = _compute_inputs(c, sdir.parent / "_shared" / key, st.label)
+                cache[(scene, key)] = entry
+            else:
+                record["inputs_reused_from"] = entry.computed_by
+            record.update(_run_setting(c, st, entry, scorers, sdir))
+        except Skip as e:
+            record.update(status="skipped", reason=str(e))
+        except KeyboardInterrupt:
+            raise
+        except Exception as e:
+            record.update(status="failed", reason=f"{type(e).__name__}: {e}", traceback=traceback.format_exc())
+            failures.append((f"{scene}/{st.label}", record["reason"]))
+            log.error("setting %s of %s failed: %s", st.label, scene, record["reason"])
+        finally:
+            uses[(scene, key)] -= 1
+            if uses[(scene, key)] <= 0:
+                cache.pop((scene, key), None)  # no later setting needs these inputs
+        c.output_dir = str(sdir)
+        _atomic_write_bytes(sdir / "config.yaml", OmegaConf.to_yaml(c, resolve=True).encode())
+        write_json(sdir / "result.json", record)  # last: marks the setting complete
+        counts[record["status"]] += 1
+        bar.update(1)
+        if last_todo_of_scene[scene] == idx:
+            _update_spp_records(root / f"{scene}-{variation}")
+    bar.close()
+    summary = {"experiment": exp, "runs": len(plan), **counts, "failures": failures}
+    write_json(root / "summary.json", summary)
+    print(f"{exp}: {counts['ok']} ok, {counts['cached']} already done, {counts['skipped']} skipped, "
+          f"{counts['failed']} failed")
+    for where, reason in failures:
+        print(f"  FAILED {where}: {reason}")
+    out = Path(cfg.reports_dir) / exp
+    paths = build_tradeoff_report(root, out)
+    summary["reports"] = [str(p) for p in paths]
+    print(f"reports: {out} ({len(paths)} files)")
+    print(_stdout_table(tradeoff_table(collect_tradeoff(root))))
+    return summary
+
+
+# ---------------------------------------------------------------------------- reference convergence
+def _load_records(root: Path) -> list[dict]:
+    """Every ``result.json`` below ``root`` (``<scene>-<variation>/<slug>/result.json``), each with
+    ``_dir`` (its folder relative to ``root``); unreadable ones as failed records."""
+    out = []
+    for p in sorted(Path(root).glob("*/*/result.json")):
+        rel = p.parent.relative_to(root)
+        if any(part.startswith((".", "_")) for part in rel.parts):
+            continue
+        try:
+            rec = json.loads(p.read_text())
+            if not isinstance(rec, dict):
+                raise ValueError("not a JSON object")
+        except (OSError, ValueError) as e:
+            m = _SCENE_DIR_RE.match(rel.parts[0])
+            rec = {"status": "failed", "reason": f"result.json unreadable: {e}", "setting": rel.parts[1],
+                   "scene": m["scene"] if m else rel.parts[0], "variation": int(m["variation"]) if m else None}
+        rec["_dir"] = rel.as_posix()
+        out.append(rec)
+    return out
+
+
+def _is_spp_record(rec: dict) -> bool:
+    return rec.get("axis") not in (None, PRESET_AXIS) and set(rec.get("overrides") or {}) == {SPP_KEY}
+
+
+def reference_psnr_vs_max_spp(
+    root: str | os.PathLike, records: Sequence[dict] | None = None
+) -> dict[str, float | None]:
+    """``{record folder: PSNR}`` for the settings of every axis that varies only ``reference.spp``
+    (see the module docstring), from the saved ``reference.npy`` and ``metric_mask.npy``.
+    ``None`` for the highest-spp setting itself and where a file or the mask is missing."""
+    from snell_bench.metrics import MetricUnavailable, masked_psnr
+
+    root = Path(root)
+    records = _load_records(root) if records is None else records
+    groups: dict[tuple, list[dict]] = {}
+    for r in records:
+        if r.get("status") == "ok" and _is_spp_record(r):
+            groups.setdefault((r["_dir"].split("/")[0], r["axis"]), []).append(r)
+    out: dict[str, float | None] = {}
+
+    def load(r, name):
+        p = root / r["_dir"].split("/")[0] / str(r.get("inputs_dir", "")) / name
+        return np.load(p) if p.is_file() else None
+
+    for (_, _), recs in groups.items():
+        best = max(recs, key=lambda r: float((r.get("overrides") or {})[SPP_KEY]))
+        ref_max, mask = load(best, "reference.npy"), load(best, "metric_mask.npy")
+        for r in recs:
+            val = None
+            if r is not best and ref_max is not None and mask is not None:
+                ref = load(r, "reference.npy")
+                if ref is not None and ref.shape == ref_max.shape:
+                    try:
+                        v = float(masked_psnr(ref, ref_max, mask))
+                        val = v if math.isfinite(v) else None
+                    except MetricUnavailable:
+                        val = None
+            out[r["_dir"]] = val
+    return out
+
+
+def _update_spp_records(scene_dir: Path) -> None:
+    """Write ``reference_psnr_vs_max_spp`` into the spp-axis records of one scene (only if changed)."""
+    if not scene_dir.is_dir():
+        return
+    root = scene_dir.parent
+    records = [r for r in _load_records(root) if r["_dir"].split("/")[0] == scene_dir.name]
+    values = reference_psnr_vs_max_spp(root, records)
+    for r in records:
+        if r["_dir"] not in values:
+            continue
+        v = values[r["_dir"]]
+        if "reference_psnr_vs_max_spp" in r and r["reference_psnr_vs_max_spp"] == v:
+            continue
+        rec = {k: val for k, val in r.items() if k != "_dir"}
+        rec["reference_psnr_vs_max_spp"] = v
+        write_json(root / r["_dir"] / "result.json", rec)
+
+
+# ---------------------------------------------------------------------------- Pareto front
+def pareto_front(cost: Sequence[float], score: Sequence[float]) -> np.ndarray:
+    """Boolean mask of the points not dominated when minimising ``cost`` and maximising ``score``.
+
+    Point ``j`` dominates ``i`` if ``cost[j] <= cost[i]`` and ``score[j] >= score[i]`` with at least
+    one strict. Identical points do not dominate each other (all of them are on the front). A point
+    with NaN cost or score is never on the front and dominates nothing."""
+    c = np.asarray(cost, dtype=float).reshape(-1)
+    s = np.asarray(score, dtype=float).reshape(-1)
+    if c.shape != s.shape:
+        raise ValueError(f"cost and score must have the same length, got {c.shape} and {s.shape}")
+    front = np.zeros(c.shape, dtype=bool)
+    valid = np.flatnonzero(~(np.isnan(c) | np.isnan(s)))
+    if valid.size == 0:
+        return front
+    order = valid[np.lexsort((-s[valid], c[valid]))]  # cost ascending, score descending
+    best_before = None  # highest score among strictly cheaper points
+    k = 0
+    while k < order.size:
+        group = [order[k]]
+        while k + len(group) < order.size and c[order[k + len(group)]] == c[order[k]]:
+            group.append(order[k + len(group)])
+        top = s[group[0]]
+        for i in group:
+            front[i] = s[i] == top and (best_before is None or s[i] > best_before)
+        best_before = top if best_before is None else max(best_before, top)
+        k += len(group)
+    return front
+
+
+# ---------------------------------------------------------------------------- report
+def _float(v) -> float:
+    try:
+        return float("nan") if v is None else float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _value_text(v) -> str | None:
+    """An axis value for a CSV cell: scalars as text, compound values as JSON."""
+    if v is None:
+        return None
+    return json.dumps(v, sort_keys=True) if isinstance(v, (dict, list)) else str(v)
+
+
+def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
+    """One row per scene x setting below ``root``: identity, knobs (``knob.<name>``), stage times
+    (``timings_s.<stage>``), sampler breakdown (``sampler_s.<part>``), model calls
+    (``model_calls.<branch>``), metrics, ``missing.<metric>`` reasons and
+    ``reference_psnr_vs_max_spp`` (recomputed from the saved references). Sorted by scene, then the
+    setting's order in the sweep."""
+    root = Path(root)
+    records = _load_records(root)
+    conv = reference_psnr_vs_max_spp(root, records)
+    rows = []
+    for r in records:
+        row = {
+            "scene": r.get("scene"), "variation": r.get("variation"), "setting": r.get("setting"),
+            "slug": r.get("slug"), "order": r.get("order"), "axis": r.get("axis"),
+            "value": _value_text(r.get("value")),
+            "overrides": json.dumps(r.get("overrides") or {}, sort_keys=True),
+            "status": r.get("status"), "reason": r.get("reason"), "model": r.get("model"),
+            "inputs_key": r.get("inputs_key"), "inputs_reused_from": r.get("inputs_reused_from"),
+        }
+        for k, v in (r.get("knobs") or {}).items():
+            row[f"knob.{k}"] = v
+        for k in STAGES + ("total",):
+            row[f"timings_s.{k}"] = _float((r.get("timings_s") or {}).get(k))
+        for k, v in (r.get("sampler_timings_s") or {}).items():
+            row[f"sampler_s.{k}"] = _float(v)
+        for k, v in (r.get("model_calls") or {}).items():
+            row[f"model_calls.{k}"] = v
+        for k in RECORD_METRICS:
+            row[k] = _float((r.get("metrics") or {}).get(k))
+            row[f"missing.{k}"] = (r.get("missing") or {}).get(k)
+        row["reference_psnr_vs_max_spp"] = _float(conv.get(r["_dir"], r.get("reference_psnr_vs_max_spp")))
+        row["dir"] = r["_dir"]
+        rows.append(row)
+    df = pd.DataFrame(rows)
+    if df.empty:
+        return df
+    df["order"] = pd.to_numeric(df["order"], errors="coerce")
+    return df.sort_values(["scene", "order", "setting"], na_position="last", kind="mergesort").reset_index(drop=True)
+
+
+def tradeoff_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Per setting (rows in sweep order): means over the scenes where it is ``ok`` of every stage
+    time, ``psnr``, ``psnr_true``, ``lpips`` and ``reference_psnr_vs_max_spp``; ``n`` (ok scenes),
+    ``n_scenes``, ``lpips_missing`` (the reasons, when LPIPS has no value) and ``pareto``: on the
+    front of (mean total time ↓, mean PSNR ↑) among the settings that succeeded on every scene."""
+    if df.empty:
+        raise FileNotFoundError("no settings (result.json) to tabulate")
+    n_scenes = df["scene"].nunique()
+    ok = df[df["status"] == "ok"]
+    cols = [f"timings_s.{k}" for k in STAGES + ("total",)] + ["psnr", "psnr_true", "lpips", "mae",
+                                                              "reference_psnr_vs_max_spp"]
+    order = df.groupby("setting", sort=False)["order"].min().sort_values(kind="mergesort")
+    rows = []
+    for setting in order.index:
+        g = ok[ok["setting"] == setting]
+        first = df[df["setting"] == setting].iloc[0]
+        row = {"setting": setting, "axis": first["axis"], "n": len(g), "n_scenes": n_scenes}
+        for c in cols:
+            row[c] = float(g[c].mean()) if c in g.columns and g[c].notna().any() else float("nan")
+        reasons = sorted({str(v) for v in g.get("missing.lpips", pd.Series(dtype=object)).dropna()})
+        row["lpips_missing"] = "; ".join(reasons) if reasons else None
+        rows.append(row)
+    table = pd.DataFrame(rows).set_index("setting")
+    complete = table["n"] == n_scenes
+    cost = table["timings_s.total"].where(complete)
+    table["pareto"] = pareto_front(cost.to_numpy(), table["psnr"].where(complete).to_numpy())
+    return table
+
+
+def _fmt(v, spec: str = "{:.2f}") -> str:
+    return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else spec.format(v)
+
+
+def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed/accuracy trade-off") -> str:
+    """The per-setting table as Markdown, with the provenance and notes (failures, missing metrics)."""
+    models = sorted({str(m) for m in df["model"].dropna()}) if "model" in df else []
+    status = Counter(str(s) for s in df["status"])
+    counts = ", ".join(f"{v} {k}" for k, v in sorted(status.items()))
+    lines = [
+        f"# {title}",
+        "",
+        f"Means over the scenes where a setting succeeded ({', '.join(sorted(df['scene'].dropna().unique()))}); "
+        f"model: {', '.join(models) or 'unknown'}; {len(df)} runs ({counts}). "
+        f"Times in seconds; {TOTAL_NOTE}. PSNR: masked, vs the reference render; PSNR (true): vs the true render. "
+        "Each setting is scored against its own reference render, so the axes that change the reference "
+        "(spp, resolution) also change what PSNR measures (see the reference convergence below); the true render "
+        "is traced with the setting's warps.max_bounces. "
+        "**pareto**: on the front of (mean total ↓, mean PSNR ↑) among the settings that succeeded on every "
+        "scene. Presets in bold.",
+        "",
+    ]
+    head = ["setting", "scene", "warps", "reference", "true render", "generator", "sampling", "metrics",
+            "total", "PSNR", "PSNR (true)", "LPIPS", "n", "pareto"]
+    lines.append("| " + " | ".join(head) + " |")
+    lines.append("|" + "|".join(["---"] + ["---:"] * (len(head) - 2) + [":---:"]) + "|")
+    for setting, r in table.iterrows():
+        label = f"**{setting}**" if r["axis"] == PRESET_AXIS else str(setting)
+        lp = _fmt(r["lpips"], "{:.3f}") if not math.isnan(r["lpips"]) else "missing"
+        cells = [label] + [_fmt(r[f"timings_s.{k}"]) for k in ("scene", "warps", "reference", "true_render",
+                                                              "generator", "sampling", "metrics", "total")]
+        cells += [_fmt(r["psnr"]), _fmt(r["psnr_true"]), lp, f"{int(r['n'])}/{int(r['n_scenes'])}",
+                  "★" if r["pareto"] else ""]
+        if r["axis"] == PRESET_AXIS:
+            cells = [f"**{x}**" if x and not x.startswith("**") else x for x in cells]
+        lines.append("| " + " | ".join(cells) + " |")
+    spp = df[df.apply(_is_spp_axis_row, axis=1)] if not df.empty else df
+    if not spp.empty:
+        lines += ["", "## Reference convergence", "",
+                  "Masked PSNR (grayscale, histogram-matched) of each reference render against the highest-spp "
+                  "reference of its axis for the same scene, over that reference's metric mask; mean over scenes; "
+                  "computed from the saved float references (`reference.npy`).", "",
+                  "| setting | spp | PSNR vs max spp |", "|---|---:|---:|"]
+        for (axis, setting), g in spp.groupby(["axis", "setting"], sort=False):
+            n = int(g["knob.spp"].iloc[0]) if "knob.spp" in g and g["knob.spp"].notna().any() else None
+            top = n is not None and n == spp.loc[spp["axis"] == axis, "knob.spp"].max()
+            v = table.loc[setting, "reference_psnr_vs_max_spp"] if setting in table.index else float("nan")
+            lines.append(f"| {setting} | {n if n is not None else '—'} | "
+                         f"{'(highest spp: the comparison reference)' if top else _fmt(v)} |")
+    notes = []
+    for _, r in df[df["status"] != "ok"].iterrows():
+        notes.append(f"{r['status']}: {r['scene']} / {r['setting']} — {' '.join(str(r['reason']).split())}")
+    for m in RECORD_METRICS:
+        col = f"missing.{m}"
+        ok = df[df["status"] == "ok"]
+        if col in ok and ok[m].isna().any():
+            for why, n in Counter(str(v) for v in ok.loc[ok[m].isna(), col]).items():
+                notes.append(f"{m}: missing in {n} of {len(ok)} ok runs — {' '.join(why.split())}")
+    if notes:
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
+    return "\n".join(lines) + "\n"
+
+
+def _is_spp_axis_row(r) -> bool:
+    try:
+        return (r["status"] == "ok" and isinstance(r["axis"], str) and r["axis"] != PRESET_AXIS
+                and set(json.loads(r["overrides"])) == {SPP_KEY})
+    except (TypeError, ValueError):
+        return False
+
+
+def pareto_figure(table: pd.DataFrame, out_png: str | os.PathLike, title: str = "") -> Path:
+    """``pareto.png``: mean total seconds (log x) against mean PSNR vs the reference, one marker and
+    colour per axis, presets as labelled stars, the Pareto front as a step line; a second panel with
+    PSNR vs the true render when any setting has it."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    panels = [("psnr", "mean masked PSNR vs reference (dB)")]
+    if table["psnr_true"].notna().any():
+        panels.append(("psnr_true", "mean masked PSNR vs true render (dB)"))
+    fig = Figure(figsize=(6.0 * len(panels), 4.6), dpi=110, facecolor="white")
+    FigureCanvasAgg(fig)
+    axes_names = [a for a in dict.fromkeys(table["axis"]) if a not in (None, PRESET_AXIS) and not _isnan(a)]
+    markers = "osD^v<>phX8"
+    colors = [f"C{i}" for i in range(10)]
+    for pi, (metric, ylabel) in enumerate(panels):
+        ax = fig.add_subplot(1, len(panels), pi + 1)
+        x = table["timings_s.total"].to_numpy(float)
+        y = table[metric].to_numpy(float)
+        base = (table["axis"].isna()).to_numpy() | np.array([_isnan(a) for a in table["axis"]])
+        if base.any():
+            ax.scatter(x[base], y[base], marker="o", s=60, facecolors="none", edgecolors="black", label="baseline",
+                       zorder=3)
+        for i, a in enumerate(axes_names):
+            sel = (table["axis"] == a).to_numpy()
+            ax.scatter(x[sel], y[sel], marker=markers[i % len(markers)], color=colors[i % len(colors)], s=28,
+                       label=a, zorder=3)
+            for lab, xi, yi in zip(table.index[sel], x[sel], y[sel]):
+                if np.isfinite(xi) and np.isfinite(yi):
+                    ax.annotate(lab.split("=", 1)[-1], (xi, yi), fontsize=6, xytext=(3, 2), textcoords="offset points",
+                                color=colors[i % len(colors)])
+        pre = (table["axis"] == PRESET_AXIS).to_numpy()
+        if pre.any():
+            ax.scatter(x[pre], y[pre], marker="*", s=160, color="gold", edgecolors="black", linewidths=0.6,
+                       label="presets", zorder=4)
+            for lab, xi, yi in zip(table.index[pre], x[pre], y[pre]):
+                if np.isfinite(xi) and np.isfinite(yi):
+                    ax.annotate(lab.split(":", 1)[-1], (xi, yi), fontsize=8, fontweight="bold", xytext=(5, -10),
+                                textcoords="offset points")
+        complete = (table["n"] == table["n_scenes"]).to_numpy()
+        front = pareto_front(np.where(complete, x, np.nan), np.where(complete, y, np.nan))
+        if front.any():
+            o = np.argsort(x[front], kind="mergesort")
+            ax.step(x[front][o], y[front][o], where="post", color="grey", lw=1.2, ls="--", label="Pareto front",
+                    zorder=2)
+            ax.scatter(x[front], y[front], s=150, facecolors="none", edgecolors="grey", linewidths=1.0, zorder=2)
+        finite = x[np.isfinite(x)]
+        if finite.size and (finite > 0).all():
+            ax.set_xscale("log")
+            ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+            ax.xaxis.set_minor_locator(LogLocator(base=10, subs=tuple(range(1, 10))))
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlabel("mean total time per image (s, log scale)")
+        ax.set_ylabel(ylabel)
+        ax.grid(True, which="both", alpha=0.3)
+        if pi == 0:
+            ax.legend(fontsize=7, loc="best")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    out_png = Path(out_png)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, facecolor="white", metadata={"Software": None})
+    return out_png
+
+
+def _isnan(v) -> bool:
+    return isinstance(v, float) and math.isnan(v)
+
+
+def build_tradeoff_report(runs_root: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
+    """Write ``tradeoff.csv`` (one row per scene x setting), ``tradeoff.md`` and ``pareto.png`` from
+    a sweep's run folder alone; returns the written paths."""
+    runs_root, out_dir = Path(runs_root), Path(out_dir)
+    df = collect_tradeoff(runs_root)
+    if df.empty:
+        raise FileNotFoundError(f"no settings (result.json) below {runs_root}")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    table = tradeoff_table(df)
+    csv = out_dir / "tradeoff.csv"
+    _atomic_write_bytes(csv, df.to_csv(index=False, lineterminator="\n").encode())
+    md = out_dir / "tradeoff.md"
+    _atomic_write_bytes(md, tradeoff_markdown(table, df, f"Speed/accuracy trade-off ({runs_root.name})").encode())
+    png = pareto_figure(table, out_dir / "pareto.png", f"{runs_root.name}: cost vs fidelity")
+    return [csv, md, png]
+
+
+def _stdout_table(table: pd.DataFrame) -> str:
+    t = pd.DataFrame({
+        "total s": table["timings_s.total"].map(lambda v: _fmt(v)),
+        "sampling s": table["timings_s.sampling"].map(lambda v: _fmt(v)),
+        "PSNR": table["psnr"].map(lambda v: _fmt(v)),
+        "PSNR true": table["psnr_true"].map(lambda v: _fmt(v)),
+        "n": [f"{int(a)}/{int(b)}" for a, b in zip(table["n"], table["n_scenes"])],
+        "pareto": table["pareto"].map(lambda v: "*" if v else ""),
+    }, index=table.index)
+    return t.to_string()

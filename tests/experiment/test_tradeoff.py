@@ -1,0 +1,330 @@
+"""The speed/accuracy sweep: settings, resolved knobs, model calls, reuse, resume, report, Pareto front."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from snell_bench.config import register_configs
+
+REPO = Path(__file__).resolve().parents[2]
+CONF = str(REPO / "conf")
+register_configs()
+
+TINY = [
+    "scene.width=112",
+    "scene.height=64",
+    "scene.supersample=1",
+    "warps.pano_height=32",
+    "sampler.steps=5",
+    "sampler.levels=2",
+    "reference.spp=1",
+    "reference.true_spp=1",
+]
+SCENES = ["living_room", "kitchen"]
+AXES = {
+    "steps": {"key": "sampler.steps", "values": [3, 5]},  # 5 is the base value
+    "spp": {"key": "reference.spp", "values": [1, 2]},  # 1 is the base value
+}
+#: A preset-like entry at test size (the real presets are 640 x 360 and larger).
+TINY_PRESET = {"sampler": {"steps": 4, "tt_repeats_main": 1, "levels": 1}, "warps": {"max_bounces": 4}}
+SETTINGS = ["baseline", "steps=3", "steps=5", "spp=1", "spp=2", "preset:tiny"]
+
+
+def make_cfg(tmp_path, overrides=(), axes=None, presets=("tiny",), scenes=SCENES):
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        cfg = compose(
+            "config",
+            overrides=["+experiment=tradeoff", *TINY, f"runs_dir={tmp_path / 'runs'}",
+                       f"reports_dir={tmp_path / 'reports'}", f"output_dir={tmp_path}", *overrides],
+        )
+    # a mapping given as a Hydra override is merged into the experiment's axes; replace them here
+    cfg.tradeoff.axes = AXES if axes is None else axes
+    cfg.tradeoff.presets = list(presets)
+    cfg.tradeoff.scenes = list(scenes)
+    return cfg
+
+
+def with_tiny_preset(load_group):
+    """``load_group`` where ``preset:tiny`` is :data:`TINY_PRESET`; other presets from conf/preset/."""
+
+    def load(group, name):
+        if (group, name) == ("preset", "tiny"):
+            return OmegaConf.create(TINY_PRESET)
+        return load_group(group, name)
+
+    return load
+
+
+@pytest.fixture(autouse=True)
+def tiny_preset(monkeypatch):
+    import snell_bench.experiment.tradeoff as tr
+
+    monkeypatch.setattr(tr, "load_group", with_tiny_preset(tr.load_group))
+
+
+def results(root: Path) -> dict:
+    return {str(p.parent.relative_to(root)): json.loads(p.read_text()) for p in sorted(root.glob("*/*/result.json"))}
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    import snell_bench.experiment.tradeoff as tr
+
+    mp = pytest.MonkeyPatch()  # module scope: the autouse fixture is per test
+    mp.setattr(tr, "load_group", with_tiny_preset(tr.load_group))
+    tmp = tmp_path_factory.mktemp("tradeoff")
+    cfg = make_cfg(tmp)
+    try:
+        summary = tr.run_tradeoff(cfg)
+    finally:
+        mp.undo()
+    return tmp, cfg, summary
+
+
+# ---------------------------------------------------------------------------- Pareto front
+def brute_force_front(cost, score):
+    n = len(cost)
+    out = np.zeros(n, bool)
+    for i in range(n):
+        if math.isnan(cost[i]) or math.isnan(score[i]):
+            continue
+        dominated = False
+        for j in range(n):
+            if j == i or math.isnan(cost[j]) or math.isnan(score[j]):
+                continue
+            if cost[j] <= cost[i] and score[j] >= score[i] and (cost[j] < cost[i] or score[j] > score[i]):
+                dominated = True
+                break
+        out[i] = not dominated
+    return out
+
+
+def test_pareto_front_matches_brute_force_with_ties_and_nan():
+    from snell_bench.experiment.tradeoff import pareto_front
+
+    rng = np.random.default_rng(0)
+    for trial in range(300):
+        n = int(rng.integers(0, 25))
+        # small integer grids make ties in cost, in score and identical points frequent
+        cost = rng.integers(0, 6, n).astype(float) if trial % 2 else rng.random(n)
+        score = rng.integers(0, 6, n).astype(float) if trial % 3 else rng.random(n)
+        cost[rng.random(n) < 0.15] = np.nan
+        score[rng.random(n) < 0.15] = np.nan
+        got = pareto_front(cost, score)
+        assert got.dtype == bool and got.shape == (n,)
+        np.testing.assert_array_equal(got, brute_force_front(cost, score), err_msg=f"{cost} {score}")
+    # hand-made: identical best points are both on the front; a same-cost lower score is not
+    np.testing.assert_array_equal(
+        pareto_front([1, 1, 1, 2, 0.5, np.nan], [5, 5, 4, 6, 1, 9]), [True, True, False, True, True, False]
+    )
+    assert not pareto_front([np.nan, np.nan], [1, 2]).any()
+    with pytest.raises(ValueError, match="same length"):
+        pareto_front([1, 2], [1])
+
+
+# ---------------------------------------------------------------------------- settings and errors
+def test_axes_formats_labels_and_presets(tmp_path):
+    from snell_bench.experiment.tradeoff import build_settings, parse_axes, preset_settings
+
+    cfg = make_cfg(tmp_path, presets=())
+    s = parse_axes({"resolution": {"values": [{"scene.width": 320, "scene.height": 180},
+                                              {"scene.width": 1280, "scene.height": 720, "scene.supersample": 2}]},
+                    "pano": {"key": "warps.pano_height", "values": [256], "labels": ["small"]}}, cfg)
+    assert [x.label for x in s] == ["resolution=320x180", "resolution=1280x720x2", "pano=small"]
+    assert s[1].overrides == {"scene.width": 1280, "scene.height": 720, "scene.supersample": 2}
+    fast = preset_settings(["fast"], cfg)[0]
+    assert fast.label == "preset:fast" and fast.slug == "preset-fast" and fast.overrides["sampler.steps"] == 8
+    assert [x.label for x in build_settings(make_cfg(tmp_path))] == SETTINGS
+    # the experiment file itself parses: 1 + 5 + 4 + 3 + 6 + 6 + 3 + 3 + 3 + 3 settings
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        full = compose("config", overrides=["+experiment=tradeoff", "output_dir=/tmp/x"])
+    labels = [x.label for x in build_settings(full)]
+    assert len(labels) == 34 and "resolution=1280x720-ss2" in labels and labels[-1] == "preset:paper"
+    assert full.scene.width == 640 and full.sampler.steps == 20 and full.reference.spp == 16
+
+
+@pytest.mark.parametrize(
+    "axes, match",
+    [
+        ({"steps": {"key": "sampler.stepz", "values": [3]}}, "sampler.stepz"),
+        ({"res": {"values": [{"scene.widht": 320, "scene.height": 180}]}}, "scene.widht"),
+        ({"steps": {"key": "sampler", "values": [3]}}, "whole config node"),
+        ({"steps": {"key": "sampler.steps", "values": ["many"]}}, "sampler.steps"),
+        ({"steps": {"key": "sampler.steps", "values": [3, 3]}}, "duplicate"),
+        ({"steps": {"key": "sampler.steps", "values": []}}, "non-empty"),
+    ],
+)
+def test_bad_axes_fail_before_any_folder_is_written(tmp_path, axes, match):
+    from snell_bench.experiment.tradeoff import run_tradeoff
+
+    cfg = make_cfg(tmp_path, axes=axes, presets=())
+    with pytest.raises(ValueError, match=match) as e:
+        run_tradeoff(cfg)
+    assert "tradeoff" in str(e.value)
+    assert not (tmp_path / "runs").exists() and not (tmp_path / "reports").exists()
+
+
+def test_unknown_preset_fails_before_work(tmp_path):
+    from snell_bench.experiment.tradeoff import run_tradeoff
+
+    with pytest.raises(ValueError, match="quick_and_dirty"):
+        run_tradeoff(make_cfg(tmp_path, presets=("quick_and_dirty",)))
+    assert not (tmp_path / "runs").exists()
+
+
+def test_expected_model_calls_formula():
+    from snell_bench.experiment.tradeoff import expected_model_calls
+
+    # T = 20, window [4, 16): 12 steps run 3 times on the main branch, once on the panorama
+    assert expected_model_calls(20, (0.2, 0.8), 1, 3, 1) == {"main": 20 + 2 * 12, "pano": 20}
+    assert expected_model_calls(5, (0.2, 0.8), 1, 3, 1) == {"main": 5 + 2 * 3, "pano": 5}
+    assert expected_model_calls(4, (0.2, 0.8), 1, 1, 1, panorama=False) == {"main": 4, "pano": 0}
+    # blocks of 2 steps starting at 1 and 3 (both inside [1, 4)), 2 repeats each
+    assert expected_model_calls(5, (0.2, 0.8), 2, 2, 1) == {"main": 1 + 2 * 2 * 2, "pano": 5}
+
+
+# ---------------------------------------------------------------------------- the sweep
+def test_every_run_recorded_with_its_knobs(sweep):
+    tmp, cfg, summary = sweep
+    assert summary["ok"] == len(SCENES) * len(SETTINGS) and summary["failed"] == 0, summary
+    res = results(tmp / "runs" / "tradeoff")
+    assert sorted(res) == sorted(f"{s}-0/{x.replace(':', '-')}" for s in SCENES for x in SETTINGS)
+    base_knobs = {"steps": 5, "tt_repeats_main": 3, "tt_repeats_pano": 1, "levels": 2, "max_bounces": 8,
+                  "width": 112, "height": 64, "supersample": 1, "pano_height": 32, "spp": 1}
+    from snell_bench.experiment.tradeoff import KNOBS
+
+    by_key = {v: k for k, v in KNOBS.items()}
+    for where, r in res.items():
+        assert r["status"] == "ok" and r["scene"] == where.split("/")[0].rsplit("-", 1)[0]
+        expect = dict(base_knobs, **{by_key[k]: v for k, v in r["overrides"].items()})
+        assert r["knobs"] == expect, where
+        t = r["timings_s"]
+        assert t["total"] == pytest.approx(t["warps"] + t["sampling"] + t["reference"] + t["metrics"], abs=2e-4)
+        assert all(t[k] >= 0 for k in ("scene", "warps", "reference", "true_render", "sampling", "metrics"))
+        assert set(r["sampler_timings_s"]) >= {"model", "codec", "warp_blend"}
+        assert (tmp / "runs" / "tradeoff" / where / "image.png").is_file()
+    pre = res["kitchen-0/preset-tiny"]
+    assert pre["axis"] == "preset" and pre["value"] == "tiny"
+    assert pre["overrides"] == {"sampler.steps": 4, "sampler.tt_repeats_main": 1, "sampler.levels": 1,
+                                "warps.max_bounces": 4}
+    assert res["living_room-0/steps=3"]["axis"] == "steps" and res["living_room-0/steps=3"]["value"] == 3
+
+
+def test_model_calls_follow_the_steps_axis(sweep):
+    from snell_bench.experiment.tradeoff import expected_model_calls
+
+    tmp, cfg, _ = sweep
+    res = results(tmp / "runs" / "tradeoff")
+    for scene in SCENES:
+        base = res[f"{scene}-0/baseline"]["model_calls"]
+        # T = 5: the time-travel window [0.2 T, 0.8 T) holds steps 1, 2, 3, each run 3 times on the main branch
+        assert base == {"main": 5 + 2 * 3, "pano": 5}
+        assert base == expected_model_calls(5, cfg.sampler.tt_window, cfg.sampler.tt_length, 3, 1)
+        assert res[f"{scene}-0/steps=3"]["model_calls"] == {"main": 3 + 2 * 2, "pano": 3}  # window [0.6, 2.4)
+        assert res[f"{scene}-0/steps=5"]["model_calls"] == base
+        assert res[f"{scene}-0/preset-tiny"]["model_calls"] == {"main": 4, "pano": 4}  # no extra repeats
+
+
+def test_shared_stages_are_reused_with_identical_times(sweep):
+    tmp, _, _ = sweep
+    res = results(tmp / "runs" / "tradeoff")
+    shared = ("scene", "warps", "reference", "true_render", "generator")
+    for scene in SCENES:
+        base = res[f"{scene}-0/baseline"]
+        assert base["inputs_reused_from"] is None
+        for s in ("steps=3", "steps=5", "spp=1"):  # same scene/object/warps/reference subtrees
+            r = res[f"{scene}-0/{s}"]
+            assert r["inputs_key"] == base["inputs_key"] and r["inputs_reused_from"] == "baseline"
+            assert {k: r["timings_s"][k] for k in shared} == {k: base["timings_s"][k] for k in shared}
+        for s in ("spp=2", "preset-tiny"):
+            r = res[f"{scene}-0/{s}"]
+            assert r["inputs_key"] != base["inputs_key"] and r["inputs_reused_from"] is None
+        # a value equal to the base is the baseline again (deterministic for the seed)
+        assert res[f"{scene}-0/steps=5"]["metrics"] == base["metrics"]
+        assert res[f"{scene}-0/spp=1"]["metrics"] == base["metrics"]
+
+
+def test_lpips_missing_with_reason_and_reference_convergence(sweep):
+    tmp, _, _ = sweep
+    res = results(tmp / "runs" / "tradeoff")
+    for where, r in res.items():
+        assert r["metrics"]["lpips"] is None and "lpips_weights" in r["missing"]["lpips"], where
+        assert set(r["metrics"]) == {"psnr", "mae", "lpips", "psnr_true"}
+        assert math.isfinite(r["metrics"]["psnr"]) and math.isfinite(r["metrics"]["psnr_true"])
+    for scene in SCENES:
+        low, high = res[f"{scene}-0/spp=1"], res[f"{scene}-0/spp=2"]
+        assert high["reference_psnr_vs_max_spp"] is None  # the comparison reference itself
+        assert 5 < low["reference_psnr_vs_max_spp"] < 80
+        assert "reference_psnr_vs_max_spp" not in res[f"{scene}-0/baseline"]
+
+
+def test_report_tables_and_pareto_flags(sweep):
+    from snell_bench.experiment.tradeoff import build_tradeoff_report, pareto_front
+
+    tmp, _, _ = sweep
+    out = tmp / "reports" / "tradeoff"
+    for name in ("tradeoff.csv", "tradeoff.md", "pareto.png"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    df = pd.read_csv(out / "tradeoff.csv")
+    assert len(df) == len(SCENES) * len(SETTINGS)
+    assert sorted(zip(df["scene"], df["setting"])) == sorted((s, x) for s in SCENES for x in SETTINGS)
+    means = df[df["status"] == "ok"].groupby("setting", sort=False)[["timings_s.total", "psnr"]].mean()
+    expect = dict(zip(means.index, pareto_front(means["timings_s.total"], means["psnr"])))
+    md = (out / "tradeoff.md").read_text()
+    rows = {}
+    for line in md.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        name = cells[0].strip("*")
+        if name in SETTINGS and len(cells) == 14:
+            rows[name] = cells
+    assert sorted(rows) == sorted(SETTINGS)
+    assert {k: "★" in v[-1] for k, v in rows.items()} == expect
+    assert any(expect.values())
+    assert rows["preset:tiny"][0] == "**preset:tiny**" and rows["baseline"][0] == "baseline"
+    assert all("missing" in v[11] for v in rows.values())  # LPIPS column
+    assert "lpips_weights" in md and "Reference convergence" in md
+    # a pure function of the run folder: rebuilding elsewhere gives the same table
+    again = build_tradeoff_report(tmp / "runs" / "tradeoff", tmp / "rebuilt")
+    assert [p.name for p in again] == ["tradeoff.csv", "tradeoff.md", "pareto.png"]
+    assert (tmp / "rebuilt" / "tradeoff.csv").read_text() == (out / "tradeoff.csv").read_text()
+
+
+def test_resume_skips_and_recompute_redoes(sweep):
+    from snell_bench.experiment.tradeoff import run_tradeoff
+
+    tmp, _, _ = sweep
+    root = tmp / "runs" / "tradeoff"
+    files = sorted(root.glob("*/*/result.json"))
+    before = {p: p.stat().st_mtime_ns for p in files}
+    metrics = {p: json.loads(p.read_text())["metrics"] for p in files}
+    again = run_tradeoff(make_cfg(tmp))
+    assert again["cached"] == len(files) and again["ok"] == 0
+    assert {p: p.stat().st_mtime_ns for p in files} == before
+    redo = run_tradeoff(make_cfg(tmp, ["tradeoff.recompute=true"], scenes=["living_room"]))
+    assert redo["ok"] == len(SETTINGS) and redo["cached"] == 0
+    for p in files:
+        changed = p.stat().st_mtime_ns != before[p]
+        assert changed == (p.parent.parent.name == "living_room-0"), p
+        assert json.loads(p.read_text())["metrics"] == metrics[p]  # deterministic for the seed
+
+
+def test_a_failing_setting_does_not_stop_the_sweep(tmp_path):
+    from snell_bench.experiment.tradeoff import run_tradeoff
+
+    cfg = make_cfg(tmp_path, ["reference.true_render=false"], axes={"levels": {"key": "sampler.levels", "values": [0]}},
+                   presets=(), scenes=["living_room"])
+    summary = run_tradeoff(cfg)
+    res = results(tmp_path / "runs" / "tradeoff")
+    assert summary["ok"] == 1 and summary["failed"] == 1
+    bad = res["living_room-0/levels=0"]
+    assert bad["status"] == "failed" and "levels" in bad["reason"]
+    ok = res["living_room-0/baseline"]
+    assert ok["status"] == "ok" and ok["metrics"]["psnr_true"] is None and "true render" in ok["missing"]["psnr_true"]
+    md = (tmp_path / "reports" / "tradeoff" / "tradeoff.md").read_text()
+    assert "failed: living_room / levels=0" in md
