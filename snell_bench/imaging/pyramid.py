@@ -330,7 +330,9 @@ def _level_sizes(size: Size, levels: int) -> list[Size]:
 def _roi_window(c: torch.Tensor, levels: int, dest_wrap_x: bool, margin: int) -> tuple[slice, slice, bool] | None:
     """The destination window that holds every valid pixel of map ``c`` with ``margin`` invalid
     pixels of the coarsest level around it, aligned to ``2**(levels - 1)`` so that every level of the
-    window is a sub-window of the full level. ``None`` when that is (almost) the whole destination.
+    window is a sub-window of the full level. A dimension not divisible by ``2**(levels - 1)`` keeps
+    its full extent (its odd-sized levels are resampled as a whole, see :func:`_up`). ``None`` when the
+    window is (almost) the whole destination.
     The bool says whether the window keeps the full (periodic) width of a panorama destination."""
     ok = torch.isfinite(c[..., 0]).any(0)
     Hd, Wd = ok.shape
@@ -342,10 +344,9 @@ def _roi_window(c: torch.Tensor, levels: int, dest_wrap_x: bool, margin: int) ->
     def span(v: torch.Tensor, n: int) -> tuple[int, int]:
         idx = v.nonzero().squeeze(1)
         lo, hi = int(idx.min()) - pad, int(idx.max()) + 1 + pad
-        lo, hi = max(lo // step * step, 0), min(-(-hi // step) * step, n)
-        if hi == n and n % step:  # a level of odd size is resampled as a whole: keep the full extent
+        if n % step:  # an odd-sized level is upsampled with a resampling of its whole extent
             return 0, n
-        return lo, hi
+        return max(lo // step * step, 0), min(-(-hi // step) * step, n)
 
     y0, y1 = span(ok.any(1), Hd)
     xv = ok.any(0)

@@ -9,7 +9,14 @@ import torch
 import torch.nn.functional as F
 from kornia.geometry.transform import pyrdown
 
-from snell_bench.imaging.pyramid import collapse, gaussian_pyramid, laplacian_pyramid, lod_warp, pyramid_warp
+from snell_bench.imaging.pyramid import (
+    collapse,
+    gaussian_pyramid,
+    laplacian_from_gaussian,
+    laplacian_pyramid,
+    lod_warp,
+    pyramid_warp,
+)
 from snell_bench.imaging.remap import remap
 
 
@@ -344,3 +351,75 @@ def test_warped_bands_line_up_with_an_images_own_pyramid_at_odd_sizes():
     bands, masks = pyramid_warp(img, np.stack([x * 0.9 + 5, y], -1), levels=5, collapse=False)
     assert [b.shape[-2:] for b in bands] == [o.shape[-2:] for o in own]
     assert [m.shape[-2:] for m in masks] == [o.shape[-2:] for o in own]
+
+
+class TestPyramidWarpROI:
+    """``roi=True`` (a window around the valid pixels) gives the full computation's result."""
+
+    @staticmethod
+    def disk_map(H, W, cx, cy, r, scale=1.3, shift=(40.0, 20.0), nan_outside=True):
+        yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+        c = np.stack([xx * scale + shift[0] + 5 * np.sin(yy / 9), yy * 0.9 + shift[1]], -1)
+        if nan_outside:
+            c[(xx - cx) ** 2 + (yy - cy) ** 2 > r**2] = np.nan
+        return c
+
+    @staticmethod
+    def assert_same(a, b, collapse):
+        if collapse:
+            torch.testing.assert_close(a[0], b[0], atol=1e-6, rtol=0)
+            assert torch.equal(a[1], b[1])
+        else:
+            assert len(a[0]) == len(b[0])
+            for x, y in zip(a[0], b[0]):
+                assert x.shape == y.shape
+                torch.testing.assert_close(x, y, atol=1e-6, rtol=0)
+            for x, y in zip(a[1], b[1]):
+                assert torch.equal(x, y)
+
+    @pytest.mark.parametrize("levels", [1, 3, 5])
+    @pytest.mark.parametrize("collapse", [True, False])
+    @pytest.mark.parametrize(
+        "H, W, cx, cy, r",
+        [
+            (180, 320, 150, 90, 40),  # interior
+            (180, 320, 10, 8, 30),  # touching the top-left corner
+            (181, 323, 300, 170, 35),  # touching the bottom-right corner at odd sizes
+            (90, 160, 80, 45, 60),  # almost everything valid: no window
+        ],
+    )
+    def test_window_equals_full(self, levels, collapse, H, W, cx, cy, r):
+        src = smooth_noise(1, 3, 256, 512, seed=1)
+        c = self.disk_map(H, W, cx, cy, r)
+        for wrap, dwrap in ((False, False), (True, False), (True, True)):
+            kw = dict(levels=levels, collapse=collapse, wrap_x=wrap, dest_wrap_x=dwrap)
+            self.assert_same(pyramid_warp(src, c, **kw), pyramid_warp(src, c, roi=True, **kw), collapse)
+
+    def test_panorama_destination_across_the_seam(self):
+        src = smooth_noise(1, 3, 96, 160, seed=2)
+        H, W = 64, 128
+        yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+        c = np.stack([xx * 0.7 + 10, yy * 0.9 + 5], -1)
+        c[~((yy > 20) & (yy < 40) & ((xx < 12) | (xx > 110)))] = np.nan  # valid on both sides of x = 0
+        kw = dict(levels=4, collapse=False, dest_wrap_x=True)
+        self.assert_same(pyramid_warp(src, c, **kw), pyramid_warp(src, c, roi=True, **kw), False)
+
+    def test_all_invalid_and_shared_source_pyramid(self):
+        src = smooth_noise(1, 3, 128, 256, seed=3)
+        c = np.full((60, 100, 2), np.nan, np.float32)
+        w, ok = pyramid_warp(src, c, levels=3, roi=True)
+        assert not ok.any() and torch.count_nonzero(w) == 0
+        c = self.disk_map(120, 200, 100, 60, 30)
+        g = gaussian_pyramid(src, 5, wrap_x=True)
+        for collapse in (True, False):
+            a = pyramid_warp(src, c, levels=5, wrap_x=True, collapse=collapse)
+            b = pyramid_warp(src, c, levels=5, wrap_x=True, collapse=collapse, roi=True, src_pyramid=g)
+            self.assert_same(a, b, collapse)
+
+    def test_laplacian_from_gaussian(self):
+        img = smooth_noise(1, 3, 90, 161, seed=4)
+        for wrap in (False, True):
+            a = laplacian_pyramid(img, 4, wrap_x=wrap)
+            b = laplacian_from_gaussian(gaussian_pyramid(img, 4, wrap_x=wrap), wrap_x=wrap)
+            for x, y in zip(a, b):
+                assert torch.equal(x, y)
