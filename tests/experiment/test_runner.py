@@ -157,3 +157,38 @@ def test_parallel_launchers(tmp_path, launcher):
     m = metrics_of(tmp_path / "runs" / "smoke")
     assert sorted(m) == ["kitchen-0/sphere/t2i", "living_room-0/sphere/t2i"]
     assert all(r["status"] == "ok" for r in m.values())
+
+
+def test_adaptive_methods_log_decisions_and_savings(tmp_path):
+    """full_frame gives Snellcaster's image; adaptive records what it modelled, with its own warps;
+    the savings report pairs both with Snellcaster."""
+    import pandas as pd
+    from omegaconf import OmegaConf
+
+    from snell_bench.experiment.runner import run_grid
+
+    cfg = make_cfg(tmp_path, ["grid.scenes=[living_room]", "grid.objects=[sphere:1.05]",
+                              "grid.methods=[snellcaster,full_frame,adaptive]"])
+    run_grid(cfg)
+    cells = metrics_of(tmp_path / "runs" / "smoke")
+    snell = cells["living_room-0/sphere-ior1.05/snellcaster"]
+    full = cells["living_room-0/sphere-ior1.05/full_frame"]
+    adap = cells["living_room-0/sphere-ior1.05/adaptive"]
+    assert all(c["status"] == "ok" for c in (snell, full, adap))
+    assert abs(full["metrics"]["psnr"] - snell["metrics"]["psnr"]) < 1e-3
+    assert snell["decisions"]["roi"] is True and full["decisions"]["roi"] is False
+    assert snell["warps"]["traced_primary_rays"] < full["warps"]["traced_primary_rays"]
+    # IOR 1.05: Fresnel below 1 % except near the rim, so most pixels drop their reflection
+    assert adap["decisions"]["reflection"]["share_kept"] < 0.5
+    assert adap["decisions"]["panorama"]["observed_share"] > 0.5
+    assert adap["warps"]["far_background"]["far_fraction"] == 0.0  # a room has no far background
+    a_cfg = OmegaConf.load(tmp_path / "runs/smoke/living_room-0/sphere-ior1.05/adaptive/config.yaml")
+    s_cfg = OmegaConf.load(tmp_path / "runs/smoke/living_room-0/sphere-ior1.05/snellcaster/config.yaml")
+    assert a_cfg.warps.infinity_tolerance_px == 1.0 and s_cfg.warps.infinity_tolerance_px is None
+    savings = pd.read_csv(tmp_path / "reports/smoke/savings.csv")
+    assert list(savings["method"]) == ["Snellcaster (full frame)", "Snellcaster (adaptive)"]
+    per_cell = pd.read_csv(tmp_path / "reports/smoke/savings_per_cell.csv")
+    assert len(per_cell) == 2
+    row = per_cell[per_cell["method"] == "adaptive"].iloc[0]
+    assert row["delta_psnr"] == pytest.approx(adap["metrics"]["psnr"] - snell["metrics"]["psnr"])
+    assert "savings.md" in (tmp_path / "reports/smoke/README.md").read_text()
