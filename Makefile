@@ -41,6 +41,7 @@ bench: setup
 	$(PY) benchmarks/bench_warps.py
 	$(PY) benchmarks/bench_imaging.py
 	$(PY) benchmarks/bench_sampler.py
+	$(PY) benchmarks/bench_adaptive.py
 
 clean:
 	rm -rf $(VENV) runs/ .pytest_cache
