@@ -39,7 +39,13 @@ def _report(cfg: DictConfig) -> None:
 
     name = str(cfg.experiment_name)
     out = Path(cfg.reports_dir) / name
-    paths = build_reports(Path(cfg.runs_dir) / name, out, name)
+    root = Path(cfg.runs_dir) / name
+    if next(root.rglob("result.json"), None) is not None and next(root.rglob("metrics.json"), None) is None:
+        from snell_bench.experiment.tradeoff import build_tradeoff_report  # a speed/accuracy sweep
+
+        paths = build_tradeoff_report(root, out)
+    else:
+        paths = build_reports(root, out, name)
     print(f"reports: {out} ({len(paths)} files)")
 
 

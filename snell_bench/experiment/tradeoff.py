@@ -842,7 +842,7 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
         f"Times in seconds; {TOTAL_NOTE}. PSNR: masked, vs the reference render; PSNR (true): vs the true render. "
         "Each setting is scored against its own reference render, so the axes that change the reference "
         "(spp, resolution) also change what PSNR measures (see the reference convergence below); the true render "
-        "is traced with the setting's warps.max_bounces. "
+        "is traced with reference.true_max_bounces (the setting's warps.max_bounces where that is null). "
         "**pareto**: on the front of (mean total ↓, mean PSNR ↑) among the settings that succeeded on every "
         "scene. Presets in bold.",
         "",

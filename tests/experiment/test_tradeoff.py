@@ -293,6 +293,12 @@ def test_report_tables_and_pareto_flags(sweep):
     again = build_tradeoff_report(tmp / "runs" / "tradeoff", tmp / "rebuilt")
     assert [p.name for p in again] == ["tradeoff.csv", "tradeoff.md", "pareto.png"]
     assert (tmp / "rebuilt" / "tradeoff.csv").read_text() == (out / "tradeoff.csv").read_text()
+    # job=report recognises a sweep's folder and rebuilds the same report
+    from snell_bench.experiment import run_job
+
+    cfg = make_cfg(tmp, [f"reports_dir={tmp / 'via_job'}", "job=report"])
+    run_job(cfg)
+    assert (tmp / "via_job" / "tradeoff" / "tradeoff.csv").read_text() == (out / "tradeoff.csv").read_text()
 
 
 def test_resume_skips_and_recompute_redoes(sweep):
