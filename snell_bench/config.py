@@ -178,6 +178,10 @@ class TradeoffConfig:
     #: Axis name -> ``{key: <dotted config key>, values: [...]}``, or ``{values: [{<dotted key>: v, ...}]}``
     #: for a compound knob such as the resolution.
     axes: dict = field(default_factory=dict)
+    #: Also score every setting against a converged reference rendered with this many samples per
+    #: pixel (one per scene, object and resolution, shared by all settings): fidelity that does not
+    #: move with ``reference.spp``; the Pareto front uses it. ``null``: off.
+    converged_spp: Optional[int] = 64
     #: Presets (conf/preset/) measured as extra points of the sweep.
     presets: list = field(default_factory=lambda: ["fast", "balanced", "paper"])
     #: Recompute settings that already finished (else they are reused).

@@ -84,11 +84,21 @@ float references (``reference.npy``), after each scene of the sweep (written int
 and again by the report, so a finished folder alone gives it. The highest-spp setting itself has
 ``null`` (it is the comparison reference).
 
+Converged reference
+-------------------
+A setting's own reference (``reference.spp`` samples) is noisy, and its noise lowers the PSNR of
+every image scored against it, so PSNR against it moves with ``reference.spp`` even when the image
+does not. With ``tradeoff.converged_spp`` (default 64) each setting is also scored against a
+converged reference of its scene, object and resolution (rendered once, shared by every setting
+with the same ``converged_key``, saved under ``_shared/converged-<key>/`` and reused on resume):
+``psnr_converged``, ``mae_converged``, ``lpips_converged``. It is an evaluation on top, not part of
+the setting's cost, and the Pareto front uses it (:func:`fidelity_column`).
+
 Report
 ------
 :func:`build_tradeoff_report` (a pure function of a run folder) writes ``tradeoff.csv`` (one row
 per scene x setting), ``tradeoff.md`` (per setting, means over the scenes where it succeeded; the
-Pareto front of (mean total time, mean PSNR)) and ``pareto.png``.
+Pareto front of (mean total time, mean PSNR against the converged reference)) and ``pareto.png``.
 """
 
 from __future__ import annotations
@@ -181,7 +191,7 @@ TOTAL_NOTE = (
 )
 
 #: The metrics a setting records (CLIP and ImageReward are not part of this sweep).
-RECORD_METRICS = ("psnr", "mae", "lpips", "psnr_true")
+RECORD_METRICS = ("psnr", "mae", "lpips", "psnr_true", "psnr_converged", "mae_converged", "lpips_converged")
 
 BASELINE = "baseline"
 PRESET_AXIS = "preset"
@@ -482,7 +492,51 @@ def _sweep_metrics_config(mcfg: DictConfig) -> DictConfig:
     return m
 
 
-def _run_setting(c: DictConfig, setting: Setting, entry: _Inputs, scorers: Scorers, sdir: Path) -> dict:
+@dataclass
+class _Converged:
+    image: np.ndarray  # (H, W, 3) sRGB
+    mask: np.ndarray  # (H, W) bool
+    spp: int
+    key: str
+
+
+def converged_key(c: DictConfig, spp: int) -> str:
+    """What a converged reference depends on: the scene, the object, the background mesh's cut, the
+    reference settings with ``spp`` replaced, and the seed."""
+    ref = dict(_plain(c.reference))
+    ref["spp"] = int(spp)
+    blob = json.dumps({"scene": _plain(c.scene), "object": _plain(c.object),
+                       "edge_threshold": float(c.warps.edge_threshold), "reference": ref, "seed": int(c.seed)},
+                      sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def _converged_reference(c: DictConfig, entry: _Inputs, spp: int, shared_dir: Path, cache: dict) -> _Converged:
+    """The converged reference of a setting's inputs, from ``cache``, from its saved files (resume),
+    or rendered (and saved under ``_shared/converged-<key>/``)."""
+    key = converged_key(c, spp)
+    if key in cache:
+        return cache[key]
+    d = shared_dir / f"converged-{key}"
+    if (d / "reference.npy").is_file() and (d / "metric_mask.npy").is_file():
+        conv = _Converged(np.load(d / "reference.npy"), np.load(d / "metric_mask.npy"), spp, key)
+    else:
+        from snell_bench.render.mitsuba_ref import render_reference
+
+        sh = entry.shared
+        ref = render_reference(sh.inputs.image, sh.inputs.depth, sh.inputs.camera, sh.obj, spp=int(spp),
+                               edge_threshold=float(c.warps.edge_threshold), seed=int(c.seed),
+                               unobserved_threshold=float(c.reference.unobserved_threshold))
+        d.mkdir(parents=True, exist_ok=True)
+        _save_npy(d / "reference.npy", np.asarray(ref.image, np.float32))
+        _save_npy(d / "metric_mask.npy", np.asarray(ref.mask, bool))
+        conv = _Converged(np.asarray(ref.image, np.float32), np.asarray(ref.mask, bool), spp, key)
+    cache[key] = conv
+    return conv
+
+
+def _run_setting(c: DictConfig, setting: Setting, entry: _Inputs, scorers: Scorers, sdir: Path,
+                 converged: _Converged | None = None) -> dict:
     """Sampling and metrics of one setting on its (possibly shared) inputs; the record's fields."""
     shared = entry.shared
     t = dict(entry.timings)
@@ -501,6 +555,18 @@ def _run_setting(c: DictConfig, setting: Setting, entry: _Inputs, scorers: Score
     prompt = str(c.scene.prompt).replace("{object}", str(c.object.noun))
     scored = score(img, shared, prompt, scorers, sdir / "image.png")
     t["metrics"] = _r(time.perf_counter() - t0)
+    if converged is not None:  # an evaluation on top: not part of the setting's cost
+        from snell_bench.metrics import score_all
+
+        conv = score_all(img[0].permute(1, 2, 0).numpy(), converged.image, converged.mask, prompt,
+                         lpips=scorers.lpips)
+        for k in ("psnr", "mae", "lpips"):
+            scored["metrics"][f"{k}_converged"] = conv["metrics"].get(k)
+            if conv["metrics"].get(k) is None:
+                scored["missing"][f"{k}_converged"] = scorers.reasons.get(k) or conv["missing"].get(k, "no value")
+    else:
+        for k in ("psnr", "mae", "lpips"):
+            scored["missing"][f"{k}_converged"] = "tradeoff.converged_spp=null (no converged reference)"
     t["total"] = _r(sum(t[k] for k in TOTAL_STAGES))
     metrics = {k: scored["metrics"].get(k) for k in RECORD_METRICS}
     missing = {k: v for k, v in scored["missing"].items() if k in RECORD_METRICS}
@@ -513,6 +579,7 @@ def _run_setting(c: DictConfig, setting: Setting, entry: _Inputs, scorers: Score
         if metrics[k] is None and k not in missing:
             missing[k] = "no value"
     return {
+        "converged_reference": None if converged is None else {"spp": converged.spp, "key": converged.key},
         "timings_s": {k: t.get(k) for k in STAGES + ("total",)},
         "sampler_timings_s": stats.get("sampler_timings_s", {}),
         "model_calls": stats.get("model_calls", {}),
@@ -574,6 +641,7 @@ def run_tradeoff(cfg: DictConfig) -> dict:
     counts = Counter({"ok": 0, "failed": 0, "skipped": 0, "cached": len(plan) - len(todo)})
     failures = []
     cache: dict[tuple[str, str], _Inputs] = {}
+    conv_cache: dict[str, _Converged] = {}
     bar = tqdm(total=len(plan), desc=f"tradeoff {exp}", unit="setting", initial=counts["cached"])
     for idx in todo:
         scene, st, c, key, sdir = plan[idx]
@@ -595,7 +663,10 @@ def run_tradeoff(cfg: DictConfig) -> dict:
                 cache[(scene, key)] = entry
             else:
                 record["inputs_reused_from"] = entry.computed_by
-            record.update(_run_setting(c, st, entry, scorers, sdir))
+            converged = None
+            if t.get("converged_spp") and c.reference.enabled:
+                converged = _converged_reference(c, entry, int(t.converged_spp), sdir.parent / "_shared", conv_cache)
+            record.update(_run_setting(c, st, entry, scorers, sdir, converged))
         except Skip as e:
             record.update(status="skipped", reason=str(e))
         except KeyboardInterrupt:
@@ -787,6 +858,7 @@ def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
             row[k] = _float((r.get("metrics") or {}).get(k))
             row[f"missing.{k}"] = (r.get("missing") or {}).get(k)
         row["reference_psnr_vs_max_spp"] = _float(conv.get(r["_dir"], r.get("reference_psnr_vs_max_spp")))
+        row["converged_spp"] = (r.get("converged_reference") or {}).get("spp")
         row["dir"] = r["_dir"]
         rows.append(row)
     df = pd.DataFrame(rows)
@@ -798,14 +870,16 @@ def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
 
 def tradeoff_table(df: pd.DataFrame) -> pd.DataFrame:
     """Per setting (rows in sweep order): means over the scenes where it is ``ok`` of every stage
-    time, ``psnr``, ``psnr_true``, ``lpips`` and ``reference_psnr_vs_max_spp``; ``n`` (ok scenes),
+    time, ``psnr``, ``psnr_true``, ``lpips``, the ``*_converged`` metrics and ``reference_psnr_vs_max_spp``; ``n`` (ok scenes),
     ``n_scenes``, ``lpips_missing`` (the reasons, when LPIPS has no value) and ``pareto``: on the
-    front of (mean total time ↓, mean PSNR ↑) among the settings that succeeded on every scene."""
+    front of (mean total time ↓, mean :func:`fidelity_column` ↑) among the settings that succeeded on every
+    scene."""
     if df.empty:
         raise FileNotFoundError("no settings (result.json) to tabulate")
     n_scenes = df["scene"].nunique()
     ok = df[df["status"] == "ok"]
     cols = [f"timings_s.{k}" for k in STAGES + ("total",)] + ["psnr", "psnr_true", "lpips", "mae",
+                                                              "psnr_converged", "mae_converged", "lpips_converged",
                                                               "reference_psnr_vs_max_spp"]
     order = df.groupby("setting", sort=False)["order"].min().sort_values(kind="mergesort")
     rows = []
@@ -821,8 +895,14 @@ def tradeoff_table(df: pd.DataFrame) -> pd.DataFrame:
     table = pd.DataFrame(rows).set_index("setting")
     complete = table["n"] == n_scenes
     cost = table["timings_s.total"].where(complete)
-    table["pareto"] = pareto_front(cost.to_numpy(), table["psnr"].where(complete).to_numpy())
+    table["pareto"] = pareto_front(cost.to_numpy(), table[fidelity_column(table)].where(complete).to_numpy())
     return table
+
+
+def fidelity_column(table: pd.DataFrame) -> str:
+    """The fidelity the Pareto front uses: PSNR against the converged reference where the sweep has
+    one (it does not move with ``reference.spp``), else PSNR against each setting's own reference."""
+    return "psnr_converged" if "psnr_converged" in table and table["psnr_converged"].notna().any() else "psnr"
 
 
 def _fmt(v, spec: str = "{:.2f}") -> str:
@@ -834,21 +914,24 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
     models = sorted({str(m) for m in df["model"].dropna()}) if "model" in df else []
     status = Counter(str(s) for s in df["status"])
     counts = ", ".join(f"{v} {k}" for k, v in sorted(status.items()))
+    spps = sorted({int(v) for v in df.get("converged_spp", pd.Series(dtype=float)).dropna()})
+    conv_text = f"{'/'.join(map(str, spps))} spp" if spps else "none in this sweep"
+    fid_text = "PSNR (conv.)" if fidelity_column(table) == "psnr_converged" else "PSNR"
     lines = [
         f"# {title}",
         "",
         f"Means over the scenes where a setting succeeded ({', '.join(sorted(df['scene'].dropna().unique()))}); "
         f"model: {', '.join(models) or 'unknown'}; {len(df)} runs ({counts}). "
-        f"Times in seconds; {TOTAL_NOTE}. PSNR: masked, vs the reference render; PSNR (true): vs the true render. "
-        "Each setting is scored against its own reference render, so the axes that change the reference "
-        "(spp, resolution) also change what PSNR measures (see the reference convergence below); the true render "
-        "is traced with reference.true_max_bounces (the setting's warps.max_bounces where that is null). "
-        "**pareto**: on the front of (mean total ↓, mean PSNR ↑) among the settings that succeeded on every "
-        "scene. Presets in bold.",
+        f"Times in seconds; {TOTAL_NOTE}. PSNR: masked, vs the setting's own reference render (so it also "
+        "moves with reference.spp, see the reference convergence below); PSNR (conv.): vs a converged reference "
+        f"of the same scene, object and resolution ({conv_text}); PSNR (true): vs the true render, traced with "
+        "reference.true_max_bounces (the setting's warps.max_bounces where that is null). "
+        f"**pareto**: on the front of (mean total ↓, mean {fid_text} ↑) among the settings that succeeded on "
+        "every scene. Presets in bold.",
         "",
     ]
     head = ["setting", "scene", "warps", "reference", "true render", "generator", "sampling", "metrics",
-            "total", "PSNR", "PSNR (true)", "LPIPS", "n", "pareto"]
+            "total", "PSNR", "PSNR (conv.)", "PSNR (true)", "LPIPS", "n", "pareto"]
     lines.append("| " + " | ".join(head) + " |")
     lines.append("|" + "|".join(["---"] + ["---:"] * (len(head) - 2) + [":---:"]) + "|")
     for setting, r in table.iterrows():
@@ -856,7 +939,8 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
         lp = _fmt(r["lpips"], "{:.3f}") if not math.isnan(r["lpips"]) else "missing"
         cells = [label] + [_fmt(r[f"timings_s.{k}"]) for k in ("scene", "warps", "reference", "true_render",
                                                               "generator", "sampling", "metrics", "total")]
-        cells += [_fmt(r["psnr"]), _fmt(r["psnr_true"]), lp, f"{int(r['n'])}/{int(r['n_scenes'])}",
+        cells += [_fmt(r["psnr"]), _fmt(r["psnr_converged"]), _fmt(r["psnr_true"]), lp,
+                  f"{int(r['n'])}/{int(r['n_scenes'])}",
                   "★" if r["pareto"] else ""]
         if r["axis"] == PRESET_AXIS:
             cells = [f"**{x}**" if x and not x.startswith("**") else x for x in cells]
@@ -904,7 +988,9 @@ def pareto_figure(table: pd.DataFrame, out_png: str | os.PathLike, title: str = 
     from matplotlib.figure import Figure
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
-    panels = [("psnr", "mean masked PSNR vs reference (dB)")]
+    fid = fidelity_column(table)
+    panels = [(fid, "mean masked PSNR vs converged reference (dB)" if fid == "psnr_converged"
+               else "mean masked PSNR vs reference (dB)")]
     if table["psnr_true"].notna().any():
         panels.append(("psnr_true", "mean masked PSNR vs true render (dB)"))
     fig = Figure(figsize=(6.0 * len(panels), 4.6), dpi=110, facecolor="white")
@@ -990,6 +1076,7 @@ def _stdout_table(table: pd.DataFrame) -> str:
         "total s": table["timings_s.total"].map(lambda v: _fmt(v)),
         "sampling s": table["timings_s.sampling"].map(lambda v: _fmt(v)),
         "PSNR": table["psnr"].map(lambda v: _fmt(v)),
+        "PSNR conv": table["psnr_converged"].map(lambda v: _fmt(v)),
         "PSNR true": table["psnr_true"].map(lambda v: _fmt(v)),
         "n": [f"{int(a)}/{int(b)}" for a, b in zip(table["n"], table["n_scenes"])],
         "pareto": table["pareto"].map(lambda v: "*" if v else ""),

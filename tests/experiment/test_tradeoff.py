@@ -25,6 +25,7 @@ TINY = [
     "sampler.levels=2",
     "reference.spp=1",
     "reference.true_spp=1",
+    "tradeoff.converged_spp=3",
 ]
 SCENES = ["living_room", "kitchen"]
 AXES = {
@@ -255,7 +256,9 @@ def test_lpips_missing_with_reason_and_reference_convergence(sweep):
     res = results(tmp / "runs" / "tradeoff")
     for where, r in res.items():
         assert r["metrics"]["lpips"] is None and "lpips_weights" in r["missing"]["lpips"], where
-        assert set(r["metrics"]) == {"psnr", "mae", "lpips", "psnr_true"}
+        assert set(r["metrics"]) == {"psnr", "mae", "lpips", "psnr_true", "psnr_converged", "mae_converged",
+                                     "lpips_converged"}
+        assert math.isfinite(r["metrics"]["psnr_converged"]) and r["converged_reference"]["spp"] == 3
         assert math.isfinite(r["metrics"]["psnr"]) and math.isfinite(r["metrics"]["psnr_true"])
     for scene in SCENES:
         low, high = res[f"{scene}-0/spp=1"], res[f"{scene}-0/spp=2"]
@@ -274,20 +277,20 @@ def test_report_tables_and_pareto_flags(sweep):
     df = pd.read_csv(out / "tradeoff.csv")
     assert len(df) == len(SCENES) * len(SETTINGS)
     assert sorted(zip(df["scene"], df["setting"])) == sorted((s, x) for s in SCENES for x in SETTINGS)
-    means = df[df["status"] == "ok"].groupby("setting", sort=False)[["timings_s.total", "psnr"]].mean()
-    expect = dict(zip(means.index, pareto_front(means["timings_s.total"], means["psnr"])))
+    means = df[df["status"] == "ok"].groupby("setting", sort=False)[["timings_s.total", "psnr_converged"]].mean()
+    expect = dict(zip(means.index, pareto_front(means["timings_s.total"], means["psnr_converged"])))
     md = (out / "tradeoff.md").read_text()
     rows = {}
     for line in md.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         name = cells[0].strip("*")
-        if name in SETTINGS and len(cells) == 14:
+        if name in SETTINGS and len(cells) == 15:
             rows[name] = cells
     assert sorted(rows) == sorted(SETTINGS)
     assert {k: "★" in v[-1] for k, v in rows.items()} == expect
     assert any(expect.values())
     assert rows["preset:tiny"][0] == "**preset:tiny**" and rows["baseline"][0] == "baseline"
-    assert all("missing" in v[11] for v in rows.values())  # LPIPS column
+    assert all("missing" in v[12] for v in rows.values())  # LPIPS column
     assert "lpips_weights" in md and "Reference convergence" in md
     # a pure function of the run folder: rebuilding elsewhere gives the same table
     again = build_tradeoff_report(tmp / "runs" / "tradeoff", tmp / "rebuilt")
@@ -334,3 +337,17 @@ def test_a_failing_setting_does_not_stop_the_sweep(tmp_path):
     assert ok["status"] == "ok" and ok["metrics"]["psnr_true"] is None and "true render" in ok["missing"]["psnr_true"]
     md = (tmp_path / "reports" / "tradeoff" / "tradeoff.md").read_text()
     assert "failed: living_room / levels=0" in md
+
+
+def test_converged_reference_is_shared_and_independent_of_the_settings_spp(sweep):
+    """Settings that differ only in reference.spp are scored against one converged reference: their
+    PSNR against it is identical (same image), while PSNR against their own reference is not."""
+    tmp, _, _ = sweep
+    res = results(tmp / "runs" / "tradeoff")
+    for scene in SCENES:
+        a, b = res[f"{scene}-0/spp=1"], res[f"{scene}-0/spp=2"]
+        assert a["converged_reference"] == b["converged_reference"]
+        assert a["metrics"]["psnr_converged"] == b["metrics"]["psnr_converged"]
+        assert a["metrics"]["psnr"] != b["metrics"]["psnr"]
+    keys = {p.name for p in (tmp / "runs" / "tradeoff" / "living_room-0" / "_shared").iterdir()}
+    assert sum(k.startswith("converged-") for k in keys) == 1  # one resolution, one object
