@@ -96,3 +96,31 @@ def test_generate_job_writes_images(tmp_path, model):
         assert (tmp_path / name).is_file(), name
     assert summary["model"] == model and summary["model_calls"]["pano"] == 4
     assert np.asarray(Image.open(tmp_path / "image.png")).shape == (64, 128, 3)
+
+
+def test_presets_and_experiments_compose_in_order():
+    """An experiment picks the balanced preset; preset=NAME on the command line replaces that
+    choice; single keys override both."""
+    bal = make_cfg(["+experiment=smoke", "output_dir=/tmp/x"])
+    assert (bal.scene.width, bal.scene.height, bal.warps.pano_height, bal.sampler.steps) == (640, 360, 512, 20)
+    paper = make_cfg(["+experiment=ablation", "preset=paper", "output_dir=/tmp/x"])
+    assert (paper.scene.width, paper.scene.height, paper.warps.pano_height) == (1280, 720, 1024)
+    assert paper.grid.methods[0] == "snellcaster"  # the experiment's grid is kept
+    fast = make_cfg(["preset=fast", "sampler.steps=6", "output_dir=/tmp/x"])
+    assert (fast.sampler.steps, fast.sampler.levels, fast.warps.pano_height, fast.reference.spp) == (6, 3, 256, 4)
+    assert make_cfg(["output_dir=/tmp/x"]).scene.width == 1280  # no preset: the schema's paper size
+
+
+def test_generate_job_applies_the_methods_switches(tmp_path):
+    from snell_bench.experiment.generate import run_generate
+
+    cfg = make_cfg(["job=generate", "method=adaptive", "object.ior=1.05", "scene.width=128", "scene.height=64",
+                    "scene.supersample=1", "warps.pano_height=64", "warps.cache_dir=null", "sampler.steps=3",
+                    "sampler.progress=false", "method.sampler.skip_panorama_above=0.0", f"output_dir={tmp_path}"])
+    summary = run_generate(cfg)
+    saved = json.loads((tmp_path / "summary.json").read_text())
+    assert saved["decisions"]["panorama"] == {"used": False, "observed_share": pytest.approx(saved["decisions"]["panorama"]["observed_share"]), "skip_above": 0.0}
+    assert summary["model_calls"]["pano"] == 0
+    assert saved["decisions"]["reflection"]["min_fresnel"] == 0.01  # from conf/method/adaptive.yaml
+    assert saved["warps"]["far_background"]["tolerance_px"] == 1.0
+    assert not (tmp_path / "panorama.png").exists()
