@@ -1036,6 +1036,7 @@ def pareto_figure(table: pd.DataFrame, out_png: str | os.PathLike, title: str = 
             ax.xaxis.set_minor_locator(LogLocator(base=10, subs=tuple(range(1, 10))))
             ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
             ax.xaxis.set_minor_formatter(NullFormatter())
+        _clip_outliers(ax, table.index, x, y)
         ax.set_xlabel("mean total time per image (s, log scale)")
         ax.set_ylabel(ylabel)
         ax.grid(True, which="both", alpha=0.3)
@@ -1048,6 +1049,27 @@ def pareto_figure(table: pd.DataFrame, out_png: str | os.PathLike, title: str = 
     out_png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out_png, facecolor="white", metadata={"Software": None})
     return out_png
+
+
+def _clip_outliers(ax, labels, x: np.ndarray, y: np.ndarray) -> None:
+    """Keep the y range on the bulk of the settings: settings separated from all others by a gap
+    more than twice the rest of the range (e.g. one bounce, which breaks the glass) are drawn at the
+    lower edge as arrows labelled with their values."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    if ok.sum() < 4:
+        return
+    ys = np.sort(y[ok])
+    gaps = np.diff(ys)
+    i = int(np.argmax(gaps))
+    if gaps[i] <= 2 * (ys[-1] - ys[i + 1]) or i + 1 > len(ys) // 2:  # no isolated low cluster
+        return
+    lo = ys[i + 1]
+    out = ok & (y < lo)
+    bottom = lo - 0.05 * (y[ok & ~out].max() - lo + 1e-9)
+    ax.set_ylim(bottom=bottom)
+    for lab, xi, yi in zip(np.asarray(labels)[out], x[out], y[out]):
+        ax.annotate(f"{lab}: {yi:.2f} dB", (xi, bottom), xytext=(0, 14), textcoords="offset points", fontsize=6,
+                    ha="center", arrowprops={"arrowstyle": "->", "lw": 0.8, "color": "black"})
 
 
 def _isnan(v) -> bool:

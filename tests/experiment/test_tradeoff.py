@@ -351,3 +351,23 @@ def test_converged_reference_is_shared_and_independent_of_the_settings_spp(sweep
         assert a["metrics"]["psnr"] != b["metrics"]["psnr"]
     keys = {p.name for p in (tmp / "runs" / "tradeoff" / "living_room-0" / "_shared").iterdir()}
     assert sum(k.startswith("converged-") for k in keys) == 1  # one resolution, one object
+
+
+def test_figure_keeps_the_bulk_and_points_at_isolated_outliers():
+    from matplotlib.figure import Figure
+
+    from snell_bench.experiment.tradeoff import _clip_outliers
+
+    x = np.array([4.0, 8.0, 10.0, 12.0, 15.0, 17.0])
+    y = np.array([26.1, 28.4, 27.4, 27.5, 27.4, 13.3])  # one isolated low point (one bounce)
+    ax = Figure().add_subplot()
+    ax.scatter(x, y)
+    _clip_outliers(ax, [f"s{i}" for i in range(6)], x, y)
+    lo = ax.get_ylim()[0]
+    assert 13.3 < lo < 26.1
+    assert any("s5: 13.30 dB" in t.get_text() for t in ax.texts)
+    ax2 = Figure().add_subplot()
+    ax2.scatter(x[:5], y[:5])
+    before = ax2.get_ylim()
+    _clip_outliers(ax2, [f"s{i}" for i in range(5)], x[:5], y[:5])  # a spread, no isolated cluster
+    assert ax2.get_ylim() == before and not ax2.texts
