@@ -53,6 +53,7 @@ class BackgroundHit:
     t: np.ndarray  # (N,) distance, inf where nothing is hit
     kind: np.ndarray  # (N,) int8 HitKind: OBSERVED, UNOBSERVED or ESCAPED
     point: np.ndarray  # (N, 3) hit point, NaN where nothing is hit
+    on_box: np.ndarray  # (N,) bool: the hit is on the box of unobserved space (not the depth mesh)
 
 
 @dataclass
@@ -60,6 +61,7 @@ class RefractionTrace:
     """Result of tracing camera rays through the object (one row per ray)."""
 
     kind: np.ndarray  # (N,) int8 HitKind of where the final ray ends
+    on_box: np.ndarray  # (N,) bool: it ends on the box of unobserved space
     origin: np.ndarray  # (N, 3) origin of the final ray (its last surface point)
     direction: np.ndarray  # (N, 3) unit direction of the final ray
     point: np.ndarray  # (N, 3) where the final ray ends, NaN if nowhere
@@ -134,7 +136,7 @@ class SceneTracer:
         surface (seen from where the camera is not) counts as unobserved."""
         n = len(origins)
         if n == 0:
-            return BackgroundHit(np.zeros(0), np.zeros(0, np.int8), np.zeros((0, 3)))
+            return BackgroundHit(np.zeros(0), np.zeros(0, np.int8), np.zeros((0, 3)), np.zeros(0, bool))
         r = self._bg.cast_rays(_o3d_rays(origins, directions), nthreads=self.nthreads)
         t = r["t_hit"].numpy().astype(np.float64)
         gid = r["geometry_ids"].numpy()
@@ -145,7 +147,7 @@ class SceneTracer:
         kind[hit & (gid == _BACKGROUND) & front] = HitKind.OBSERVED
         kind[hit & ((gid == _BOX) | ((gid == _BACKGROUND) & ~front))] = HitKind.UNOBSERVED
         point = np.where(hit[:, None], origins + np.where(hit, t, 0.0)[:, None] * directions, np.nan)
-        return BackgroundHit(np.where(hit, t, np.inf), kind, point)
+        return BackgroundHit(np.where(hit, t, np.inf), kind, point, hit & (gid == _BOX))
 
     def cast_object(self, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
         """First hit on the object: ``t`` (inf if none), ``face``, ``uv``, ``normal`` (outward face)."""
@@ -223,6 +225,7 @@ class SceneTracer:
         nan3 = np.full((N, 3), np.nan)
         res = RefractionTrace(
             kind=np.zeros(N, np.int8),
+            on_box=np.zeros(N, bool),
             origin=nan3.copy(),
             direction=nan3.copy(),
             point=nan3.copy(),
@@ -248,6 +251,7 @@ class SceneTracer:
                 k = hb.kind[~hit_obj].copy()
                 k[inside[end] & (k == HitKind.ESCAPED)] = HitKind.LOST
                 res.kind[end] = k
+                res.on_box[end] = hb.on_box[~hit_obj]
                 res.origin[end] = oa[~hit_obj]
                 res.direction[end] = da[~hit_obj]
                 res.point[end] = hb.point[~hit_obj]
@@ -284,14 +288,14 @@ class SceneTracer:
         is not hit again: first-bounce reflection only)."""
         ok = np.isfinite(trace.first_point).all(axis=1)
         out = BackgroundHit(
-            np.full(len(ok), np.inf), np.zeros(len(ok), np.int8), np.full((len(ok), 3), np.nan)
+            np.full(len(ok), np.inf), np.zeros(len(ok), np.int8), np.full((len(ok), 3), np.nan), np.zeros(len(ok), bool)
         )
         if ok.any():
             ng = trace.first_geometric_normal[ok]
             side = np.where(_dot(trace.reflected[ok], ng) >= 0, 1.0, -1.0)
             o = trace.first_point[ok] + (self.eps * side)[:, None] * ng
             h = self.cast_background(o, trace.reflected[ok])
-            out.t[ok], out.kind[ok], out.point[ok] = h.t, h.kind, h.point
+            out.t[ok], out.kind[ok], out.point[ok], out.on_box[ok] = h.t, h.kind, h.point, h.on_box
         return out
 
     def cast_camera_object(self, directions: np.ndarray) -> np.ndarray:

@@ -376,7 +376,7 @@ def compute_warps(
         }
     background = build_background(depth, camera, edge_threshold, extra_points=np.stack([lo, hi]), exclude=far)
     tracer = SceneTracer(background, obj, max_bounces=max_bounces, normals=normals, eps=eps)
-    at_inf = _AtInfinity(camera, far, background) if far is not None and far.any() else None
+    at_inf = _AtInfinity(camera, far) if far is not None and far.any() else None
     timings["build"] = time.perf_counter() - t0
 
     H, W = camera.shape
@@ -407,7 +407,7 @@ def compute_warps(
     t0 = time.perf_counter()
     tr = tracer.trace(np.zeros((len(cand), 3)), rays_cand)
     if at_inf is not None:
-        at_inf.resolve(tr.kind, tr.point, tr.direction)
+        at_inf.resolve(tr.kind, tr.point, tr.direction, tr.on_box)
     timings["refraction"] = time.perf_counter() - t0
 
     grid = camera.pixel_grid().reshape(-1, 2)
@@ -427,7 +427,7 @@ def compute_warps(
     # ---- 3. first-bounce reflection
     refl = tracer.trace_reflection(tr)
     if at_inf is not None:
-        at_inf.resolve(refl.kind, refl.point, tr.reflected)
+        at_inf.resolve(refl.kind, refl.point, tr.reflected, refl.on_box)
     src_r, ok_r = _self_warp(camera, tracer, refl.point, refl.kind, verify_visibility)
     reflection = np.full((H * W, 2), np.nan, np.float32)
     reflection_valid = np.zeros(H * W, bool)
@@ -453,7 +453,7 @@ def compute_warps(
     pdirs = pano.directions().reshape(-1, 3)
     ph = tracer.cast_background(np.broadcast_to(pano.center, pdirs.shape), pdirs)
     if at_inf is not None:
-        at_inf.resolve(ph.kind, ph.point, pdirs)
+        at_inf.resolve(ph.kind, ph.point, pdirs, ph.on_box)
     pix, pok = _self_warp(camera, tracer, ph.point, ph.kind, verify_visibility)
     pano_to_persp = np.where(pok[:, None], pix, np.nan).astype(np.float32)
     near = np.rint(np.where(pok[:, None], pix, 0)).astype(np.int64)
@@ -504,28 +504,17 @@ def compute_warps(
 class _AtInfinity:
     """Resolves rays that leave the scene's geometry towards far background at infinity."""
 
-    def __init__(self, camera: Camera, far: np.ndarray, background) -> None:
+    def __init__(self, camera: Camera, far: np.ndarray) -> None:
         self.camera = camera
         self.far = far.reshape(-1)
-        self.lo = background.box_vertices.min(axis=0).astype(np.float64)
-        self.hi = background.box_vertices.max(axis=0).astype(np.float64)
-        self.tol = 1e-4 * float((self.hi - self.lo).max())
 
-    def resolve(self, kind: np.ndarray, point: np.ndarray, direction: np.ndarray) -> None:
+    def resolve(self, kind: np.ndarray, point: np.ndarray, direction: np.ndarray, on_box: np.ndarray) -> None:
         """In place: a ray that ends on the bounding box or nowhere, and whose direction projects
         onto a far pixel, becomes OBSERVED at that pixel's point at infinity (its ``point`` set to
         ``direction x 1e12`` so that every later projection uses its direction)."""
-        cand = (kind == HitKind.ESCAPED) | (kind == HitKind.UNOBSERVED)
-        if not cand.any():
+        idx = np.flatnonzero(on_box | (kind == HitKind.ESCAPED))
+        if not len(idx):
             return
-        idx = np.flatnonzero(cand)
-        p = point[idx]
-        on_box = ~np.isfinite(p).all(axis=1)  # ESCAPED: nothing hit
-        fin = ~on_box
-        on_box[fin] = (
-            (np.abs(p[fin] - self.lo) < self.tol) | (np.abs(p[fin] - self.hi) < self.tol)
-        ).any(axis=1)
-        idx = idx[on_box]
         d = np.asarray(direction[idx], np.float64)
         pix, z = self.camera.project(np.where(np.isfinite(d), d, 0.0))
         ok = (z > 0) & self.camera.in_view(pix)
