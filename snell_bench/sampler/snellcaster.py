@@ -75,6 +75,7 @@ class _Views:
         L = s.effective_levels
         self.levels = L
         self.roi = bool(s.roi)
+        self._gauss_last: dict[bool, tuple[torch.Tensor, list[torch.Tensor]]] = {}
         self.lam = s.effective_lam
         self.object_mask = torch.from_numpy(ws.object_mask)[None, None]
         self.fresnel = torch.from_numpy(ws.fresnel)[None, None]
@@ -100,9 +101,16 @@ class _Views:
         return pyr, [torch.ones((p.shape[0], 1) + p.shape[-2:], dtype=torch.bool) for p in pyr]
 
     def gauss(self, img: torch.Tensor | None, wrap_x: bool = False) -> list[torch.Tensor] | None:
-        """The Gaussian pyramid of an estimate, built once per step and shared by its own Laplacian
-        pyramid and every warp that reads it."""
-        return None if img is None else gaussian_pyramid(img, self.levels, wrap_x=wrap_x)
+        """The Gaussian pyramid of an estimate, built once and shared by its own Laplacian pyramid and
+        every warp that reads it; an estimate lent unchanged to a time-travel repeat of the other
+        branch is not decomposed again."""
+        if img is None:
+            return None
+        last = self._gauss_last.get(wrap_x)
+        if last is None or last[0] is not img:
+            last = (img, gaussian_pyramid(img, self.levels, wrap_x=wrap_x))
+            self._gauss_last[wrap_x] = last
+        return last[1]
 
     def blend_main(self, x0: torch.Tensor, x0_pano: torch.Tensor | None, s: SamplerSettings,
                    g_main: list[torch.Tensor] | None = None, g_pano: list[torch.Tensor] | None = None) -> torch.Tensor:
