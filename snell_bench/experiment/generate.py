@@ -40,6 +40,7 @@ def refraction_psnr(image: torch.Tensor, i_minus: torch.Tensor, ws: WarpSet) -> 
 
 def run_generate(cfg: DictConfig) -> dict:
     from snell_bench.experiment.inputs import (
+        apply_method,
         make_generator,
         make_object,
         make_scene_inputs,
@@ -48,22 +49,19 @@ def run_generate(cfg: DictConfig) -> dict:
     )
     from snell_bench.sampler.snellcaster import sample
 
+    cfg = apply_method(cfg)  # the method's switches (conf/method/) over the sampler and warps nodes
     out = Path(cfg.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     t = {}
     t0 = time.perf_counter()
     inputs = make_scene_inputs(cfg.scene)
     obj = place_from_config(make_object(cfg.object), inputs, cfg.object, seed=int(cfg.seed))
-    # the method's switches (conf/method/) apply on top of the sampler and warps nodes
-    method = cfg.get("method") or {}
-    warps_cfg = OmegaConf.merge(cfg.warps, method.get("warps") or {})
-    sampler_cfg = OmegaConf.merge(cfg.sampler, method.get("sampler") or {})
-    ws = warps_from_config(inputs, obj, warps_cfg)
+    ws = warps_from_config(inputs, obj, cfg.warps)
     t["inputs_and_warps"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     gen = make_generator(cfg.model, inputs, ws)
     t["generator"] = time.perf_counter() - t0
-    settings: SamplerSettings = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(SamplerSettings), sampler_cfg))
+    settings: SamplerSettings = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(SamplerSettings), cfg.sampler))
     i_minus = torch.from_numpy(inputs.image).permute(2, 0, 1)[None].float()
     t0 = time.perf_counter()
     res = sample(gen, ws, i_minus, cfg.scene.prompt, cfg.scene.pano_prompt, settings, seed=int(cfg.seed))
@@ -81,7 +79,7 @@ def run_generate(cfg: DictConfig) -> dict:
                 save_png(out / f"step{d['step']:03d}_{key}.png", d[key][0].permute(1, 2, 0).numpy())
     summary = {
         "model": cfg.model.name,
-        "sampler": OmegaConf.to_container(sampler_cfg),
+        "sampler": OmegaConf.to_container(cfg.sampler),
         "model_calls": res.model_calls,
         "decisions": res.decisions,
         "warps": {k: ws.stats.get(k) for k in ("roi", "traced_primary_rays", "far_background") if k in ws.stats},

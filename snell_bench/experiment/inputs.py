@@ -15,7 +15,8 @@ from snell_bench.scene.placement import place_object
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SceneInputs", "make_scene_inputs", "make_object", "place_from_config", "warps_from_config", "scene_panorama", "make_generator"]
+__all__ = ["SceneInputs", "make_scene_inputs", "make_object", "place_from_config", "warps_from_config", "scene_panorama",
+           "make_generator", "apply_method"]
 
 _REPO = Path(__file__).resolve().parents[2]
 
@@ -79,6 +80,19 @@ def place_from_config(obj: GlassObject, inputs: SceneInputs, obj_cfg: DictConfig
         yaw_deg=float(obj_cfg.yaw_deg),
         **kwargs,
     )
+
+
+def apply_method(cfg: DictConfig) -> DictConfig:
+    """``cfg`` with its method's switches (``method.sampler``, ``method.warps``, conf/method/) merged
+    over the ``sampler`` and ``warps`` nodes; ``cfg`` itself is left unchanged."""
+    from omegaconf import OmegaConf
+
+    c = OmegaConf.create(OmegaConf.to_container(cfg, resolve=False))
+    OmegaConf.set_struct(c, False)
+    method = c.get("method") or {}
+    c.sampler = OmegaConf.merge(c.sampler, method.get("sampler") or {})
+    c.warps = OmegaConf.merge(c.warps, method.get("warps") or {})
+    return c
 
 
 def warps_from_config(inputs: SceneInputs, obj: GlassObject, warps_cfg: DictConfig):

@@ -70,15 +70,15 @@ def object_dir_name(spec: str) -> str:
 def cell_config(cfg: DictConfig, scene: str, variation: int, obj_spec: str, method: str) -> DictConfig:
     """The run's config with the scene, object and method of one cell (the experiment's sizes,
     sampler and model settings kept; the method's sampler switches applied)."""
+    from snell_bench.experiment.inputs import apply_method
+
     c = OmegaConf.create(OmegaConf.to_container(cfg, resolve=False))
     OmegaConf.set_struct(c, False)
     c.scene = OmegaConf.merge(c.scene, load_group("scene", scene), {"variation": int(variation)})
     obj_name, ior = parse_object_spec(obj_spec)
     c.object = OmegaConf.merge(c.object, load_group("object", obj_name), {} if ior is None else {"ior": ior})
     c.method = OmegaConf.merge(c.method, load_group("method", method))
-    c.sampler = OmegaConf.merge(c.sampler, c.method.get("sampler") or {})
-    c.warps = OmegaConf.merge(c.warps, c.method.get("warps") or {})
-    return c
+    return apply_method(c)
 
 
 # ---------------------------------------------------------------------------- atomic files
