@@ -127,6 +127,7 @@ from snell_bench.experiment.runner import (
     Shared,
     Skip,
     _atomic_write_bytes,
+    _save_npy,
     cell_config,
     generate_image,
     load_group,
@@ -151,7 +152,6 @@ __all__ = [
     "setting_config",
     "inputs_key",
     "resolved_knobs",
-    "expected_model_calls",
     "run_tradeoff",
     "pareto_front",
     "collect_tradeoff",
@@ -409,22 +409,6 @@ def resolved_knobs(c: DictConfig) -> dict:
     return {name: _plain(OmegaConf.select(c, key, default=None)) for name, key in KNOBS.items()}
 
 
-def expected_model_calls(steps: int, tt_window: Sequence[float], tt_length: int, tt_repeats_main: int,
-                         tt_repeats_pano: int, panorama: bool = True, time_travel: bool = True) -> dict:
-    """Model calls per branch of the synchronized sampler: each block of ``tt_length`` steps that
-    starts inside the window ``[w0 T, w1 T)`` runs ``tt_repeats_*`` times, every other step once."""
-    T = int(steps)
-    main = pano = 0
-    i = 0
-    while i < T:
-        travel = time_travel and tt_window[0] * T <= i < tt_window[1] * T
-        L = min(int(tt_length), T - i) if travel else 1
-        main += L * (int(tt_repeats_main) if travel else 1)
-        pano += L * (int(tt_repeats_pano) if travel else 1)
-        i += L
-    return {"main": main, "pano": pano if panorama else 0}
-
-
 # ---------------------------------------------------------------------------- the sweep
 def _result_ok(path: Path) -> bool:
     try:
@@ -458,14 +442,6 @@ def _compute_inputs(c: DictConfig, folder: Path, label: str) -> _Inputs:
     timings = {k: _r(v) for k, v in shared.timings.items()}
     write_json(d / "timings.json", {"timings_s": timings, "computed_by": label})
     return _Inputs(shared, timings, label, folder)
-
-
-def _save_npy(path: Path, arr: np.ndarray) -> None:
-    import io
-
-    buf = io.BytesIO()
-    np.save(buf, arr)
-    _atomic_write_bytes(path, buf.getvalue())
 
 
 def _needs_generator(c: DictConfig) -> bool:

@@ -2,6 +2,7 @@
 
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -179,9 +180,23 @@ def test_unknown_preset_fails_before_work(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
-def test_expected_model_calls_formula():
-    from snell_bench.experiment.tradeoff import expected_model_calls
+def expected_model_calls(steps: int, tt_window: Sequence[float], tt_length: int, tt_repeats_main: int,
+                         tt_repeats_pano: int, panorama: bool = True, time_travel: bool = True) -> dict:
+    """Model calls per branch of the synchronized sampler: each block of ``tt_length`` steps that
+    starts inside the window ``[w0 T, w1 T)`` runs ``tt_repeats_*`` times, every other step once."""
+    T = int(steps)
+    main = pano = 0
+    i = 0
+    while i < T:
+        travel = time_travel and tt_window[0] * T <= i < tt_window[1] * T
+        L = min(int(tt_length), T - i) if travel else 1
+        main += L * (int(tt_repeats_main) if travel else 1)
+        pano += L * (int(tt_repeats_pano) if travel else 1)
+        i += L
+    return {"main": main, "pano": pano if panorama else 0}
 
+
+def test_expected_model_calls_formula():
     # T = 20, window [4, 16): 12 steps run 3 times on the main branch, once on the panorama
     assert expected_model_calls(20, (0.2, 0.8), 1, 3, 1) == {"main": 20 + 2 * 12, "pano": 20}
     assert expected_model_calls(5, (0.2, 0.8), 1, 3, 1) == {"main": 5 + 2 * 3, "pano": 5}
@@ -218,8 +233,6 @@ def test_every_run_recorded_with_its_knobs(sweep):
 
 
 def test_model_calls_follow_the_steps_axis(sweep):
-    from snell_bench.experiment.tradeoff import expected_model_calls
-
     tmp, cfg, _ = sweep
     res = results(tmp / "runs" / "tradeoff")
     for scene in SCENES:
