@@ -36,8 +36,8 @@ def decide(warps: WarpSet, settings: SamplerSettings) -> tuple[SamplerSettings, 
     keep = None
     if s.reflection:
         thr = float(s.reflection_min_fresnel)
-        f = warps.fresnel[m]
         if thr > 0:
+            f = warps.fresnel[m]
             keep = m & (warps.fresnel >= thr)
             k = int(keep.sum())
             decisions["reflection"] = {
