@@ -1,0 +1,122 @@
+"""Atomic file writes: every file appears complete or not at all.
+
+Each writer writes a temporary file beside the target (``.<name>.<random>.tmp``) and renames it
+over the target; on any error the temporary is removed. Files get the mode the process's umask
+gives a new file (``0o666 & ~umask``, usually 0644), not the 0600 of :func:`tempfile.mkstemp`.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+__all__ = [
+    "atomic_write",
+    "atomic_write_bytes",
+    "write_text",
+    "write_json",
+    "save_npy",
+    "save_png",
+    "link_or_copy",
+    "json_default",
+]
+
+
+def _umask_mode() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def atomic_write(path: str | os.PathLike, write: Callable[[Any], None], *, binary: bool = True) -> Path:
+    """Call ``write(f)`` on a temporary file beside ``path``, then rename it to ``path``.
+
+    Args:
+        path: the target file; its folder must exist.
+        write: writes the content to the open file object it is given.
+        binary: open the temporary in binary (default) or text mode (UTF-8).
+
+    Returns:
+        ``path`` as a :class:`~pathlib.Path`.
+    """
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8"})) as f:
+            write(f)
+        os.chmod(tmp, _umask_mode())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically."""
+    return atomic_write(path, lambda f: f.write(data))
+
+
+def write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def json_default(o: Any) -> Any:
+    """``json.dumps`` fallback for numpy scalars and arrays."""
+    if isinstance(o, (np.floating, np.integer, np.bool_)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
+
+
+def write_json(path: str | os.PathLike, obj: Any) -> Path:
+    """Write ``obj`` as indented JSON (numpy values converted) to ``path`` atomically."""
+    return atomic_write_bytes(path, json.dumps(obj, indent=2, default=json_default).encode())
+
+
+def save_npy(path: str | os.PathLike, arr: np.ndarray) -> Path:
+    """Save ``arr`` in ``.npy`` format to ``path`` atomically."""
+    buf = io.BytesIO()
+    np.save(buf, arr)
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def save_png(path: str | os.PathLike, image: np.ndarray) -> Path:
+    """Save a float image in [0, 1], ``(H, W)`` or ``(H, W, 3)``, as an 8-bit PNG atomically
+    (values rounded to the nearest of 0..255 and clipped)."""
+    from PIL import Image
+
+    arr = np.clip(np.rint(np.asarray(image, np.float64) * 255.0), 0, 255).astype(np.uint8)
+    return atomic_write(path, lambda f: Image.fromarray(arr).save(f, format="PNG"))
+
+
+def link_or_copy(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
+    """Make ``dst`` the same file as ``src``: a hard link where possible, else a copy; atomic.
+
+    An existing ``dst`` that already is ``src`` (same inode) is left as it is, so no temporary
+    is ever left behind (renaming a link onto another link to the same file does nothing)."""
+    src, dst = Path(src), Path(dst)
+    try:
+        if dst.exists() and os.path.samefile(src, dst):
+            return dst
+    except OSError:
+        pass
+    tmp = Path(tempfile.mktemp(dir=dst.parent, prefix=f".{dst.name}.", suffix=".link"))
+    try:
+        try:
+            os.link(src, tmp)
+        except OSError:
+            shutil.copyfile(src, tmp)
+        os.replace(tmp, dst)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return dst
