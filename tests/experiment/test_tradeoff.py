@@ -369,7 +369,7 @@ def test_converged_reference_is_shared_and_independent_of_the_settings_spp(sweep
 def test_figure_keeps_the_bulk_and_points_at_isolated_outliers():
     from matplotlib.figure import Figure
 
-    from snell_bench.experiment.tradeoff import _clip_outliers
+    from snell_bench.experiment.tradeoff_report import _clip_outliers
 
     x = np.array([4.0, 8.0, 10.0, 12.0, 15.0, 17.0])
     y = np.array([26.1, 28.4, 27.4, 27.5, 27.4, 13.3])  # one isolated low point (one bounce)
