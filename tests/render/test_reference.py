@@ -1,9 +1,8 @@
-"""The Mitsuba reference renderer: camera and texture conventions, the cross-check against our own
-tracer (π^R, Fresnel, the unobserved mask), and the true render of procedural scenes."""
+"""The Mitsuba reference render: camera and texture conventions, the cross-check against our own
+tracer (π^R, Fresnel, the unobserved mask), and its properties."""
 
 import os
 import sys
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -11,42 +10,34 @@ import pytest
 mi = pytest.importorskip("mitsuba")
 
 import scipy.ndimage as nd  # noqa: E402
-import torch  # noqa: E402
+from render_testing import (  # noqa: E402
+    H,
+    W,
+    far_from_object,
+    forced_cpu_variant,
+    make_room,
+    metric_pixels,
+    psnr,
+    warp,
+)
 
 from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear  # noqa: E402
-from snell_bench.imaging.remap import remap  # noqa: E402
-from snell_bench.optics import HitKind, compute_warps  # noqa: E402
-from snell_bench.render import mitsuba_ref  # noqa: E402
-from snell_bench.render.mitsuba_ref import VARIANT_ENV, mitsuba_variant, render_reference, render_true  # noqa: E402
+from snell_bench.optics import HitKind  # noqa: E402
+from snell_bench.render.backend import VARIANT_ENV  # noqa: E402
+from snell_bench.render.reference import render_reference  # noqa: E402
 from snell_bench.scene.camera import Camera  # noqa: E402
 from snell_bench.scene.objects import GlassObject  # noqa: E402
-from snell_bench.scene.placement import place_object  # noqa: E402
-from snell_bench.scene.procedural import ProceduralScene  # noqa: E402
-
-H, W = 128, 224
 
 
 @pytest.fixture(scope="module", autouse=True)
 def cpu_variant():
-    """Render with ``scalar_rgb`` unless a variant is forced (the probe has its own test)."""
-    old = os.environ.get(VARIANT_ENV)
-    if not old:
-        os.environ[VARIANT_ENV] = "scalar_rgb"
-    yield
-    if old is None:
-        os.environ.pop(VARIANT_ENV, None)
-    else:
-        os.environ[VARIANT_ENV] = old
+    with forced_cpu_variant():
+        yield
 
 
 @pytest.fixture(scope="module")
 def room():
-    """A glass sphere on the table of a procedural room; I⁻ supersampled 2 x 2."""
-    scene = ProceduralScene("room", 0)
-    r = scene.render(W, H, supersample=2)
-    obj = place_object(GlassObject.sphere(subdivisions=4), r.depth, r.camera)
-    ws = compute_warps(r.depth, r.camera, obj, pano_height=16)
-    return SimpleNamespace(scene=scene, image=r.image, depth=r.depth, camera=r.camera, obj=obj, ws=ws)
+    return make_room()
 
 
 @pytest.fixture(scope="module")
@@ -57,28 +48,6 @@ def reference(room):
 @pytest.fixture(scope="module")
 def geometric(room):
     return render_reference(room.image, room.depth, room.camera, room.obj, spp=16, seed=0, fresnel=False)
-
-
-def warp(image: np.ndarray, coords: np.ndarray) -> np.ndarray:
-    """(H, W, 3) image through a backward warp (bilinear, 0 where invalid)."""
-    out, _ = remap(torch.from_numpy(np.ascontiguousarray(image, np.float32)).permute(2, 0, 1)[None], coords)
-    return out[0].permute(1, 2, 0).numpy()
-
-
-def psnr(a: np.ndarray, b: np.ndarray, m: np.ndarray) -> float:
-    return float(10 * np.log10(1.0 / np.mean((a[m] - b[m]) ** 2)))
-
-
-def far_from_object(object_mask: np.ndarray, px: int = 2) -> np.ndarray:
-    """Pixels whose footprints cannot touch the object (its mask grown by ``px``)."""
-    return ~nd.binary_dilation(object_mask, iterations=px)
-
-
-def metric_pixels(ref, ws) -> np.ndarray:
-    """The metric mask where our warp is valid, eroded by one pixel: pixels on the mask's rim mix
-    the light of neighbouring regions (silhouette, borders of unobserved regions) in their footprint,
-    which a warp through the pixel centre cannot show."""
-    return nd.binary_erosion(ref.mask & ws.refraction_valid & ws.object_mask, iterations=1)
 
 
 # ============================================================================ conventions
@@ -183,52 +152,3 @@ class TestProperties:
         monkeypatch.setitem(sys.modules, "mitsuba", None)
         with pytest.raises(ImportError, match=r"snell_bench\[render\]"):
             render_reference(room.image, room.depth, room.camera, room.obj)
-
-
-# ============================================================================ the true render
-class TestTrueRender:
-    def test_outside_object_equals_procedural_render(self, room):
-        true = render_true(room.scene, room.camera, room.obj, spp=4, jitter=False)
-        out = far_from_object(room.ws.object_mask)
-        assert true.shape == (H, W, 3) and true.dtype == np.float32
-        assert np.abs(true - room.image)[out].max() < 1e-5
-
-    def test_inside_agrees_with_reference(self, room, reference):
-        true = render_true(room.scene, room.camera, room.obj, spp=4, seed=0)
-        m = metric_pixels(reference, room.ws)
-        assert psnr(true, reference.image, m) > 25
-
-    def test_deterministic_and_sample_patterns(self, room):
-        cam = room.camera.scaled(0.25)
-        a = render_true(room.scene, cam, room.obj, spp=2, seed=1)
-        b = render_true(room.scene, cam, room.obj, spp=2, seed=1)
-        assert np.array_equal(a, b)
-        with pytest.raises(ValueError, match="square spp"):
-            render_true(room.scene, cam, room.obj, spp=2, jitter=False)
-
-
-# ============================================================================ the Mitsuba variant
-class TestVariant:
-    def test_environment_forces_a_variant(self, monkeypatch):
-        monkeypatch.setenv(VARIANT_ENV, "scalar_rgb")
-        assert mitsuba_variant() == "scalar_rgb"
-        monkeypatch.setenv(VARIANT_ENV, "no_such_variant")
-        with pytest.raises(ValueError, match="not a Mitsuba variant"):
-            mitsuba_variant()
-
-    def test_probe_returns_a_working_variant(self, monkeypatch):
-        """The LLVM variant is tried in a subprocess: a broken JIT backend aborts that process, not
-        this one, and the scalar variant is used instead."""
-        monkeypatch.delenv(VARIANT_ENV, raising=False)
-        monkeypatch.setattr(mitsuba_ref, "_probed_variant", None)
-        variant = mitsuba_variant()
-        assert variant in ("llvm_ad_rgb", "scalar_rgb")
-
-        def no_second_probe(v):
-            raise AssertionError("the probe result is memoized")
-
-        monkeypatch.setattr(mitsuba_ref, "_probe", no_second_probe)
-        assert mitsuba_variant() == variant
-        # and it renders here, in this process
-        monkeypatch.setenv(VARIANT_ENV, variant)
-        mitsuba_ref._probe_render()
