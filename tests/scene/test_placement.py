@@ -1,5 +1,6 @@
 """Support-plane detection (Open3D RANSAC) and object placement."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -7,7 +8,7 @@ import pytest
 
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.objects import GlassObject
-from snell_bench.scene.placement import find_support_plane, place_object
+from snell_bench.scene.placement import SupportPlane, find_support_plane, place_object
 
 
 def ray_plane_depth(cam, normal, offset):
@@ -62,7 +63,21 @@ def test_place_object_stands_on_the_plane():
 
 
 def test_deterministic():
+    """The same seed gives the same plane (every field) and the same placed object, bit for bit."""
     cam = Camera.from_fov(160, 120, 70)
     depth, _ = table_scene(cam)
     a, b = find_support_plane(depth, cam, seed=3), find_support_plane(depth, cam, seed=3)
-    np.testing.assert_array_equal(a.point, b.point)
+    for f in dataclasses.fields(SupportPlane):
+        assert np.array_equal(getattr(a, f.name), getattr(b, f.name)), f.name
+    oa = place_object(GlassObject.sphere(subdivisions=2), depth, cam, seed=3, yaw_deg=20.0)
+    ob = place_object(GlassObject.sphere(subdivisions=2), depth, cam, seed=3, yaw_deg=20.0)
+    assert oa.placed and ob.placed
+    for f in dataclasses.fields(GlassObject):
+        if f.name == "mesh":
+            assert np.array_equal(oa.mesh.vertices, ob.mesh.vertices)
+            assert np.array_equal(oa.mesh.faces, ob.mesh.faces)
+        elif f.compare:
+            assert np.array_equal(getattr(oa, f.name), getattr(ob, f.name)), f.name
+    np.testing.assert_allclose(oa.up, a.normal, atol=1e-12)  # up is the (re-normalised) plane normal
+    assert np.array_equal(oa.corner_normals(), ob.corner_normals())
+    assert oa.content_hash() == ob.content_hash()
