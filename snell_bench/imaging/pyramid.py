@@ -1,63 +1,69 @@
 """Gaussian and Laplacian pyramids without padding, and warping through them.
 
-Convention
-----------
-- Images: float tensors ``(B, C, H, W)``. Level ``k + 1`` of a pyramid is ``pyrdown`` of level ``k``:
-  size ``floor(H_k / 2) x floor(W_k / 2)``, no padding to powers of two (720 x 1280 gives 360 x 640,
-  ..., 45 x 80). Pyramids are lists, finest first; the last entry of a Laplacian pyramid is the
-  low-pass residual (the coarsest Gaussian level).
-- Coordinate maps: ``(H', W', 2)`` or ``(B, H', W', 2)`` (torch or numpy) SOURCE pixel coordinates
-  ``(x, y)`` of every destination pixel, integer values at pixel centres, NaN where the warp is invalid
-  (backward warps, as :func:`~snell_bench.imaging.remap.remap`).
-- Masks: bool ``(B, 1, H, W)`` or ``(H, W)`` (broadcast over the batch); returned masks are
-  ``(B, 1, H, W)``.
-- Level geometry: a level-0 pixel coordinate ``x`` is ``x_k = (x + 0.5) * W_k / W - 0.5`` at level
-  ``k`` (and likewise for ``y``). That is ``(x + 0.5) / 2**k - 0.5`` when sizes halve exactly; for odd
-  sizes the actual size ratio is used, which is the geometry of ``pyrdown``'s resampling.
-- ``wrap_x=True`` marks a 360° panorama, periodic in x: pyramids are blurred with circular padding in
-  x (exact for even widths) and sampling wraps around the seam.
+Convention:
+    - Images: float tensors ``(B, C, H, W)``. Level ``k + 1`` of a pyramid is ``pyrdown`` of level ``k``:
+      size ``floor(H_k / 2) x floor(W_k / 2)``, no padding to powers of two (720 x 1280 gives 360 x 640,
+      ..., 45 x 80). Pyramids are lists, finest first; the last entry of a Laplacian pyramid is the
+      low-pass residual (the coarsest Gaussian level).
+    - Coordinate maps: ``(H', W', 2)`` or ``(B, H', W', 2)`` (torch or numpy) SOURCE pixel coordinates
+      ``(x, y)`` of every destination pixel, integer values at pixel centres, NaN where the warp is invalid
+      (backward warps, as :func:`~snell_bench.imaging.remap.remap`).
+    - Masks: bool ``(B, 1, H, W)`` or ``(H, W)`` (broadcast over the batch); returned masks are
+      ``(B, 1, H, W)``.
+    - Level geometry: a level-0 pixel coordinate ``x`` is ``x_k = (x + 0.5) * W_k / W - 0.5`` at level
+      ``k`` (and likewise for ``y``). That is ``(x + 0.5) / 2**k - 0.5`` when sizes halve exactly; for odd
+      sizes the actual size ratio is used, which is the geometry of ``pyrdown``'s resampling.
+    - ``wrap_x=True`` marks a 360° panorama, periodic in x: pyramids are blurred with circular padding in
+      x (exact for even widths) and sampling wraps around the seam.
 
-Warping through a pyramid
--------------------------
-The destination pyramid's geometry comes from the coordinate map itself: level ``k + 1`` of the map
-averages the coordinates of the valid pixels of each 2 x 2 block of level ``k``; level sizes are
-``floor(n / 2)`` like ``pyrdown``'s, so the bands line up with any image's own
-:func:`laplacian_pyramid` and can be blended with it (an odd last row / column lives only at the
-finer level; the coarse coordinate of an odd-sized level is off by at most half a coarse pixel from
-``pyrdown``'s resampling geometry). Across the seam of a panorama source, x is unwrapped relative to
-the block's first valid pixel before averaging. A coarse destination pixel is valid if ANY of its
-fine pixels is valid, and masked upsampling (normalised by the upsampled mask) never mixes invalid
-pixels into valid ones.
+Warping through a pyramid:
+    The destination pyramid's geometry comes from the coordinate map itself: level ``k + 1`` of the map
+    averages the coordinates of the valid pixels of each 2 x 2 block of level ``k``; level sizes are
+    ``floor(n / 2)`` like ``pyrdown``'s, so the bands line up with any image's own
+    :func:`laplacian_pyramid` and can be blended with it (an odd last row / column lives only at the
+    finer level; the coarse coordinate of an odd-sized level is off by at most half a coarse pixel from
+    ``pyrdown``'s resampling geometry). Across the seam of a panorama source, x is unwrapped relative to
+    the block's first valid pixel before averaging. A coarse destination pixel is valid if ANY of its
+    fine pixels is valid, and masked upsampling (normalised by the upsampled mask) never mixes invalid
+    pixels into valid ones.
 
-Each destination level ``k`` samples the source's Gaussian pyramid at the level whose pixel size
-matches the map's local footprint: ``log2 s`` with ``s`` the local stretch (level-0 source pixels per
-destination level-``k`` pixel: the larger column norm of the map's finite-difference Jacobian),
-clamped to ``[0, levels - 1]``, fractional levels blending the two nearest linearly. For the identity
-map that is level ``k``; where the map compresses it is coarser (no aliasing), where it magnifies it is
-finer (no blur). :func:`lod_warp` returns the finest such level, a per-pixel level-of-detail
-(trilinear mip-map) warp. :func:`pyramid_warp` returns the destination's Laplacian pyramid
-``D_k = A_k - up(A_{k+1})`` of the warped Gaussian levels ``A_k`` (masked upsampling), for blending
-band by band. For the identity map (sizes divisible by ``2**(levels - 1)``) ``D`` is the source's
-Laplacian pyramid; whatever the map, ``D`` collapses (masked :func:`collapse`) to ``A_0``, which
-``pyramid_warp(..., collapse=True)`` returns directly: it equals ``lod_warp``, and equals :func:`remap`
-wherever the map does not compress, so integer translations and magnifications are exactly remap's.
-Warping the source's Laplacian bands instead (band ``k`` at level ``k``) does not have this property:
-the destination's upsampling differs from the source's where the map stretches, which sharpens
-magnified regions and blurs the coarse bands of sub-pixel moves.
+    Each destination level ``k`` samples the source's Gaussian pyramid at the level whose pixel size
+    matches the map's local footprint: ``log2 s`` with ``s`` the local stretch (level-0 source pixels per
+    destination level-``k`` pixel: the larger column norm of the map's finite-difference Jacobian),
+    clamped to ``[0, levels - 1]``, fractional levels blending the two nearest linearly. For the identity
+    map that is level ``k``; where the map compresses it is coarser (no aliasing), where it magnifies it is
+    finer (no blur). :func:`lod_warp` returns the finest such level, a per-pixel level-of-detail
+    (trilinear mip-map) warp. :func:`pyramid_warp` returns the destination's Laplacian pyramid
+    ``D_k = A_k - up(A_{k+1})`` of the warped Gaussian levels ``A_k`` (masked upsampling), for blending
+    band by band. For the identity map (sizes divisible by ``2**(levels - 1)``) ``D`` is the source's
+    Laplacian pyramid; whatever the map, ``D`` collapses (masked :func:`collapse`) to ``A_0``, which
+    ``pyramid_warp(..., collapse=True)`` returns directly: it equals ``lod_warp``, and equals :func:`remap`
+    wherever the map does not compress, so integer translations and magnifications are exactly remap's.
+    Warping the source's Laplacian bands instead (band ``k`` at level ``k``) does not have this property:
+    the destination's upsampling differs from the source's where the map stretches, which sharpens
+    magnified regions and blurs the coarse bands of sub-pixel moves.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from kornia.geometry.transform import pyrdown, pyrup
 
 from snell_bench.imaging.remap import remap
+from snell_bench.utils.tensors import as_tensor
 
-__all__ = ["gaussian_pyramid", "laplacian_pyramid", "laplacian_from_gaussian", "collapse", "pyramid_warp", "lod_warp"]
+__all__ = [
+    "gaussian_pyramid",
+    "laplacian_pyramid",
+    "laplacian_from_gaussian",
+    "collapse",
+    "pyramid_warp",
+    "lod_warp",
+    "as_mask",
+]
 
 Size = tuple[int, int]
 
@@ -101,7 +107,24 @@ def _check_levels(img: torch.Tensor, levels: int) -> None:
 
 
 def gaussian_pyramid(img: torch.Tensor, levels: int, *, wrap_x: bool = False) -> list[torch.Tensor]:
-    """Gaussian pyramid ``[img, pyrdown(img), ...]`` with ``levels`` entries, finest first."""
+    """Gaussian pyramid ``[img, pyrdown(img), ...]``, finest first.
+
+    Args:
+        img: ``(B, C, H, W)`` image.
+        levels: number of levels (>= 1; the coarsest must keep at least one pixel).
+        wrap_x: the image is a panorama (circular blur in x).
+
+    Returns:
+        ``levels`` tensors ``(B, C, floor(H / 2**k), floor(W / 2**k))``.
+
+    Raises:
+        ValueError: ``img`` is not 4-D, or has fewer than ``levels`` levels.
+
+    Examples:
+        >>> g = gaussian_pyramid(torch.ones(1, 1, 8, 12), 3)
+        >>> [tuple(level.shape[-2:]) for level in g], round(float(g[-1].mean()), 4)
+        ([(8, 12), (4, 6), (2, 3)], 1.0)
+    """
     _check_levels(img, levels)
     pyr = [img]
     for _ in range(levels - 1):
@@ -111,13 +134,47 @@ def gaussian_pyramid(img: torch.Tensor, levels: int, *, wrap_x: bool = False) ->
 
 def laplacian_pyramid(img: torch.Tensor, levels: int, *, wrap_x: bool = False) -> list[torch.Tensor]:
     """Laplacian pyramid: ``levels - 1`` band-pass levels ``G_k - up(G_{k+1})``, then the residual
-    ``G_{levels-1}``. :func:`collapse` inverts it to float precision."""
+    ``G_{levels-1}``. :func:`collapse` inverts it to float precision.
+
+    Args:
+        img: ``(B, C, H, W)`` image.
+        levels: number of levels (as :func:`gaussian_pyramid`).
+        wrap_x: the image is a panorama (circular blur and upsampling in x).
+
+    Returns:
+        ``levels`` tensors with the sizes of :func:`gaussian_pyramid`.
+
+    Examples:
+        A pyramid collapses back to its image:
+
+        >>> img = torch.rand(1, 3, 16, 24, generator=torch.Generator().manual_seed(0))
+        >>> pyr = laplacian_pyramid(img, 3)
+        >>> [tuple(level.shape[-2:]) for level in pyr]
+        [(16, 24), (8, 12), (4, 6)]
+        >>> round(float((collapse(pyr) - img).abs().max()), 4)
+        0.0
+    """
     g = gaussian_pyramid(img, levels, wrap_x=wrap_x)
     return _bands(g, wrap_x) + [g[-1]]
 
 
 def laplacian_from_gaussian(g: Sequence[torch.Tensor], *, wrap_x: bool = False) -> list[torch.Tensor]:
-    """The Laplacian pyramid of an image from its Gaussian pyramid ``g`` (as :func:`laplacian_pyramid`)."""
+    """The Laplacian pyramid of an image from its Gaussian pyramid (as :func:`laplacian_pyramid`).
+
+    Args:
+        g: the image's :func:`gaussian_pyramid`.
+        wrap_x: the image is a panorama.
+
+    Returns:
+        The Laplacian pyramid, ``len(g)`` levels.
+
+    Examples:
+        >>> img = torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0))
+        >>> a = laplacian_from_gaussian(gaussian_pyramid(img, 3))
+        >>> b = laplacian_pyramid(img, 3)
+        >>> round(float(max((x - y).abs().max() for x, y in zip(a, b))), 4)
+        0.0
+    """
     return _bands(g, wrap_x) + [g[-1]]
 
 
@@ -126,9 +183,27 @@ def _bands(g: Sequence[torch.Tensor], wrap_x: bool) -> list[torch.Tensor]:
     return [g[k] - _up(g[k + 1], g[k].shape[-2:], wrap_x) for k in range(len(g) - 1)]
 
 
-def _as_mask(mask, like: torch.Tensor) -> torch.Tensor:
-    """A bool mask ``(H, W)``, ``(B, H, W)`` or ``(B, 1, H, W)`` as ``(B or 1, 1, H, W)`` on ``like``'s device."""
-    m = torch.as_tensor(np.asarray(mask) if not isinstance(mask, torch.Tensor) else mask, device=like.device)
+def as_mask(mask, like: torch.Tensor) -> torch.Tensor:
+    """A mask in the layout of the imaging functions: ``(B or 1, 1, H, W)`` bool.
+
+    Args:
+        mask: ``(H, W)``, ``(B, H, W)`` or ``(B, 1, H, W)`` array or tensor (any dtype; nonzero is
+            true).
+        like: a tensor on the device the mask is wanted on.
+
+    Returns:
+        The mask as a bool ``(B or 1, 1, H, W)`` tensor on ``like``'s device.
+
+    Raises:
+        ValueError: ``mask`` has another shape.
+
+    Examples:
+        >>> import numpy as np
+        >>> m = as_mask(np.eye(3), torch.zeros(1, 3, 3, 3))
+        >>> tuple(m.shape), m.dtype, int(m.sum())
+        ((1, 1, 3, 3), torch.bool, 3)
+    """
+    m = as_tensor(mask, device=like.device)
     m = m.bool()
     if m.ndim == 2:
         m = m[None, None]
@@ -144,16 +219,34 @@ def collapse(pyr: Sequence[torch.Tensor], masks: Sequence | None = None, *, wrap
 
     With ``masks`` (one per level, bool), the upsampling is normalised by the upsampled mask, so values
     at invalid pixels never reach valid ones; pixels invalid at level 0 are 0.
+
+    Args:
+        pyr: a Laplacian pyramid, finest first (:func:`laplacian_pyramid`, :func:`pyramid_warp`).
+        masks: ``None`` or one mask per level (``(H_k, W_k)`` or ``(B, 1, H_k, W_k)``).
+        wrap_x: the image is a panorama (circular upsampling in x).
+
+    Returns:
+        ``(B, C, H, W)`` image.
+
+    Examples:
+        >>> img = torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0))
+        >>> round(float((collapse(laplacian_pyramid(img, 3, wrap_x=True), wrap_x=True) - img).abs().max()), 4)
+        0.0
+        >>> masks = [torch.ones(8 >> k, 8 >> k, dtype=torch.bool) for k in range(3)]
+        >>> masks[0][0, 0] = False
+        >>> out = collapse(laplacian_pyramid(img, 3), masks)
+        >>> float(out[0, 0, 0, 0]), round(float((out - img)[..., 1:, 1:].abs().max()), 4)
+        (0.0, 0.0)
     """
     img = pyr[-1]
     if masks is None:
         for band in reversed(pyr[:-1]):
             img = band + _up(img, band.shape[-2:], wrap_x)
         return img
-    m = _as_mask(masks[-1], img)
+    m = as_mask(masks[-1], img)
     img = torch.where(m, img, torch.zeros_like(img))
     for band, mask in zip(reversed(pyr[:-1]), reversed(masks[:-1])):
-        mk = _as_mask(mask, band)
+        mk = as_mask(mask, band)
         img = torch.where(mk, band + _up_masked(img, m, band.shape[-2:], wrap_x), torch.zeros_like(band))
         m = mk
     return img
@@ -179,8 +272,7 @@ def _unwrap(d: torch.Tensor, period: float | None) -> torch.Tensor:
 def _prepare(coords, mask, src: torch.Tensor, wrap_x: bool) -> torch.Tensor:
     """``(Bc, H', W', 2)`` coordinates on ``src``'s device/dtype, NaN wherever the warp is invalid:
     non-finite, outside ``mask``, or outside the source (x only when not ``wrap_x``)."""
-    c = torch.as_tensor(np.asarray(coords) if not isinstance(coords, torch.Tensor) else coords)
-    c = c.to(device=src.device, dtype=src.dtype)
+    c = as_tensor(coords, dtype=src.dtype, device=src.device)
     if c.ndim == 3:
         c = c.unsqueeze(0)
     if c.ndim != 4 or c.shape[-1] != 2:
@@ -191,7 +283,7 @@ def _prepare(coords, mask, src: torch.Tensor, wrap_x: bool) -> torch.Tensor:
     if not wrap_x:
         ok &= (x >= -0.5) & (x <= W - 0.5)
     if mask is not None:
-        m = _as_mask(mask, c)[:, 0]
+        m = as_mask(mask, c)[:, 0]
         ok = ok & m
     if ok.shape[0] != c.shape[0]:
         c = c.expand(ok.shape[0], -1, -1, -1)
@@ -395,6 +487,30 @@ def pyramid_warp(src: torch.Tensor, coords, *, levels: int = 5, wrap_x: bool = F
         ``(levels bands, levels masks)``: a Laplacian pyramid, finest first, with the sizes of
         :func:`laplacian_pyramid` (``floor(n / 2)`` per level),
         whose masked :func:`collapse` is ``warped``. Invalid pixels are 0.
+
+    Raises:
+        ValueError: ``src`` is not 4-D or has fewer than ``levels`` levels, or ``coords`` has a
+            wrong shape.
+
+    Examples:
+        The identity map gives back the image, and its pyramid is the image's own:
+
+        >>> import numpy as np
+        >>> img = torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(0))
+        >>> ys, xs = np.mgrid[0:16, 0:16].astype(np.float32)
+        >>> identity = np.stack([xs, ys], -1)
+        >>> out, valid = pyramid_warp(img, identity, levels=3)
+        >>> round(float((out - img).abs().max()), 4), bool(valid.all())
+        (0.0, True)
+        >>> bands, masks = pyramid_warp(img, identity, levels=3, collapse=False)
+        >>> round(float(max((b - l).abs().max() for b, l in zip(bands, laplacian_pyramid(img, 3)))), 4)
+        0.0
+
+        A shift by one pixel to the left, invalid (0) where it leaves the source:
+
+        >>> out, valid = pyramid_warp(img, identity + [1.0, 0.0], levels=3)
+        >>> round(float((out[..., :-1] - img[..., 1:]).abs().max()), 4), bool(valid[..., -1].any())
+        (0.0, False)
     """
     _check_levels(src, levels)
     c = _prepare(coords, mask, src, wrap_x)
@@ -430,8 +546,25 @@ def lod_warp(src: torch.Tensor, coords, *, levels: int = 5, wrap_x: bool = False
     """Per-pixel level-of-detail warp: sample ``src``'s Gaussian pyramid at level ``log2`` of the map's
     local stretch (clamped to ``[0, levels - 1]``), blending the two nearest levels.
 
-    Arguments as :func:`pyramid_warp`. Returns ``(warped (B, C, H', W'), valid (B, 1, H', W') bool)``;
-    invalid pixels are 0. Where the map does not compress this is exactly :func:`remap`.
+    Where the map does not compress this is exactly :func:`remap`.
+
+    Args:
+        src, coords, levels, wrap_x, mask, dest_wrap_x: as :func:`pyramid_warp`.
+
+    Returns:
+        ``(warped (B, C, H', W'), valid (B, 1, H', W') bool)``; invalid pixels are 0.
+
+    Examples:
+        Halving the size samples level 1 of the source's Gaussian pyramid:
+
+        >>> import numpy as np
+        >>> img = torch.rand(1, 1, 16, 16, generator=torch.Generator().manual_seed(0))
+        >>> ys, xs = np.mgrid[0:8, 0:8].astype(np.float32)
+        >>> half = np.stack([2 * xs + 0.5, 2 * ys + 0.5], -1)
+        >>> out, valid = lod_warp(img, half, levels=3)
+        >>> level1 = gaussian_pyramid(img, 2)[1]
+        >>> tuple(out.shape), round(float((out - level1).abs().max()), 4)
+        ((1, 1, 8, 8), 0.0)
     """
     _check_levels(src, levels)
     c = _prepare(coords, mask, src, wrap_x)

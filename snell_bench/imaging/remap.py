@@ -1,28 +1,64 @@
 """Sampling images through backward warps (single level; kornia's ``remap``).
 
-Convention
-----------
-- ``image``: float tensor ``(B, C, H, W)``.
-- ``coords``: ``(H', W', 2)`` or ``(B, H', W', 2)`` source pixel coordinates ``(x, y)`` with integer
-  values at pixel centres, NaN where the warp is invalid (numpy or torch).
-- Returns ``(warped (B, C, H', W'), valid (B, H', W') bool)``; invalid pixels are 0.
-- ``wrap_x=True`` treats the source as a 360° panorama: x wraps around (no seam at the border).
+Convention:
+    - ``image``: float tensor ``(B, C, H, W)``.
+    - ``coords``: ``(H', W', 2)`` or ``(B, H', W', 2)`` source pixel coordinates ``(x, y)`` with
+      integer values at pixel centres, NaN where the warp is invalid (numpy or torch).
+    - Returns ``(warped (B, C, H', W'), valid (B, H', W') bool)``; invalid pixels are 0.
+    - ``wrap_x=True`` treats the source as a 360° panorama: x wraps around (no seam at the border).
 """
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 from kornia.geometry.transform import remap as _kornia_remap
+
+from snell_bench.utils.tensors import as_tensor
 
 __all__ = ["remap"]
 
 
-def remap(image: torch.Tensor, coords, *, wrap_x: bool = False, mode: str = "bilinear") -> tuple[torch.Tensor, torch.Tensor]:
+def remap(
+    image: torch.Tensor, coords, *, wrap_x: bool = False, mode: str = "bilinear"
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sample ``image`` at the source coordinates of every destination pixel.
+
+    A coordinate is valid where it is finite and inside the image area (``[-0.5, W - 0.5]`` x
+    ``[-0.5, H - 0.5]``; x unbounded with ``wrap_x``); the half-pixel border repeats the outermost
+    pixels.
+
+    Args:
+        image: ``(B, C, H, W)`` source image.
+        coords: ``(H', W', 2)`` or ``(B, H', W', 2)`` source coordinates ``(x, y)``, NaN where
+            invalid (numpy or torch; one map is shared by the batch).
+        wrap_x: the source is a 360° panorama (x wraps around).
+        mode: ``"bilinear"`` or ``"nearest"`` (kornia's interpolation modes).
+
+    Returns:
+        ``(warped (B, C, H', W'), valid (B, H', W') bool)``; invalid pixels are 0.
+
+    Raises:
+        ValueError: ``image`` is not 4-D or ``coords`` has a wrong shape.
+
+    Examples:
+        The identity map gives the image back, and half-way between two pixels their mean:
+
+        >>> import numpy as np
+        >>> img = torch.tensor([[[[0.0, 1.0], [2.0, 3.0]]]])
+        >>> ys, xs = np.mgrid[0:2, 0:2].astype(np.float32)
+        >>> out, valid = remap(img, np.stack([xs, ys], -1))
+        >>> out[0, 0].tolist(), bool(valid.all())
+        ([[0.0, 1.0], [2.0, 3.0]], True)
+        >>> out, valid = remap(img, np.array([[[0.5, 0.0], [np.nan, 0.0], [2.0, 0.0]]]))
+        >>> out[0, 0].tolist(), valid[0].tolist()
+        ([[0.5, 0.0, 0.0]], [[True, False, False]])
+        >>> out, _ = remap(img, np.array([[[2.0, 0.0]]]), wrap_x=True)  # x = 2 is x = 0 again
+        >>> out[0, 0].tolist()
+        [[0.0]]
+    """
     if image.ndim != 4:
         raise ValueError(f"image must be (B, C, H, W), got shape {tuple(image.shape)}")
-    c = torch.as_tensor(np.asarray(coords) if not isinstance(coords, torch.Tensor) else coords)
-    c = c.to(device=image.device, dtype=image.dtype)
+    c = as_tensor(coords, dtype=image.dtype, device=image.device)
     if c.ndim == 3:
         c = c.unsqueeze(0)
     if c.ndim != 4 or c.shape[-1] != 2:

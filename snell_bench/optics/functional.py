@@ -1,18 +1,17 @@
 """Pure, batched optics on torch tensors.
 
-Convention
-----------
-- ``d``: incoming ray directions ``(..., 3)``, unit length, pointing *along* the ray.
-- ``n``: unit surface normals ``(..., 3)`` *facing the incoming ray* (``d . n <= 0``); use
-  :func:`face_forward` to orient a surface normal.
-- ``eta``: ratio ``nu_i / nu_t`` of the refractive index on the incoming side to the one on the
-  transmitted side (``1 / 1.5`` entering glass from air), a float or a tensor broadcastable to
-  ``d[..., 0]``.
-- Any floating dtype; computations stay in the input dtype (pass float64 for the last digits).
+Convention:
+    - ``d``: incoming ray directions ``(..., 3)``, unit length, pointing *along* the ray.
+    - ``n``: unit surface normals ``(..., 3)`` *facing the incoming ray* (``d . n <= 0``); use
+      :func:`face_forward` to orient a surface normal.
+    - ``eta``: ratio ``nu_i / nu_t`` of the refractive index on the incoming side to the one on the
+      transmitted side (``1 / 1.5`` entering glass from air), a float or a tensor broadcastable to
+      ``d[..., 0]``.
+    - Any floating dtype; computations stay in the input dtype (pass float64 for the last digits).
 
-The paper's form of Snell's law, with ``beta = -d . n`` and ``gamma = 1 - eta^2 (1 - beta^2)``:
-``d' = eta d + (eta beta - sqrt(gamma)) n``; ``gamma < 0`` is total internal reflection (TIR),
-where the ray is mirrored: ``d' = d - 2 (d . n) n``.
+    The paper's form of Snell's law, with ``beta = -d . n`` and ``gamma = 1 - eta^2 (1 - beta^2)``:
+    ``d' = eta d + (eta beta - sqrt(gamma)) n``; ``gamma < 0`` is total internal reflection (TIR),
+    where the ray is mirrored: ``d' = d - 2 (d . n) n``.
 """
 
 from __future__ import annotations
@@ -27,21 +26,73 @@ def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def face_forward(n: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
-    """``n`` flipped where needed so that it faces the ray ``d`` (``d . n <= 0``)."""
+    """Orient normals to face the rays.
+
+    Args:
+        n: ``(..., 3)`` normals.
+        d: ``(..., 3)`` ray directions.
+
+    Returns:
+        ``n`` flipped where needed so that it faces the ray ``d`` (``d . n <= 0``).
+
+    Examples:
+        >>> d = torch.tensor([0.6, -0.8, 0.0])
+        >>> face_forward(torch.tensor([0.0, -1.0, 0.0]), d).tolist()
+        [-0.0, 1.0, -0.0]
+    """
     return torch.where((_dot(d, n) > 0)[..., None], -n, n)
 
 
 def reflect(d: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
-    """Mirror reflection ``d - 2 (d . n) n`` (either orientation of ``n`` gives the same result)."""
+    """Mirror reflection ``d - 2 (d . n) n``.
+
+    Args:
+        d: ``(..., 3)`` ray directions.
+        n: ``(..., 3)`` unit normals (either orientation gives the same result).
+
+    Returns:
+        ``(..., 3)`` mirrored directions.
+
+    Examples:
+        >>> r = reflect(torch.tensor([0.6, -0.8, 0.0]), torch.tensor([0.0, 1.0, 0.0]))
+        >>> [round(float(v), 4) for v in r]
+        [0.6, 0.8, 0.0]
+    """
     return d - 2.0 * _dot(d, n)[..., None] * n
 
 
 def refract(d: torch.Tensor, n: torch.Tensor, eta) -> tuple[torch.Tensor, torch.Tensor]:
     """Refract ``d`` at a surface with normal ``n`` (facing the ray) and index ratio ``eta``.
 
-    Returns ``(d_out (..., 3), tir (...) bool)``: the transmitted direction (unit length), or the
-    mirrored direction where ``tir`` is true. Finite for every unit input, grazing incidence
-    (``beta -> 0``) and ``eta == 1`` (the identity) included.
+    Finite for every unit input, grazing incidence (``beta -> 0``) and ``eta == 1`` (the identity)
+    included.
+
+    Args:
+        d: ``(..., 3)`` unit ray directions.
+        n: ``(..., 3)`` unit normals facing the rays.
+        eta: index ratio ``nu_i / nu_t`` (float or tensor broadcastable to ``d[..., 0]``).
+
+    Returns:
+        ``(d_out (..., 3), tir (...) bool)``: the transmitted direction (unit length), or the
+        mirrored direction where ``tir`` is true.
+
+    Examples:
+        At normal incidence the direction is unchanged:
+
+        >>> out, tir = refract(torch.tensor([0.0, 0.0, 1.0]), torch.tensor([0.0, 0.0, -1.0]), 1 / 1.5)
+        >>> out.tolist(), bool(tir)
+        ([0.0, 0.0, 1.0], False)
+
+        Entering glass, the tangential component shrinks by ``eta``; leaving it at a grazing
+        angle, the ray is totally reflected:
+
+        >>> d, n = torch.tensor([0.6, -0.8, 0.0]), torch.tensor([0.0, 1.0, 0.0])
+        >>> out, tir = refract(d, n, 1 / 1.5)
+        >>> round(float(out[0]), 4), bool(tir)
+        (0.4, False)
+        >>> out, tir = refract(torch.tensor([0.8, -0.6, 0.0]), n, 1.5)
+        >>> [round(float(v), 4) for v in out], bool(tir)
+        ([0.8, 0.6, 0.0], True)
     """
     eta = torch.as_tensor(eta, dtype=d.dtype, device=d.device)
     beta = (-_dot(d, n)).clamp(0.0, 1.0)
@@ -56,10 +107,25 @@ def refract(d: torch.Tensor, n: torch.Tensor, eta) -> tuple[torch.Tensor, torch.
 
 
 def fresnel_cos(cos_i: torch.Tensor, n_i, n_t) -> torch.Tensor:
-    """Exact unpolarised Fresnel reflectance ``R = (R_s + R_p) / 2`` from the cosine of the angle of
-    incidence ``cos_i`` in ``[0, 1]`` going from index ``n_i`` into ``n_t``. ``R = 1`` under TIR and
-    at grazing incidence; ``R(0, 1 -> 1.5) = 0.04``; ``R = 0`` for ``n_i == n_t`` (except exactly
-    at grazing incidence, where the limit 1 is returned)."""
+    """Exact unpolarised Fresnel reflectance ``R = (R_s + R_p) / 2`` from the angle of incidence.
+
+    ``R = 1`` under TIR and at grazing incidence; ``R = 0`` for ``n_i == n_t`` (except exactly at
+    grazing incidence, where the limit 1 is returned).
+
+    Args:
+        cos_i: cosine of the angle of incidence, in ``[0, 1]`` (clamped there); any shape.
+        n_i: refractive index on the incoming side (float or broadcastable tensor).
+        n_t: refractive index on the transmitted side.
+
+    Returns:
+        ``R`` with the shape of ``cos_i`` (its floating dtype, else the default dtype).
+
+    Examples:
+        >>> round(float(fresnel_cos(torch.tensor(1.0), 1.0, 1.5)), 4)  # normal incidence, air -> glass
+        0.04
+        >>> [round(float(r), 4) for r in fresnel_cos(torch.tensor([1.0, 0.0]), 1.5, 1.0)]  # 0: grazing
+        [0.04, 1.0]
+    """
     cos_i = torch.as_tensor(cos_i).clamp(0.0, 1.0)
     dt = cos_i.dtype if cos_i.is_floating_point() else torch.get_default_dtype()
     cos_i = cos_i.to(dt)
@@ -80,6 +146,20 @@ def fresnel_cos(cos_i: torch.Tensor, n_i, n_t) -> torch.Tensor:
 
 
 def fresnel(d: torch.Tensor, n: torch.Tensor, n_i, n_t) -> torch.Tensor:
-    """Fresnel reflectance ``(...)`` for rays ``d`` hitting a surface with normal ``n`` (either
-    orientation), going from index ``n_i`` into ``n_t``."""
+    """Fresnel reflectance of rays hitting a surface (:func:`fresnel_cos` of ``|d . n|``).
+
+    Args:
+        d: ``(..., 3)`` unit ray directions.
+        n: ``(..., 3)`` unit normals (either orientation).
+        n_i: refractive index on the incoming side.
+        n_t: refractive index on the transmitted side.
+
+    Returns:
+        ``(...)`` reflectance.
+
+    Examples:
+        >>> d = torch.tensor([0.0, 0.0, 1.0])
+        >>> round(float(fresnel(d, torch.tensor([0.0, 0.0, 1.0]), 1.0, 1.5)), 4)
+        0.04
+    """
     return fresnel_cos(_dot(d, n).abs(), n_i, n_t)

@@ -1,21 +1,21 @@
 """Ray tracing through a glass object in a depth-map scene, on Open3D's ``RaycastingScene``.
 
-Convention
-----------
-- Everything is in the camera frame (OpenCV; camera at the origin), float64 numpy arrays at the
-  interface; rays are cast in float32 (Open3D's only ray type).
-- Two acceleration structures are built once: the *background* (the depth mesh, geometry 0, and
-  the bounding box of unobserved space, geometry 1) and the *object* alone. Every ray is cast
-  against both, so an object that cuts into the background is handled (a ray inside the glass
-  that reaches the background ends there).
-- Object normals point outwards. Shading normals are interpolated from the object's per-corner
-  normals (``normals="interpolated"``, the default) or are the flat face normals
-  (``normals="face"``). Which side of the surface a ray is on is always decided by the *geometric*
-  (face) normal, and where an interpolated normal would send a ray to the wrong side of the
-  geometric surface (near silhouettes) the face normal is used for that interaction.
-- Self-intersection: a new ray starts ``eps`` away from the surface along the geometric normal, on
-  the side it travels to (default ``eps = 1e-5 x`` the object's diameter, at least ``1e-6 x`` its
-  distance from the camera, so float32 coordinates cannot round it away).
+Convention:
+    - Everything is in the camera frame (OpenCV; camera at the origin), float64 numpy arrays at
+      the interface; rays are cast in float32 (Open3D's only ray type).
+    - Two acceleration structures are built once: the *background* (the depth mesh, geometry 0,
+      and the bounding box of unobserved space, geometry 1) and the *object* alone. Every ray is
+      cast against both, so an object that cuts into the background is handled (a ray inside the
+      glass that reaches the background ends there).
+    - Object normals point outwards. Shading normals are interpolated from the object's per-corner
+      normals (``normals="interpolated"``, the default) or are the flat face normals
+      (``normals="face"``). Which side of the surface a ray is on is always decided by the
+      *geometric* (face) normal, and where an interpolated normal would send a ray to the wrong
+      side of the geometric surface (near silhouettes) the face normal is used for that
+      interaction.
+    - Self-intersection: a new ray starts ``eps`` away from the surface along the geometric normal,
+      on the side it travels to (default ``eps = 1e-5 x`` the object's diameter, at least
+      ``1e-6 x`` its distance from the camera, so float32 coordinates cannot round it away).
 """
 
 from __future__ import annotations
@@ -35,7 +35,12 @@ __all__ = ["HitKind", "BackgroundHit", "RefractionTrace", "SceneTracer"]
 
 
 class HitKind(enum.IntEnum):
-    """What a traced ray ends on."""
+    """What a traced ray ends on (stored as int8 in arrays).
+
+    Examples:
+        >>> int(HitKind.OBSERVED), HitKind(3).name
+        (1, 'ESCAPED')
+    """
 
     NONE = 0  #: not traced (e.g. a pixel that does not see the object)
     OBSERVED = 1  #: the front side of the background surface, which I⁻ observes
@@ -50,6 +55,9 @@ _BACKGROUND, _BOX = 0, 1
 
 @dataclass
 class BackgroundHit:
+    """Result of casting rays against the background and the box (one row per ray;
+    :meth:`SceneTracer.cast_background`)."""
+
     t: np.ndarray  # (N,) distance, inf where nothing is hit
     kind: np.ndarray  # (N,) int8 HitKind: OBSERVED, UNOBSERVED or ESCAPED
     point: np.ndarray  # (N, 3) hit point, NaN where nothing is hit
@@ -58,7 +66,7 @@ class BackgroundHit:
 
 @dataclass
 class RefractionTrace:
-    """Result of tracing camera rays through the object (one row per ray)."""
+    """Result of tracing camera rays through the object (one row per ray; :meth:`SceneTracer.trace`)."""
 
     kind: np.ndarray  # (N,) int8 HitKind of where the final ray ends
     on_box: np.ndarray  # (N,) bool: it ends on the box of unobserved space
@@ -85,7 +93,45 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 class SceneTracer:
-    """Casts rays against a :class:`BackgroundMesh` and a placed :class:`GlassObject`."""
+    """Casts rays against a :class:`BackgroundMesh` and a placed :class:`GlassObject`.
+
+    Args:
+        background: the depth mesh and the box of unobserved space
+            (:func:`~snell_bench.scene.depth_mesh.build_background`).
+        obj: the placed glass object.
+        max_bounces: surface interactions per path before it is marked ``TRAPPED`` (>= 1).
+        normals: ``"interpolated"`` or ``"face"`` shading normals (module docstring).
+        eps: self-intersection offset; default scaled to the object (module docstring).
+        nthreads: Open3D threads (0: all cores).
+
+    Raises:
+        ValueError: ``normals`` or ``max_bounces`` is invalid.
+
+    Examples:
+        A glass sphere of radius 0.5 at z = 3 in front of a plane at z = 5:
+
+        >>> from snell_bench.scene.camera import Camera
+        >>> from snell_bench.scene.depth_mesh import build_background
+        >>> cam = Camera.from_fov(8, 6, 60.0)
+        >>> T = np.eye(4); T[:3, 3] = [0.0, -0.5, 3.0]  # the unit-diameter sphere centred at z = 3
+        >>> obj = GlassObject.sphere(subdivisions=2).transformed(T)
+        >>> tracer = SceneTracer(build_background(np.full(cam.shape, 5.0), cam), obj)
+        >>> axis = np.array([[0.0, 0.0, 1.0]])
+        >>> round(float(tracer.cast_camera_object(axis)[0]), 4)
+        2.5
+        >>> hit = tracer.cast_background(np.zeros((1, 3)), np.array([[0.3, 0.0, 1.0]]))
+        >>> HitKind(int(hit.kind[0])).name, round(float(hit.point[0, 2]), 4)
+        ('OBSERVED', 5.0)
+
+        The central ray enters and leaves the sphere (two interactions), reflects 4 % at the
+        first surface and ends on the plane:
+
+        >>> tr = tracer.trace(np.zeros((1, 3)), axis)
+        >>> HitKind(int(tr.kind[0])).name, int(tr.bounces[0]), round(float(tr.fresnel[0]), 4)
+        ('OBSERVED', 2, 0.04)
+        >>> round(float(tr.point[0, 2]), 4)
+        5.0
+    """
 
     def __init__(
         self,
@@ -132,8 +178,18 @@ class SceneTracer:
 
     # ------------------------------------------------------------------ casting
     def cast_background(self, origins: np.ndarray, directions: np.ndarray) -> BackgroundHit:
-        """First hit on the background or the box. A hit on the back side of the background
-        surface (seen from where the camera is not) counts as unobserved."""
+        """First hit on the background or the box.
+
+        A hit on the back side of the background surface (seen from where the camera is not)
+        counts as unobserved.
+
+        Args:
+            origins: ``(N, 3)`` ray origins.
+            directions: ``(N, 3)`` ray directions.
+
+        Returns:
+            The :class:`BackgroundHit` of each ray.
+        """
         n = len(origins)
         if n == 0:
             return BackgroundHit(np.zeros(0), np.zeros(0, np.int8), np.zeros((0, 3)), np.zeros(0, bool))
@@ -150,7 +206,16 @@ class SceneTracer:
         return BackgroundHit(np.where(hit, t, np.inf), kind, point, hit & (gid == _BOX))
 
     def cast_object(self, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
-        """First hit on the object: ``t`` (inf if none), ``face``, ``uv``, ``normal`` (outward face)."""
+        """First hit on the object.
+
+        Args:
+            origins: ``(N, 3)`` ray origins.
+            directions: ``(N, 3)`` ray directions.
+
+        Returns:
+            ``t`` (inf if none), ``face``, ``uv`` (barycentrics) and ``normal`` (outward face
+            normal) of each ray's hit.
+        """
         r = self._obj.cast_rays(_o3d_rays(origins, directions), nthreads=self.nthreads)
         return {
             "t": r["t_hit"].numpy().astype(np.float64),
@@ -160,7 +225,17 @@ class SceneTracer:
         }
 
     def shading_normals(self, face: np.ndarray, uv: np.ndarray, face_normal: np.ndarray) -> np.ndarray:
-        """Outward unit shading normals at hits given by face index and barycentrics (u, v)."""
+        """Outward unit shading normals at hits.
+
+        Args:
+            face: ``(N,)`` face indices.
+            uv: ``(N, 2)`` barycentrics ``(u, v)`` in those faces.
+            face_normal: ``(N, 3)`` outward face normals (returned as they are with
+                ``normals="face"``, and where the interpolated normal vanishes).
+
+        Returns:
+            ``(N, 3)`` unit normals.
+        """
         if self._corner_normals is None:
             return face_normal
         cn = self._corner_normals[face]  # (N, 3, 3)
@@ -170,7 +245,15 @@ class SceneTracer:
         return np.where(norm > 1e-12, n / np.maximum(norm, 1e-300), face_normal)
 
     def visible_from_camera(self, points: np.ndarray, rel_tol: float = 1e-3) -> np.ndarray:
-        """Whether background points are seen by the camera (not hidden behind other background)."""
+        """Whether background points are seen by the camera (not hidden behind other background).
+
+        Args:
+            points: ``(N, 3)`` points (camera frame).
+            rel_tol: a camera ray may stop this fraction of the distance short of the point.
+
+        Returns:
+            ``(N,)`` bool (False for non-finite points and the camera centre).
+        """
         dist = np.linalg.norm(points, axis=-1)
         ok = np.isfinite(dist) & (dist > 0)
         out = np.zeros(len(points), bool)
@@ -184,8 +267,17 @@ class SceneTracer:
     def _interact(
         self, d: np.ndarray, ns: np.ndarray, ng: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Refract or totally reflect rays ``d`` at surface points with outward shading normal
-        ``ns`` and face normal ``ng``. Returns ``(d_new, goes_inside, fresnel, mirror, nf)``."""
+        """Refract or totally reflect rays at surface points.
+
+        Args:
+            d: ``(N, 3)`` unit ray directions.
+            ns: ``(N, 3)`` outward shading normals.
+            ng: ``(N, 3)`` outward face normals.
+
+        Returns:
+            ``(d_new, goes_inside, fresnel, mirror, nf)``: new directions, whether they go into the
+            object, Fresnel reflectance, mirror directions and the normals used (facing the rays).
+        """
         ior = self.obj.ior
         from_inside = _dot(d, ng) > 0
         eta = np.where(from_inside, ior, 1.0 / ior)
@@ -217,6 +309,13 @@ class SceneTracer:
         Each ray refracts in, bounces (refraction out, total internal reflection, re-entry for
         non-convex shapes) until it leaves the object for the background, or until
         ``max_bounces`` interactions (then it is marked ``TRAPPED``).
+
+        Args:
+            origins: ``(N, 3)`` ray origins outside the object.
+            directions: ``(N, 3)`` ray directions (normalised here).
+
+        Returns:
+            The :class:`RefractionTrace`.
         """
         o = np.asarray(origins, np.float64).copy()
         d = np.asarray(directions, np.float64)
@@ -284,8 +383,17 @@ class SceneTracer:
         return res
 
     def trace_reflection(self, trace: RefractionTrace) -> BackgroundHit:
-        """Cast the first-bounce mirror rays of a trace against the background (the object itself
-        is not hit again: first-bounce reflection only)."""
+        """Cast the first-bounce mirror rays of a trace against the background.
+
+        The object itself is not hit again (first-bounce reflection only).
+
+        Args:
+            trace: the result of :meth:`trace`.
+
+        Returns:
+            The :class:`BackgroundHit` of each mirror ray (``t = inf``, kind ``NONE`` for rays
+            that never hit the object).
+        """
         ok = np.isfinite(trace.first_point).all(axis=1)
         out = BackgroundHit(
             np.full(len(ok), np.inf), np.zeros(len(ok), np.int8), np.full((len(ok), 3), np.nan), np.zeros(len(ok), bool)
@@ -299,5 +407,13 @@ class SceneTracer:
         return out
 
     def cast_camera_object(self, directions: np.ndarray) -> np.ndarray:
-        """Distance to the object along camera rays (inf where missed)."""
+        """Distance to the object along camera rays.
+
+        Args:
+            directions: ``(N, 3)`` ray directions from the camera centre.
+
+        Returns:
+            ``(N,)`` distances in units of ``|direction|`` (inf where the object is missed).
+        """
         return self.cast_object(np.zeros_like(directions), directions)["t"]
+

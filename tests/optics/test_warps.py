@@ -293,6 +293,39 @@ class TestPersistence:
         np.testing.assert_array_equal(ws.pano.rotation, sphere_warps.pano.rotation)
         assert ws.input_hash == sphere_warps.input_hash
 
+    def test_save_is_atomic(self, sphere_warps, tmp_path):
+        """Missing folders are created, no temporary is left behind, and the file gets the mode of
+        a new file under the process's umask."""
+        import os
+
+        p = sphere_warps.save(tmp_path / "a" / "b" / "w.npz")
+        assert sorted(f.name for f in p.parent.iterdir()) == ["w.npz"]
+        mask = os.umask(0)
+        os.umask(mask)
+        assert p.stat().st_mode & 0o777 == 0o666 & ~mask
+        sphere_warps.save(p)  # overwriting is atomic too
+        assert sorted(f.name for f in p.parent.iterdir()) == ["w.npz"]
+        np.testing.assert_array_equal(WarpSet.load(p).pano_to_persp, sphere_warps.pano_to_persp)
+
+    def test_load_rejects_other_versions(self, sphere_warps, tmp_path):
+        import json
+
+        p = sphere_warps.save(tmp_path / "w.npz")
+        with np.load(p) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads(str(arrays["meta"]))
+        meta["version"] = -1
+        arrays["meta"] = np.array(json.dumps(meta))
+        np.savez_compressed(p, **arrays)
+        with pytest.raises(ValueError, match="version -1"):
+            WarpSet.load(p)
+
+    def test_stats_and_stage_timings(self, sphere_warps):
+        st = sphere_warps.stats
+        assert list(st["timings_s"]) == ["build", "primary", "refraction", "reflection", "panorama"]
+        assert st["roi"] is True and st["traced_primary_rays"] < sphere_warps.object_mask.size
+        assert st["background_triangles"] > 0 and "far_background" not in st
+
     def test_cache_and_hash(self, cam, plane_depth, tmp_path):
         obj = sphere_at(CENTER, RADIUS, subdivisions=3)
         a = compute_warps(plane_depth, cam, obj, pano_height=16, cache_dir=tmp_path)
