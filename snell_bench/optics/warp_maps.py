@@ -1,0 +1,267 @@
+"""Stages 4-7 of :func:`~snell_bench.optics.warps.compute_warps`: tracing the refracted and
+reflected paths and turning their ends into warps (conventions: :mod:`snell_bench.optics.warps`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from snell_bench.imaging.equirect import PanoramaCamera
+from snell_bench.optics.far_field import POINT_AT_INFINITY, AtInfinity
+from snell_bench.optics.tracer import BackgroundHit, HitKind, RefractionTrace, SceneTracer
+from snell_bench.scene.camera import Camera
+from snell_bench.scene.depth_mesh import BackgroundMesh
+
+__all__ = ["RayScene", "PrimaryRays", "trace_refraction", "refraction_warps", "trace_reflection", "reflection_warps",
+           "panorama_warps", "pano_coords", "pano_to_persp_warp", "self_warp"]
+
+
+@dataclass
+class RayScene:
+    """What the rays are cast against."""
+
+    background: BackgroundMesh  #: the depth mesh (far pixels left out) and the box of unobserved space
+    tracer: SceneTracer
+    at_inf: AtInfinity | None  #: resolves rays towards far background (``None``: no far pixel)
+    far_stats: dict  #: the ``far_background`` statistics (empty without a tolerance)
+
+
+
+@dataclass
+class PrimaryRays:
+    """The pixels that see the object (indices into the flattened ``(H * W)`` image)."""
+
+    traced: int  #: primary rays cast (the region of interest, or every pixel)
+    pixels: np.ndarray  #: (N,) int flat indices of the object pixels, row-major
+    rays: np.ndarray  #: (N, 3) unit camera rays of those pixels
+    mask: np.ndarray  #: (H * W,) bool object mask
+
+
+
+# ---------------------------------------------------------------------------------------------
+# stage 4: refraction
+# ---------------------------------------------------------------------------------------------
+def trace_refraction(scene: RayScene, primary: PrimaryRays) -> RefractionTrace:
+    """Trace the object pixels' camera rays through the object (far background resolved).
+
+    Args:
+        scene: the ray-casting scene.
+        primary: the object pixels.
+
+    Returns:
+        The :class:`~snell_bench.optics.tracer.RefractionTrace`, one row per object pixel.
+    """
+    tr = scene.tracer.trace(np.zeros((len(primary.pixels), 3)), primary.rays)
+    if scene.at_inf is not None:
+        scene.at_inf.resolve(tr.kind, tr.point, tr.direction, tr.on_box)
+    return tr
+
+
+def refraction_warps(
+    camera: Camera, tracer: SceneTracer, tr: RefractionTrace, primary: PrimaryRays, verify_visibility: bool
+) -> dict[str, np.ndarray]:
+    """π^R and the per-pixel data of the refracted paths, over the whole image.
+
+    Args:
+        camera, verify_visibility: as :func:`compute_warps`.
+        tracer: the scene's tracer.
+        tr: the refracted paths of the object pixels.
+        primary: the object pixels.
+
+    Returns:
+        Flat ``(H * W, ...)`` arrays ``refraction`` (the identity outside the object, NaN where
+        invalid), ``refraction_valid``, ``refraction_kind``, ``bounces`` (clipped to 255) and
+        ``fresnel`` (0 outside the object).
+    """
+    H, W = camera.shape
+    cand = primary.pixels
+    refraction = camera.pixel_grid().reshape(-1, 2).astype(np.float32)
+    refraction_valid = np.ones(H * W, bool)
+    src, ok = self_warp(camera, tracer, tr.point, tr.kind, verify_visibility)
+    refraction[cand] = np.where(ok[:, None], src, np.nan)
+    refraction_valid[cand] = ok
+    kind = np.zeros(H * W, np.int8)
+    kind[cand] = tr.kind
+    bounces = np.zeros(H * W, np.uint8)
+    bounces[cand] = np.minimum(tr.bounces, 255)
+    fres = np.zeros(H * W, np.float32)
+    fres[cand] = tr.fresnel
+    return {
+        "refraction": refraction,
+        "refraction_valid": refraction_valid,
+        "refraction_kind": kind,
+        "bounces": bounces,
+        "fresnel": fres,
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# stage 5: reflection
+# ---------------------------------------------------------------------------------------------
+def trace_reflection(scene: RayScene, tr: RefractionTrace) -> BackgroundHit:
+    """Cast the first-bounce mirror rays against the background (far background resolved).
+
+    Args:
+        scene: the ray-casting scene.
+        tr: the refracted paths (their first surface points and mirror directions).
+
+    Returns:
+        The :class:`~snell_bench.optics.tracer.BackgroundHit` of each mirror ray.
+    """
+    refl = scene.tracer.trace_reflection(tr)
+    if scene.at_inf is not None:
+        scene.at_inf.resolve(refl.kind, refl.point, tr.reflected, refl.on_box)
+    return refl
+
+
+def reflection_warps(
+    camera: Camera, tracer: SceneTracer, refl: BackgroundHit, primary: PrimaryRays, verify_visibility: bool
+) -> dict[str, np.ndarray]:
+    """The reflection warp over the whole image.
+
+    Args:
+        camera, verify_visibility: as :func:`compute_warps`.
+        tracer: the scene's tracer.
+        refl: where the mirror rays of the object pixels end.
+        primary: the object pixels.
+
+    Returns:
+        Flat ``(H * W, ...)`` arrays ``reflection`` (NaN where invalid and outside the object) and
+        ``reflection_valid``.
+    """
+    H, W = camera.shape
+    cand = primary.pixels
+    src_r, ok_r = self_warp(camera, tracer, refl.point, refl.kind, verify_visibility)
+    reflection = np.full((H * W, 2), np.nan, np.float32)
+    reflection_valid = np.zeros(H * W, bool)
+    reflection[cand] = np.where(ok_r[:, None], src_r, np.nan)
+    reflection_valid[cand] = ok_r
+    return {"reflection": reflection, "reflection_valid": reflection_valid}
+
+
+# ---------------------------------------------------------------------------------------------
+# stage 6: panorama coordinates of the refracted and mirror rays
+# ---------------------------------------------------------------------------------------------
+def panorama_warps(
+    pano: PanoramaCamera, tr: RefractionTrace, refl: BackgroundHit, primary: PrimaryRays
+) -> dict[str, np.ndarray]:
+    """π⁻¹ and π^-R: panorama pixels of the ends of the refracted and mirror rays.
+
+    Args:
+        pano: the panorama centred at the object.
+        tr: the refracted paths of the object pixels.
+        refl: where their mirror rays end.
+        primary: the object pixels.
+
+    Returns:
+        Flat ``(H * W, ...)`` arrays ``pano_refraction`` (NaN outside the object and where the
+        refracted ray did not leave the object), ``pano_refraction_valid``, ``pano_reflection``
+        and ``pano_reflection_valid``.
+    """
+    n, cand = len(primary.mask), primary.pixels
+    exited = np.isin(tr.kind, (HitKind.OBSERVED, HitKind.UNOBSERVED, HitKind.ESCAPED))
+    pr = pano_coords(pano, tr.point, tr.direction)
+    pano_refraction = np.full((n, 2), np.nan, np.float32)
+    pano_refraction[cand] = np.where(exited[:, None], pr, np.nan)
+    pano_refraction_valid = np.zeros(n, bool)
+    pano_refraction_valid[cand] = exited & np.isfinite(pr).all(axis=1)
+    rr = pano_coords(pano, refl.point, tr.reflected)
+    pano_reflection = np.full((n, 2), np.nan, np.float32)
+    pano_reflection[cand] = rr
+    pano_reflection_valid = np.zeros(n, bool)
+    pano_reflection_valid[cand] = np.isfinite(rr).all(axis=1)
+    return {
+        "pano_refraction": pano_refraction,
+        "pano_refraction_valid": pano_refraction_valid,
+        "pano_reflection": pano_reflection,
+        "pano_reflection_valid": pano_reflection_valid,
+    }
+
+
+def pano_coords(pano: PanoramaCamera, points: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Panorama pixels of ray ends.
+
+    Args:
+        pano: the panorama.
+        points: ``(N, 3)`` ray ends, NaN where a ray hits nothing.
+        directions: ``(N, 3)`` ray directions.
+
+    Returns:
+        ``(N, 2)`` float32 pixels of each end point seen from the panorama centre, of the direction
+        where there is no end point, NaN where neither is finite.
+    """
+    has_point = np.isfinite(points).all(axis=1)
+    out = np.full((len(points), 2), np.nan)
+    if has_point.any():
+        out[has_point] = pano.project_points(points[has_point])
+    rest = ~has_point & np.isfinite(directions).all(axis=1)
+    if rest.any():
+        out[rest] = pano.project_directions(directions[rest])
+    return out.astype(np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# stage 7: the panorama seen through the glass-free scene, and the self-warp
+# ---------------------------------------------------------------------------------------------
+def pano_to_persp_warp(
+    pano: PanoramaCamera, camera: Camera, scene: RayScene, primary: PrimaryRays, verify_visibility: bool
+) -> dict[str, np.ndarray]:
+    """π: cast a straight ray from the panorama centre through every panorama pixel and find the
+    perspective pixel that observes its end.
+
+    Args:
+        pano: the panorama centred at the object.
+        camera, verify_visibility: as :func:`compute_warps`.
+        scene: the ray-casting scene (the object is not hit: the scene is glass-free).
+        primary: the object pixels.
+
+    Returns:
+        Flat ``(Hp * Wp, ...)`` arrays ``pano_to_persp`` (NaN where invalid),
+        ``pano_to_persp_valid`` and ``pano_to_persp_object`` (valid, and the nearest perspective
+        pixel is an object pixel).
+    """
+    H, W = camera.shape
+    pdirs = pano.directions().reshape(-1, 3)
+    ph = scene.tracer.cast_background(np.broadcast_to(pano.center, pdirs.shape), pdirs)
+    if scene.at_inf is not None:
+        scene.at_inf.resolve(ph.kind, ph.point, pdirs, ph.on_box)
+    pix, pok = self_warp(camera, scene.tracer, ph.point, ph.kind, verify_visibility)
+    pano_to_persp = np.where(pok[:, None], pix, np.nan).astype(np.float32)
+    near = np.rint(np.where(pok[:, None], pix, 0)).astype(np.int64)
+    near[:, 0] = near[:, 0].clip(0, W - 1)
+    near[:, 1] = near[:, 1].clip(0, H - 1)
+    pano_to_persp_object = pok & primary.mask[near[:, 1] * W + near[:, 0]]
+    return {"pano_to_persp": pano_to_persp, "pano_to_persp_valid": pok, "pano_to_persp_object": pano_to_persp_object}
+
+
+def self_warp(
+    camera: Camera, tracer: SceneTracer, points: np.ndarray, kind: np.ndarray, verify_visibility: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of I⁻ that observe background points.
+
+    The background is a depth-map mesh: its triangles project onto the image without overlapping,
+    so the front side of any of its points is seen by the camera (nothing else in I⁻ can hide it).
+    ``verify_visibility`` casts the camera ray to every point anyway (the test suite checks that
+    both agree); points at infinity (far background) are visible by construction.
+
+    Args:
+        camera: the camera of I⁻.
+        tracer: the scene's tracer (for ``verify_visibility``).
+        points: ``(N, 3)`` ray ends, NaN where none.
+        kind: ``(N,)`` :class:`~snell_bench.optics.tracer.HitKind` of each end.
+        verify_visibility: cast a camera ray to every observed point.
+
+    Returns:
+        ``(pixels (N, 2) float32, ok (N,) bool)``: ``ok`` where the point is observed, in view and
+        in front of the camera (and, with ``verify_visibility``, visible).
+    """
+    pix, z = camera.project(np.where(np.isfinite(points), points, 0.0))
+    ok = (kind == HitKind.OBSERVED) & camera.in_view(pix) & (z > 0)
+    if verify_visibility and ok.any():
+        finite = np.linalg.norm(np.where(np.isfinite(points), points, 0.0), axis=1) < POINT_AT_INFINITY / 10
+        idx = np.flatnonzero(ok & finite)
+        ok[idx] = tracer.visible_from_camera(points[idx])
+    return pix.astype(np.float32), ok
+
+

@@ -1,0 +1,256 @@
+"""The :class:`WarpSet`: every warp of one (scene, object) pair, its persistence and cache key
+(conventions: :mod:`snell_bench.optics.warps`)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from snell_bench.imaging.equirect import PanoramaCamera
+from snell_bench.optics.tracer import HitKind
+from snell_bench.scene.camera import Camera
+from snell_bench.scene.objects import GlassObject
+from snell_bench.utils.io import atomic_write
+
+__all__ = ["WarpSet", "warp_inputs_hash", "assemble", "WARPS_VERSION", "ARRAY_FIELDS", "PANO_FIELDS"]
+
+#: Bump when the meaning or computation of any warp changes (invalidates caches).
+WARPS_VERSION = 1
+
+ARRAY_FIELDS = (
+    "object_mask",
+    "refraction",
+    "refraction_valid",
+    "refraction_kind",
+    "bounces",
+    "fresnel",
+    "reflection",
+    "reflection_valid",
+    "pano_refraction",
+    "pano_refraction_valid",
+    "pano_reflection",
+    "pano_reflection_valid",
+    "pano_to_persp",
+    "pano_to_persp_valid",
+    "pano_to_persp_object",
+)
+
+#: The arrays of a :class:`WarpSet` indexed by panorama pixels; every other one by image pixels.
+PANO_FIELDS = ("pano_to_persp", "pano_to_persp_valid", "pano_to_persp_object")
+
+
+@dataclass(eq=False)
+class WarpSet:
+    """All warps of one (scene, object) pair; see the module docstring for conventions.
+
+    Examples:
+        >>> import tempfile
+        >>> from snell_bench.optics.warps import compute_warps
+        >>> T = np.eye(4); T[:3, 3] = [0.0, -0.5, 3.0]  # the unit-diameter sphere centred at z = 3
+        >>> obj = GlassObject.sphere(subdivisions=2).transformed(T)
+        >>> ws = compute_warps(np.full((24, 32), 5.0), Camera.from_fov(32, 24, 60.0), obj, pano_height=8)
+        >>> with tempfile.TemporaryDirectory() as tmp:
+        ...     back = WarpSet.load(ws.save(Path(tmp) / "warps.npz"))
+        >>> bool(np.array_equal(back.refraction, ws.refraction, equal_nan=True)), back.ior
+        (True, 1.5)
+        >>> ws.summary()["object_pixels"]
+        68
+    """
+
+    camera: Camera
+    pano: PanoramaCamera
+    ior: float
+    #: (H, W) bool: the pixel's camera ray hits the object before the background.
+    object_mask: np.ndarray
+    #: (H, W, 2) float32 π^R; identity outside the object, NaN where invalid.
+    refraction: np.ndarray
+    #: (H, W) bool: true outside the object; inside, the refracted ray ends on a background point
+    #: that I⁻ observes (front side, in view, not hidden behind other background geometry).
+    refraction_valid: np.ndarray
+    #: (H, W) int8 :class:`HitKind` of the refracted ray's end (NONE outside the object).
+    refraction_kind: np.ndarray
+    #: (H, W) uint8 surface interactions along the refracted path.
+    bounces: np.ndarray
+    #: (H, W) float32 unpolarised Fresnel reflectance at the first surface (0 outside the object).
+    fresnel: np.ndarray
+    #: (H, W, 2) float32 I⁻ pixel seen by the first-bounce mirror ray, NaN where invalid.
+    reflection: np.ndarray
+    reflection_valid: np.ndarray
+    #: (H, W, 2) float32 π⁻¹: panorama pixel of the refracted ray (object pixels), NaN elsewhere.
+    pano_refraction: np.ndarray
+    pano_refraction_valid: np.ndarray
+    #: (H, W, 2) float32 π^-R: panorama pixel of the mirror ray (object pixels), NaN elsewhere.
+    pano_reflection: np.ndarray
+    pano_reflection_valid: np.ndarray
+    #: (Hp, Wp, 2) float32 π: perspective pixel seen by each panorama pixel, NaN where invalid.
+    pano_to_persp: np.ndarray
+    #: (Hp, Wp) bool: the panorama ray ends on a background point observed in I⁻.
+    pano_to_persp_valid: np.ndarray
+    #: (Hp, Wp) bool: valid, but the perspective pixel shows the glass object (the image *with*
+    #: the object does not show that point there; I⁻ does).
+    pano_to_persp_object: np.ndarray
+    input_hash: str = ""
+    options: dict = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ aliases (paper notation)
+    @property
+    def pi_R(self) -> np.ndarray:
+        """π^R, the refraction warp (:attr:`refraction`)."""
+        return self.refraction
+
+    @property
+    def pi_inv(self) -> np.ndarray:
+        """π⁻¹, the panorama warp of the refracted rays (:attr:`pano_refraction`)."""
+        return self.pano_refraction
+
+    @property
+    def pi_minus_R(self) -> np.ndarray:
+        """π^-R, the panorama warp of the mirror rays (:attr:`pano_reflection`)."""
+        return self.pano_reflection
+
+    @property
+    def pi(self) -> np.ndarray:
+        """π, the panorama-to-perspective warp (:attr:`pano_to_persp`)."""
+        return self.pano_to_persp
+
+    # ------------------------------------------------------------------ persistence
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write every array and the metadata to one ``.npz`` file, atomically.
+
+        Args:
+            path: the target file; missing parent folders are created.
+
+        Returns:
+            ``path`` as a :class:`~pathlib.Path`.
+        """
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        meta = {
+            "version": WARPS_VERSION,
+            "camera": self.camera.to_dict(),
+            "pano": self.pano.to_dict(),
+            "ior": self.ior,
+            "input_hash": self.input_hash,
+            "options": self.options,
+            "stats": self.stats,
+        }
+        arrays = {k: getattr(self, k) for k in ARRAY_FIELDS}
+        return atomic_write(path, lambda f: np.savez_compressed(f, meta=np.array(json.dumps(meta)), **arrays))
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> WarpSet:
+        """Read a file written by :meth:`save`.
+
+        Args:
+            path: an ``.npz`` file written by :meth:`save`.
+
+        Returns:
+            The :class:`WarpSet` it holds.
+
+        Raises:
+            ValueError: the file holds warps of another :data:`WARPS_VERSION`.
+        """
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            if meta.get("version") != WARPS_VERSION:
+                raise ValueError(
+                    f"{path} holds warps of version {meta.get('version')}, this code writes {WARPS_VERSION}; "
+                    "delete the file to recompute it"
+                )
+            arrays = {k: z[k] for k in ARRAY_FIELDS}
+        return cls(
+            camera=Camera.from_dict(meta["camera"]),
+            pano=PanoramaCamera.from_dict(meta["pano"]),
+            ior=float(meta["ior"]),
+            input_hash=meta["input_hash"],
+            options=meta["options"],
+            stats=meta["stats"],
+            **arrays,
+        )
+
+    def summary(self) -> dict:
+        """Counts for logs and reports.
+
+        Returns:
+            A JSON-serialisable dict: object pixels, valid refraction in the object, the end kinds of
+            the refracted rays, the most bounces, the mean Fresnel reflectance in the object and the
+            valid fraction of π.
+        """
+        m = self.object_mask
+        n = int(m.sum())
+        kinds = {k.name.lower(): int((self.refraction_kind[m] == k).sum()) for k in HitKind if k != HitKind.NONE}
+        return {
+            "object_pixels": n,
+            "refraction_valid_in_object": int(self.refraction_valid[m].sum()),
+            "refraction_end": kinds,
+            "max_bounces_used": int(self.bounces.max()) if n else 0,
+            "mean_fresnel_in_object": float(self.fresnel[m].mean()) if n else float("nan"),
+            "pano_to_persp_valid_fraction": float(self.pano_to_persp_valid.mean()),
+        }
+
+    def __repr__(self) -> str:
+        return f"WarpSet({self.camera!r}, pano={self.pano.height}x{self.pano.width}, ior={self.ior}, {self.summary()})"
+
+
+def warp_inputs_hash(depth: np.ndarray, camera: Camera, obj: GlassObject, options: dict) -> str:
+    """Content hash of everything a :class:`WarpSet` depends on (its cache key).
+
+    Args:
+        depth: the ``(H, W)`` depth map (hashed as float32).
+        camera: the camera of ``depth``.
+        obj: the placed glass object.
+        options: the JSON-serialisable options of :func:`compute_warps` (key order does not matter).
+
+    Returns:
+        A 64-character hexadecimal SHA-256 digest.
+
+    Examples:
+        >>> cam = Camera.from_fov(8, 6, 60.0)
+        >>> T = np.eye(4); T[:3, 3] = [0.0, -0.5, 3.0]  # the unit-diameter sphere centred at z = 3
+        >>> obj = GlassObject.sphere(subdivisions=1).transformed(T)
+        >>> a = warp_inputs_hash(np.ones((6, 8)), cam, obj, {"pano_height": 8, "eps": None})
+        >>> len(a), a == warp_inputs_hash(np.ones((6, 8)), cam, obj, {"eps": None, "pano_height": 8})
+        (64, True)
+        >>> a == warp_inputs_hash(np.ones((6, 8)), cam, obj, {"pano_height": 16, "eps": None})
+        False
+    """
+    h = hashlib.sha256()
+    h.update(f"warps-v{WARPS_VERSION}".encode())
+    d = np.ascontiguousarray(depth, dtype=np.float32)
+    h.update(repr(d.shape).encode())
+    h.update(d.tobytes())
+    h.update(json.dumps(camera.to_dict(), sort_keys=True).encode())
+    h.update(obj.content_hash().encode())
+    h.update(json.dumps(options, sort_keys=True, default=str).encode())
+    return h.hexdigest()
+
+
+
+
+def assemble(
+    camera: Camera, pano: PanoramaCamera, ior: float, arrays: dict[str, np.ndarray], **meta
+) -> WarpSet:
+    """A :class:`WarpSet` from flat per-pixel arrays.
+
+    Args:
+        camera: the perspective camera (``(H, W)`` arrays).
+        pano: the panorama (``(Hp, Wp)`` arrays).
+        ior: the object's index of refraction.
+        arrays: every array of :data:`ARRAY_FIELDS`, flattened over its pixels (``(H * W, ...)`` or
+            ``(Hp * Wp, ...)``).
+        **meta: ``input_hash``, ``options`` and ``stats``.
+
+    Returns:
+        The :class:`WarpSet`, its arrays reshaped to ``(H, W, ...)`` and ``(Hp, Wp, ...)``.
+    """
+    shaped = {}
+    for name in ARRAY_FIELDS:
+        a = arrays[name]
+        shaped[name] = a.reshape((pano.shape if name in PANO_FIELDS else camera.shape) + a.shape[1:])
+    return WarpSet(camera=camera, pano=pano, ior=ior, **shaped, **meta)
