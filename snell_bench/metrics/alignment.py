@@ -22,8 +22,9 @@ import os
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence, TypedDict
+from typing import Any, TypedDict
 
 import numpy as np
 import torch
@@ -36,7 +37,6 @@ __all__ = [
     "CLIPScore",
     "ImageRewardScorer",
     "ScoreResult",
-    "load_scorers",
     "resolve_clip_checkpoint",
     "score_all",
 ]
@@ -427,31 +427,3 @@ def score_all(
         lambda s: s(generated_path if generated_path is not None else generated, prompt),
     )
     return {"metrics": metrics, "missing": missing}
-
-
-def load_scorers(metrics_cfg: Any = None, *, device: str | torch.device = "cpu") -> dict[str, Any]:
-    """Build the weight-backed scorers from a config with ``lpips_weights``, ``clip_weights`` and
-    ``image_reward_python`` (``MetricsConfig``, a DictConfig or a mapping; ``None``: all unset).
-
-    Returns ``{"lpips": ..., "clip": ..., "image_reward": ...}`` holding each scorer, or the
-    :class:`MetricUnavailable` its constructor raised; pass them to :func:`score_all` as keywords.
-    """
-
-    def get(key):
-        if metrics_cfg is None:
-            return None
-        if isinstance(metrics_cfg, Mapping):
-            return metrics_cfg.get(key)
-        return getattr(metrics_cfg, key, None)
-
-    def build(factory):
-        try:
-            return factory()
-        except MetricUnavailable as e:
-            return e
-
-    return {
-        "lpips": build(lambda: MaskedLPIPS(get("lpips_weights"), device=device)),
-        "clip": build(lambda: CLIPScore(get("clip_weights"), device=device)),
-        "image_reward": build(lambda: ImageRewardScorer(get("image_reward_python"), device=str(device))),
-    }

@@ -12,9 +12,9 @@ Convention
   Non-bool masks are read as ``mask > 0.5``.
 - Grayscale: ``Y = 0.299 R + 0.587 G + 0.114 B`` on the sRGB-encoded values.
 - Histogram matching: the GENERATED image's masked values are remapped so that their empirical
-  distribution matches the REFERENCE's masked values. ``method="cdf"`` (default) is the
-  cumulative-CDF mapping of :func:`skimage.exposure.match_histograms` restricted to the mask
-  (deterministic under ties; identical to skimage for a full mask). ``method="rank"`` is exact
+  distribution matches the REFERENCE's masked values. ``method="cdf"`` (default) is
+  :func:`skimage.exposure.match_histograms` applied to the masked values (the cumulative-CDF
+  mapping; deterministic under ties: equal values map to equal values). ``method="rank"`` is exact
   histogram specification: the k-th smallest generated value (stable order) receives the k-th
   smallest reference value, so the matched values are a permutation of the reference's. Pixels
   outside the mask are never read by PSNR / MAE.
@@ -32,8 +32,9 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -158,13 +159,12 @@ def to_gray(image):
 
 
 def _match_values(src: np.ndarray, tmpl: np.ndarray, method: str) -> np.ndarray:
-    """Map the 1-D values ``src`` onto the distribution of the 1-D values ``tmpl``."""
+    """Map the 1-D values ``src`` onto the distribution of the 1-D values ``tmpl`` (float64 out)."""
     if method == "cdf":
-        _, src_idx, src_counts = np.unique(src, return_inverse=True, return_counts=True)
-        tmpl_vals, tmpl_counts = np.unique(tmpl, return_counts=True)
-        src_q = np.cumsum(src_counts) / src.size
-        tmpl_q = np.cumsum(tmpl_counts) / tmpl.size
-        return np.interp(src_q, tmpl_q, tmpl_vals)[src_idx.reshape(-1)]
+        from skimage.exposure import match_histograms
+
+        # float64 in, float64 out: skimage would return float32 for float32 inputs
+        return match_histograms(np.asarray(src, np.float64), np.asarray(tmpl, np.float64))
     if method == "rank":
         if src.size != tmpl.size:
             raise ValueError("rank matching needs as many generated as reference values")

@@ -20,6 +20,7 @@ from snell_bench.experiment.reports import (
     to_latex,
     to_markdown,
 )
+from snell_bench.metrics import METRIC_NAMES
 
 W, H = 32, 24
 LPIPS_REASON = "no VGG weights: set metrics.lpips_weights"
@@ -270,8 +271,62 @@ def test_build_reports_writes_everything_deterministically(runs, tmp_path):
     assert {p.name: p.read_bytes() for p in paths} == first
 
 
-def test_metric_spec():
-    assert {m: (s.higher_is_better, s.format) for m, s in METRICS.items()} == {
-        "psnr": (True, "{:.2f}"), "mae": (False, "{:.4f}"), "lpips": (False, "{:.3f}"),
-        "clip": (True, "{:.2f}"), "image_reward": (True, "{:.3f}"), "psnr_true": (True, "{:.2f}"),
-    }
+RECORDED_METRICS = METRIC_NAMES + ("psnr_true",)  # what a cell's metrics.json holds
+
+
+def _marks(tex, rows):
+    """The mark ("best", "second" or None) of the first value cell of each row."""
+    cells = _latex_rows(tex)
+    return [("best" if c[0].startswith(r"\textbf{") else "second" if c[0].startswith(r"\underline{") else None)
+            for c in (cells[r] for r in rows)]
+
+
+@pytest.mark.parametrize("name", RECORDED_METRICS)
+def test_every_recorded_metric_is_ranked_in_its_direction(name):
+    assert name in METRICS, f"{name} is recorded by the runner but has no spec"
+    spec = METRICS[name]
+    t = pd.DataFrame({name: [1.0, 2.0, 3.0], "n": [1, 1, 1]}, index=pd.Index(["low", "mid", "high"], name="Method"))
+    tex = to_latex(t, "T", provenance="")
+    expect = [None, "second", "best"] if spec.higher_is_better else ["best", "second", None]
+    assert _marks(tex, ["low", "mid", "high"]) == expect
+    assert _latex_header(tex)[1] == f"{spec.label} " + (r"$\uparrow$" if spec.higher_is_better else r"$\downarrow$")
+    md = to_markdown(t, "T", provenance="")
+    best = "high" if spec.higher_is_better else "low"
+    assert f"| {best} | **{spec.fmt(t.loc[best, name])}** | 1 |" in md.splitlines()
+    assert f"| mid | _{spec.fmt(2.0)}_ | 1 |" in md.splitlines()
+    assert f"| Method | {spec.label} {spec.arrow} | n |" in md.splitlines()
+
+
+@pytest.mark.parametrize("name", RECORDED_METRICS)
+def test_values_equal_as_printed_share_the_mark(name):
+    spec = METRICS[name]
+    decimals = len(spec.fmt(1.0).split(".")[1])
+    tiny = 0.4 * 10.0 ** -decimals  # below the printed precision
+    t = pd.DataFrame({name: [5.0, 5.0 + tiny, 9.0, 1.0]}, index=pd.Index(["a", "b", "c", "d"], name="Method"))
+    assert spec.fmt(5.0) == spec.fmt(5.0 + tiny)
+    marks = _marks(to_latex(t, "T", provenance=""), ["a", "b", "c", "d"])
+    assert marks[0] == marks[1] == "second"  # 5.0 is second in either direction
+    assert (marks[2], marks[3]) == (("best", None) if spec.higher_is_better else (None, "best"))
+
+
+def test_the_better_image_is_marked_best():
+    """The direction of PSNR and MAE matches what the metrics compute: of three images, the one
+    closest to the reference is marked best and the farthest is not marked."""
+    from snell_bench.metrics import masked_mae, masked_psnr
+
+    rng = np.random.default_rng(3)
+    ref = rng.random((24, 32, 3))
+    mask = np.zeros((24, 32), bool)
+    mask[4:20, 6:26] = True
+    noise = rng.standard_normal(ref.shape)
+    images = {f"s{k}": np.clip(ref + sigma * noise, 0, 1) for k, sigma in enumerate((0.02, 0.08, 0.3))}
+    t = pd.DataFrame(
+        {"psnr": [masked_psnr(im, ref, mask) for im in images.values()],
+         "mae": [masked_mae(im, ref, mask) for im in images.values()]},
+        index=pd.Index(list(images), name="Method"),
+    )
+    rows = _latex_rows(to_latex(t, "T", provenance=""))
+    for j, col in enumerate(t.columns):
+        assert rows["s0"][j].startswith(r"\textbf{"), col
+        assert rows["s1"][j].startswith(r"\underline{"), col
+        assert not rows["s2"][j].startswith("\\"), col

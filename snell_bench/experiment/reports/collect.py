@@ -1,0 +1,259 @@
+"""Reading a run directory: one row per cell folder, from its ``metrics.json`` alone; and what the
+cells are (the provenance line) and what is missing in them (the notes).
+
+A run directory holds one folder per cell, ``<scene>-<variation>/<object>/<method>/``; folders whose
+name starts with "." or "_" (e.g. the shared ``_inputs``) are not cells.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from collections import Counter
+from collections.abc import Iterable
+from pathlib import Path
+
+import pandas as pd
+
+from .spec import METRICS, MODEL_DESCRIPTIONS, metric_spec
+
+__all__ = ["collect", "BASE_COLUMNS", "provenance_line", "cell_notes"]
+
+BASE_COLUMNS = (
+    "experiment",
+    "scene",
+    "variation",
+    "object",
+    "method",
+    "method_label",
+    "status",
+    "reason",
+    "model",
+    "scene_source",
+)
+"""The identity columns of :func:`collect`, first and in this order."""
+
+_CELL_DIR_RE = re.compile(r"^(?P<scene>.+)-(?P<variation>\d+)$")
+_FLAT_GROUPS = ("decisions", "warps")  # nested records flattened to dotted columns
+_OWN_GROUPS = ("metrics", "missing", "timings_s")  # flattened with their own conversions
+
+
+def _cell_from_path(rel: Path) -> dict:
+    """Scene, variation, object and method from ``<scene>-<variation>/<object>/<method>``."""
+    parts = rel.parts
+    out: dict = {}
+    if len(parts) >= 3:
+        m = _CELL_DIR_RE.match(parts[-3])
+        if m:
+            out.update(scene=m["scene"], variation=int(m["variation"]))
+        out.update(object=parts[-2], method=parts[-1])
+    return out
+
+
+def _is_cell_dir(rel: Path) -> bool:
+    """Whether a folder below the run directory has the layout of a cell."""
+    parts = rel.parts
+    return (
+        len(parts) >= 3
+        and not any(p.startswith((".", "_")) for p in parts)
+        and _CELL_DIR_RE.match(parts[-3]) is not None
+    )
+
+
+def _float_or_nan(v) -> float:
+    if v is None:
+        return float("nan")
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _row_from_record(rec: dict, rel: Path) -> dict:
+    """The columns of one record except the flattened :data:`_FLAT_GROUPS`."""
+    row = {k: rec.get(k) for k in BASE_COLUMNS}
+    for k, v in _cell_from_path(rel).items():
+        if row.get(k) is None:
+            row[k] = v
+    for k, v in rec.items():
+        if k not in row and k not in _OWN_GROUPS and not isinstance(v, (dict, list)):
+            row[k] = v
+    for k, v in (rec.get("metrics") or {}).items():
+        row[k] = _float_or_nan(v)
+    for k, v in (rec.get("missing") or {}).items():
+        row[f"missing.{k}"] = None if v is None else str(v)
+    for k, v in (rec.get("timings_s") or {}).items():
+        row[f"timings_s.{k}"] = _float_or_nan(v)
+    return row
+
+
+def _flat_groups(records: list[dict]) -> pd.DataFrame:
+    """What the cells modelled, one dotted column per leaf (``decisions.panorama.used``); lists are
+    not table values, so a column holding one is left out."""
+    flat = pd.json_normalize(
+        [{g: rec[g] for g in _FLAT_GROUPS if isinstance(rec.get(g), dict)} for rec in records], sep="."
+    )
+    has_list = [c for c in flat.columns if flat[c].map(lambda v: isinstance(v, list)).any()]
+    return flat.drop(columns=has_list)
+
+
+def _read_record(path: Path) -> dict:
+    try:
+        rec = json.loads(path.read_text())
+        if not isinstance(rec, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError) as e:
+        rec = {"status": "failed", "reason": f"metrics.json unreadable: {e}"}
+    return rec
+
+
+def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
+    """One row per cell below ``run_dir``.
+
+    Every ``metrics.json`` below ``run_dir`` gives a row. A ``metrics.json`` that cannot be read,
+    and a cell folder with a ``config.yaml`` but no ``metrics.json``, give a row with status
+    ``"failed"`` and the reason, with scene, variation, object and method taken from the path.
+
+    Args:
+        run_dir: the experiment's run directory.
+
+    Returns:
+        A DataFrame with the columns :data:`BASE_COLUMNS` (``experiment``, ``scene``,
+        ``variation``, ``object``, ``method``, ``method_label``, ``status``, ``reason``, ``model``,
+        ``scene_source``); one column per metric (``psnr``, ``lpips``, ...; NaN where null); the
+        reason a metric is missing as ``missing.<metric>``; stage timings as
+        ``timings_s.<stage>``; what the cell modelled as ``decisions.<...>`` and ``warps.<...>``;
+        other scalar fields of the record under their own name; and ``cell_dir``, the cell's
+        folder relative to ``run_dir``. Rows are sorted by scene, variation, object, method and
+        folder. Empty (with the identity columns) when there is no cell.
+    """
+    run_dir = Path(run_dir)
+    records, rels, seen = [], [], set()
+    for path in sorted(run_dir.rglob("metrics.json")):
+        rel = path.parent.relative_to(run_dir)
+        if any(p.startswith((".", "_")) for p in rel.parts):
+            continue
+        seen.add(path.parent)
+        records.append(_read_record(path))
+        rels.append(rel)
+    for path in sorted(run_dir.rglob("config.yaml")):
+        rel = path.parent.relative_to(run_dir)
+        if path.parent in seen or not _is_cell_dir(rel):
+            continue
+        records.append({"status": "failed", "reason": "incomplete cell: config.yaml but no metrics.json"})
+        rels.append(rel)
+    if not records:
+        return pd.DataFrame({c: pd.Series(dtype=object) for c in BASE_COLUMNS + ("cell_dir",)})
+    df = pd.DataFrame([_row_from_record(rec, rel) for rec, rel in zip(records, rels)])
+    flat = _flat_groups(records)
+    df = pd.concat([df.drop(columns=[c for c in flat.columns if c in df.columns]), flat], axis=1)
+    df["cell_dir"] = [rel.as_posix() for rel in rels]
+    df["variation"] = pd.to_numeric(df["variation"], errors="coerce").astype("Int64")
+    df["status"] = df["status"].fillna("failed")
+    keys = ["scene", "variation", "object", "method", "cell_dir"]
+    df = df.sort_values(keys, na_position="last", kind="mergesort").reset_index(drop=True)
+    fixed = [c for c in BASE_COLUMNS if c in df.columns]
+    metric_cols = [m for m in METRICS if m in df.columns]
+    other = sorted(c for c in df.columns if c not in fixed and c not in metric_cols and c != "cell_dir")
+    return df[fixed + metric_cols + other + ["cell_dir"]]
+
+
+# --------------------------------------------------------------------------------------------
+# Provenance and notes
+# --------------------------------------------------------------------------------------------
+
+
+def _is_missing(v) -> bool:
+    return v is None or (isinstance(v, float) and math.isnan(v))
+
+
+def _str_values(s: pd.Series) -> Counter:
+    return Counter("unknown" if _is_missing(v) else str(v) for v in s)
+
+
+def provenance_line(df: pd.DataFrame) -> str:
+    """Which model and scene source produced these cells, and how many there are.
+
+    Args:
+        df: cells from ``collect``.
+
+    Returns:
+        E.g. ``"model: analytic (CPU stand-in for FLUX) · scenes: procedural · 12 cells (10 ok,
+        1 failed, 1 skipped)"``; with several models or sources each is listed with its cell count.
+    """
+
+    def describe(counts: Counter, described: bool) -> str:
+        def one(name):
+            d = MODEL_DESCRIPTIONS.get(name) if described else None
+            return f"{name} ({d})" if d else name
+
+        if len(counts) == 1:
+            return one(next(iter(counts)))
+        return ", ".join(f"{one(k)} ×{counts[k]}" for k in sorted(counts))
+
+    models = _str_values(df["model"]) if len(df) else Counter()
+    sources = _str_values(df["scene_source"]) if len(df) else Counter()
+    status = Counter(str(s) for s in df["status"]) if len(df) else Counter()
+    parts = []
+    if models:
+        parts.append(("model: " if len(models) == 1 else "models: ") + describe(models, True))
+    if sources:
+        parts.append("scenes: " + describe(sources, False))
+    order = ["ok", "failed", "skipped"] + sorted(set(status) - {"ok", "failed", "skipped"})
+    breakdown = ", ".join(f"{status[k]} {k}" for k in order if status.get(k) or k == "ok")
+    n = len(df)
+    parts.append(f"{n} cell{'s' if n != 1 else ''} ({breakdown})")
+    return " · ".join(parts)
+
+
+def _cell_name(r) -> str:
+    var = r["variation"]
+    var = "?" if var is None or pd.isna(var) else str(int(var))
+    return f"{r['scene']}-{var} / {r['object']} / {r['method']}"
+
+
+def _one_line(text) -> str:
+    """A reason on one line (multi-line exception messages would break list items and tables)."""
+    return " ".join(str(text).split())
+
+
+def cell_notes(df: pd.DataFrame, metrics: Iterable[str] = ()) -> list[str]:
+    """Footnote lines: no cell and no missing value is dropped silently.
+
+    Args:
+        df: cells from ``collect``.
+        metrics: the metrics whose missing values are reported.
+
+    Returns:
+        Every cell not ``ok`` with its reason, then, for each of ``metrics``, the ``ok`` cells
+        without a value, grouped by the reason recorded in ``missing.<metric>``, with the count per
+        method. Reasons are put on one line (whitespace collapsed), never shortened.
+    """
+    notes = []
+    for _, r in df[df["status"] != "ok"].iterrows():
+        reason = r.get("reason")
+        reason = "no reason recorded" if _is_missing(reason) else reason
+        notes.append(f"{r['status']}: {_cell_name(r)} — {_one_line(reason)}")
+    ok = df[df["status"] == "ok"]
+    for m in metrics:
+        if m not in ok.columns:
+            if len(ok):
+                notes.append(f"{metric_spec(m).label}: not recorded in any of the {len(ok)} ok cells")
+            continue
+        miss = ok[ok[m].isna()]
+        if miss.empty:
+            continue
+        col = f"missing.{m}"
+        reasons = miss[col] if col in miss.columns else pd.Series([None] * len(miss), index=miss.index)
+        groups: dict[str, Counter] = {}
+        for meth, why in zip(miss["method"], reasons):
+            why = "no reason recorded" if _is_missing(why) else _one_line(why)
+            groups.setdefault(why, Counter())[str(meth)] += 1
+        for why in sorted(groups):
+            per = groups[why]
+            k = sum(per.values())
+            by = ", ".join(f"{meth} ×{per[meth]}" for meth in sorted(per))
+            notes.append(f"{metric_spec(m).label}: no value in {k} of {len(ok)} ok cells ({by}) — {why}")
+    return notes

@@ -1,0 +1,368 @@
+"""Figures: the qualitative comparison of a grid experiment and the Pareto plot of a speed/accuracy
+sweep. Both are drawn with matplotlib's Agg canvas (no display needed) and written atomically."""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from snell_bench.utils.io import atomic_write
+
+from .collect import collect
+from .tables import method_labels
+from .tradeoff import PRESET_AXIS, fidelity_column, pareto_front
+
+__all__ = ["qualitative_figure", "pareto_figure"]
+
+
+def _save(fig, out_png: str | os.PathLike, **kwargs) -> Path:
+    out_png = Path(out_png)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(out_png, lambda f: fig.savefig(f, format="png", metadata={"Software": None}, **kwargs))
+    return out_png
+
+
+# --------------------------------------------------------------------------------------------
+# Qualitative comparison
+# --------------------------------------------------------------------------------------------
+
+
+def _load_rgb(path: Path) -> np.ndarray | None:
+    from PIL import Image
+
+    if not path.is_file():
+        return None
+    try:
+        with Image.open(path) as im:
+            return np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
+    except OSError:
+        return None
+
+
+def _mask_box(path: Path) -> tuple[float, float, float, float] | None:
+    """Bounding box of the white pixels of a mask as fractions (x0, y0, x1, y1) of its size."""
+    img = _load_rgb(path)
+    if img is None:
+        return None
+    m = img.mean(-1) > 0.5
+    if not m.any():
+        return None
+    ys, xs = np.nonzero(m)
+    H, W = m.shape
+    return xs.min() / W, ys.min() / H, (xs.max() + 1) / W, (ys.max() + 1) / H
+
+
+def _zoom_window(box, W: int, H: int, pad: float = 0.15) -> tuple[int, int, int, int]:
+    """A square pixel window around a fractional box, padded and kept inside the image."""
+    x0, y0, x1, y1 = box[0] * W, box[1] * H, box[2] * W, box[3] * H
+    side = max(x1 - x0, y1 - y0) * (1 + 2 * pad)
+    side = int(min(max(side, 8), W, H))
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    left = int(round(min(max(cx - side / 2, 0), W - side)))
+    top = int(round(min(max(cy - side / 2, 0), H - side)))
+    return left, top, left + side, top + side
+
+
+def qualitative_figure(
+    run_dir: str | os.PathLike,
+    out_png: str | os.PathLike,
+    cells: Sequence[tuple[str, int, str]] | None = None,
+    methods: Sequence[str] | None = None,
+    inset: bool = True,
+    *,
+    max_rows: int = 4,
+    tile_width_in: float = 2.4,
+    dpi: int = 100,
+) -> Path:
+    """A grid PNG: one row per cell ``(scene, variation, object)``, columns reference |
+    Snellcaster | the other methods, each tile with an inset zoom on the object.
+
+    The reference is the row's ``reference.png`` (from the Snellcaster cell when it has one). The
+    inset crops a square around the bounding box of the row's ``mask.png`` (the same window in
+    every tile of the row, marked by a yellow frame) and sits in the tile's corner farthest from
+    the object; a tile without an image says why. Tiles keep the aspect ratio of the first image
+    found.
+
+    Args:
+        run_dir: the experiment's run directory.
+        out_png: the PNG to write.
+        cells: the rows; default the first cell (by variation, then object) of each scene, then
+            further cells, up to ``max_rows``.
+        methods: the columns after the reference; default ``snellcaster`` followed by the other
+            methods, sorted.
+        inset: draw the zoom insets.
+        max_rows: the most rows when ``cells`` is not given.
+        tile_width_in: the width of a tile in inches.
+        dpi: pixels per inch; the figure is ``dpi * (0.3 + tile_width_in * n_columns)`` pixels wide.
+
+    Returns:
+        ``out_png`` as a :class:`~pathlib.Path`.
+
+    Raises:
+        FileNotFoundError: there is no cell below ``run_dir``.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
+
+    run_dir = Path(run_dir)
+    df = collect(run_dir)
+    if df.empty:
+        raise FileNotFoundError(f"no cells (metrics.json) below {run_dir}")
+    df = df.dropna(subset=["scene", "variation", "object", "method"])
+    keys = sorted({(str(r.scene), int(r.variation), str(r.object)) for r in df.itertuples()})
+    if cells is None:
+        chosen, scenes = [], set()
+        for k in keys:
+            if k[0] not in scenes:
+                chosen.append(k)
+                scenes.add(k[0])
+        chosen += [k for k in keys if k not in chosen]
+        cells = chosen[:max_rows]
+    cells = [(str(s), int(v), str(o)) for s, v, o in cells]
+    all_methods = sorted(df["method"].astype(str).unique())
+    if methods is None:
+        methods = (["snellcaster"] if "snellcaster" in all_methods else []) + [
+            m for m in all_methods if m != "snellcaster"
+        ]
+    methods = list(methods)
+    labels = method_labels(df)
+
+    def cell_row(key, method):
+        g = df[
+            (df["scene"] == key[0]) & (df["variation"] == key[1]) & (df["object"] == key[2]) & (df["method"] == method)
+        ]
+        return None if g.empty else g.iloc[0]
+
+    # one (image, reason) per tile; the reference and the mask per row
+    grid, boxes = [], []
+    for key in cells:
+        rows = {m: cell_row(key, m) for m in methods}
+        same_row = df[(df["scene"] == key[0]) & (df["variation"] == key[1]) & (df["object"] == key[2])]
+        dirs = [run_dir / r["cell_dir"] for r in rows.values() if r is not None] + [
+            run_dir / d for d in same_row["cell_dir"]
+        ]
+        ref = next((img for d in dirs if (img := _load_rgb(d / "reference.png")) is not None), None)
+        box = next((b for d in dirs if (b := _mask_box(d / "mask.png")) is not None), None)
+        tiles = [(ref, "no reference.png")]
+        for m in methods:
+            r = rows[m]
+            if r is None:
+                tiles.append((None, "not run"))
+                continue
+            img = _load_rgb(run_dir / r["cell_dir"] / "image.png")
+            why = r["status"] if r["status"] != "ok" else "no image.png"
+            if r["status"] != "ok" and isinstance(r.get("reason"), str):
+                why += ": " + r["reason"]
+            tiles.append((img, why))
+        grid.append(tiles)
+        boxes.append(box)
+
+    first = next((img for tiles in grid for img, _ in tiles if img is not None), None)
+    aspect = first.shape[0] / first.shape[1] if first is not None else 9 / 16
+    ncols, nrows = 1 + len(methods), max(len(cells), 1)
+    left_in, top_in = 0.3, 0.3
+    tile_h_in = tile_width_in * aspect
+    fig_w, fig_h = left_in + ncols * tile_width_in, top_in + nrows * tile_h_in
+    fig = Figure(figsize=(fig_w, fig_h), dpi=dpi, facecolor="white")
+    FigureCanvasAgg(fig)
+    titles = ["Reference"] + [labels.get(m, m) for m in methods]
+    gap = 0.03  # fraction of a tile left blank on each side
+    for i, tiles in enumerate(grid):
+        for j, (img, why) in enumerate(tiles):
+            x = (left_in + j * tile_width_in) / fig_w
+            y = 1 - (top_in + (i + 1) * tile_h_in) / fig_h
+            w, h = tile_width_in / fig_w, tile_h_in / fig_h
+            ax = fig.add_axes((x + gap * w, y + gap * h, w * (1 - 2 * gap), h * (1 - 2 * gap)))
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if i == 0:
+                ax.set_title(titles[j], fontsize=9, pad=3)
+            if img is None:
+                ax.set_facecolor((0.85, 0.85, 0.85))
+                text = why if len(why) <= 60 else why[:57] + "..."
+                ax.text(0.5, 0.5, text, ha="center", va="center", fontsize=6, wrap=True, transform=ax.transAxes)
+                continue
+            ax.imshow(img, interpolation="antialiased")
+            ax.set_aspect("auto")
+            box = boxes[i]
+            if inset and box is not None:
+                H, W = img.shape[:2]
+                x0, y0, x1, y1 = _zoom_window(box, W, H)
+                ax.add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, fill=False, ec="yellow", lw=0.8))
+                side_in = 0.42 * min(tile_width_in, tile_h_in)
+                iw, ih = side_in / tile_width_in, side_in / tile_h_in
+                # the corner farthest from the object, so the inset hides as little of it as possible
+                cx, cy = (x0 + x1) / 2 / W, (y0 + y1) / 2 / H
+                ix = 1 - iw - 0.01 if cx < 0.5 else 0.01
+                iy = 0.01 if cy < 0.5 else 1 - ih - 0.01
+                sub = ax.inset_axes((ix, iy, iw, ih))
+                sub.imshow(img[y0:y1, x0:x1], interpolation="nearest")
+                sub.set_aspect("auto")
+                sub.set_xticks([])
+                sub.set_yticks([])
+                for sp in sub.spines.values():
+                    sp.set_edgecolor("yellow")
+                    sp.set_linewidth(1.0)
+        key = cells[i]
+        fig.text(
+            0.5 * left_in / fig_w,
+            1 - (top_in + (i + 0.5) * tile_h_in) / fig_h,
+            f"{key[0]}-{key[1]} / {key[2]}",
+            rotation=90,
+            ha="center",
+            va="center",
+            fontsize=7,
+        )
+    return _save(fig, out_png, dpi=dpi, facecolor="white")
+
+
+# --------------------------------------------------------------------------------------------
+# Pareto plot
+# --------------------------------------------------------------------------------------------
+
+
+def pareto_figure(table: pd.DataFrame, out_png: str | os.PathLike, title: str = "") -> Path:
+    """``pareto.png`` of a speed/accuracy sweep.
+
+    Mean total seconds (log x) against mean PSNR (:func:`fidelity_column`), one marker and colour
+    per axis, presets as labelled stars, the Pareto front (settings that succeeded on every scene)
+    as a step line; a second panel with PSNR vs the true render when any setting has it.
+
+    Args:
+        table: per-setting means from ``tradeoff_table``.
+        out_png: the PNG to write.
+        title: the figure's title, if any.
+
+    Returns:
+        ``out_png`` as a :class:`~pathlib.Path`.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    fid = fidelity_column(table)
+    panels = [
+        (
+            fid,
+            "mean masked PSNR vs converged reference (dB)"
+            if fid == "psnr_converged"
+            else "mean masked PSNR vs reference (dB)",
+        )
+    ]
+    if table["psnr_true"].notna().any():
+        panels.append(("psnr_true", "mean masked PSNR vs true render (dB)"))
+    fig = Figure(figsize=(6.0 * len(panels), 4.6), dpi=110, facecolor="white")
+    FigureCanvasAgg(fig)
+    axes_names = [a for a in dict.fromkeys(table["axis"]) if a not in (None, PRESET_AXIS) and not _isnan(a)]
+    markers = "osD^v<>phX8"
+    colors = [f"C{i}" for i in range(10)]
+    for pi, (metric, ylabel) in enumerate(panels):
+        ax = fig.add_subplot(1, len(panels), pi + 1)
+        x = table["timings_s.total"].to_numpy(float)
+        y = table[metric].to_numpy(float)
+        base = (table["axis"].isna()).to_numpy() | np.array([_isnan(a) for a in table["axis"]])
+        if base.any():
+            ax.scatter(
+                x[base], y[base], marker="o", s=60, facecolors="none", edgecolors="black", label="baseline", zorder=3
+            )
+        for i, a in enumerate(axes_names):
+            sel = (table["axis"] == a).to_numpy()
+            ax.scatter(
+                x[sel], y[sel], marker=markers[i % len(markers)], color=colors[i % len(colors)], s=28, label=a, zorder=3
+            )
+            for lab, xi, yi in zip(table.index[sel], x[sel], y[sel]):
+                if np.isfinite(xi) and np.isfinite(yi):
+                    ax.annotate(
+                        lab.split("=", 1)[-1],
+                        (xi, yi),
+                        fontsize=6,
+                        xytext=(3, 2),
+                        textcoords="offset points",
+                        color=colors[i % len(colors)],
+                    )
+        pre = (table["axis"] == PRESET_AXIS).to_numpy()
+        if pre.any():
+            ax.scatter(
+                x[pre],
+                y[pre],
+                marker="*",
+                s=160,
+                color="gold",
+                edgecolors="black",
+                linewidths=0.6,
+                label="presets",
+                zorder=4,
+            )
+            for lab, xi, yi in zip(table.index[pre], x[pre], y[pre]):
+                if np.isfinite(xi) and np.isfinite(yi):
+                    ax.annotate(
+                        lab.split(":", 1)[-1],
+                        (xi, yi),
+                        fontsize=8,
+                        fontweight="bold",
+                        xytext=(5, -10),
+                        textcoords="offset points",
+                    )
+        complete = (table["n"] == table["n_scenes"]).to_numpy()
+        front = pareto_front(np.where(complete, x, np.nan), np.where(complete, y, np.nan))
+        if front.any():
+            o = np.argsort(x[front], kind="mergesort")
+            ax.step(
+                x[front][o], y[front][o], where="post", color="grey", lw=1.2, ls="--", label="Pareto front", zorder=2
+            )
+            ax.scatter(x[front], y[front], s=150, facecolors="none", edgecolors="grey", linewidths=1.0, zorder=2)
+        finite = x[np.isfinite(x)]
+        if finite.size and (finite > 0).all():
+            ax.set_xscale("log")
+            ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+            ax.xaxis.set_minor_locator(LogLocator(base=10, subs=tuple(range(1, 10))))
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            ax.xaxis.set_minor_formatter(NullFormatter())
+        _clip_outliers(ax, table.index, x, y)
+        ax.set_xlabel("mean total time per image (s, log scale)")
+        ax.set_ylabel(ylabel)
+        ax.grid(True, which="both", alpha=0.3)
+        if pi == 0:
+            ax.legend(fontsize=7, loc="best")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return _save(fig, out_png, facecolor="white")
+
+
+def _clip_outliers(ax, labels, x: np.ndarray, y: np.ndarray) -> None:
+    """Keep the y range on the bulk of the settings: settings separated from all others by a gap
+    more than twice the rest of the range (e.g. one bounce, which breaks the glass) are drawn at the
+    lower edge as arrows labelled with their values."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    if ok.sum() < 4:
+        return
+    ys = np.sort(y[ok])
+    gaps = np.diff(ys)
+    i = int(np.argmax(gaps))
+    if gaps[i] <= 2 * (ys[-1] - ys[i + 1]) or i + 1 > len(ys) // 2:  # no isolated low cluster
+        return
+    lo = ys[i + 1]
+    out = ok & (y < lo)
+    bottom = lo - 0.05 * (y[ok & ~out].max() - lo + 1e-9)
+    ax.set_ylim(bottom=bottom)
+    for lab, xi, yi in zip(np.asarray(labels)[out], x[out], y[out]):
+        ax.annotate(
+            f"{lab}: {yi:.2f} dB",
+            (xi, bottom),
+            xytext=(0, 14),
+            textcoords="offset points",
+            fontsize=6,
+            ha="center",
+            arrowprops={"arrowstyle": "->", "lw": 0.8, "color": "black"},
+        )
+
+
+def _isnan(v) -> bool:
+    return isinstance(v, float) and math.isnan(v)

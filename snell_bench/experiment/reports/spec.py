@@ -1,0 +1,90 @@
+"""What the report tables show: metric labels, directions and print formats, table layouts."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = [
+    "Metric",
+    "METRICS",
+    "TABLE1_METRICS",
+    "ABLATION_METRICS",
+    "ABLATION_ROWS",
+    "MODEL_DESCRIPTIONS",
+    "MISSING",
+    "metric_spec",
+]
+
+MISSING = "—"
+"""How a missing value is shown in Markdown and LaTeX tables."""
+
+
+@dataclass(frozen=True)
+class Metric:
+    """How a metric is labelled, compared and printed.
+
+    Attributes:
+        name: the key in ``metrics.json`` (``"psnr"``).
+        label: the column header (``"PSNR"``).
+        higher_is_better: the direction that decides which value is marked best.
+        format: a :meth:`str.format` pattern for one value (``"{:.2f}"``).
+    """
+
+    name: str
+    label: str
+    higher_is_better: bool
+    format: str
+
+    @property
+    def arrow(self) -> str:
+        """The arrow of the direction: "↑" if higher is better, else "↓"."""
+        return "↑" if self.higher_is_better else "↓"
+
+    def fmt(self, value: float | None) -> str:
+        """The value as printed in a table (:data:`MISSING` for None and NaN)."""
+        if value is None or (isinstance(value, float) and math.isnan(value)):
+            return MISSING
+        return self.format.format(value)
+
+
+METRICS: dict[str, Metric] = {
+    m.name: m
+    for m in (
+        Metric("psnr", "PSNR", True, "{:.2f}"),
+        Metric("mae", "MAE", False, "{:.4f}"),
+        Metric("lpips", "LPIPS", False, "{:.3f}"),
+        Metric("clip", "CLIP", True, "{:.2f}"),
+        Metric("image_reward", "ImageReward", True, "{:.3f}"),
+        Metric("psnr_true", "PSNR (true)", True, "{:.2f}"),
+    )
+}
+"""The metrics of ``metrics.json``: label, direction and print format."""
+
+TABLE1_METRICS = ("clip", "image_reward", "psnr", "lpips")
+"""Columns of the paper's Table 1, in its order."""
+
+ABLATION_METRICS = ("mae", "psnr", "lpips", "clip", "image_reward")
+"""Columns of the paper's ablation table, in its order."""
+
+ABLATION_ROWS: tuple[tuple[str, str], ...] = (
+    ("snellcaster", "Full"),
+    ("no_reflection", "w/o reflection"),
+    ("no_pano", "w/o panorama"),
+    ("no_dpa", "w/o DPA"),
+    ("no_lpw", "w/o LPW"),
+    ("no_tt", "w/o time travel"),
+)
+"""Ablation rows in the paper's order: (method name, row label)."""
+
+MODEL_DESCRIPTIONS = {
+    "analytic": "CPU stand-in for FLUX",
+    "tiny_flux": "tiny random-weight FLUX, outputs meaningless",
+    "flux": "FLUX.1-dev",
+}
+"""What each ``model`` value of ``metrics.json`` is, for provenance lines."""
+
+
+def metric_spec(name: str) -> Metric:
+    """The spec of ``name``; an unknown metric is labelled by its name, higher is better, 3 decimals."""
+    return METRICS.get(name) or Metric(name, name, True, "{:.3f}")

@@ -1,0 +1,335 @@
+"""Tables from the cells of :func:`~snell_bench.experiment.reports.collect.collect`: methods x
+metrics, scenes x methods, the ablation, time saved against fidelity lost; and the best /
+second-best ranking the writers mark.
+
+A table is a DataFrame whose index holds the row labels (``index.name`` is the row header) and
+whose columns are metric names plus ``n``, the number of ``ok`` cells averaged (a scene table has
+method labels as columns and one metric for all of them). The builders store display hints in
+``table.attrs``: ``provenance``, ``notes``, ``caption``, ``metric`` (scene tables), ``highlight``
+(``"columns"`` or ``"rows"``: where best and second best are ranked) and ``methods``.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from .collect import cell_notes, provenance_line
+from .spec import ABLATION_METRICS, ABLATION_ROWS, METRICS, TABLE1_METRICS, Metric, metric_spec
+
+__all__ = [
+    "SAVING_METHODS",
+    "method_labels",
+    "method_table",
+    "scene_table",
+    "ablation_table",
+    "savings_table",
+    "column_metric",
+    "rank_marks",
+]
+
+SAVING_METHODS = ("full_frame", "adaptive")
+"""Methods compared with ``snellcaster`` in :func:`savings_table` (same images, or modelling less)."""
+
+
+def _mean(s: pd.Series) -> float:
+    # Series.mean, not the grouped cython mean: that one sums with compensation and can differ in
+    # the last bit, which the full-precision CSVs would show
+    return s.mean()
+
+
+# --------------------------------------------------------------------------------------------
+# Tables
+# --------------------------------------------------------------------------------------------
+
+
+def _method_order(methods: Iterable[str], order: Sequence[str] | None) -> list[str]:
+    methods = sorted(set(methods))
+    if not order:
+        return methods
+    first = [m for m in order if m in methods]
+    return first + [m for m in methods if m not in first]
+
+
+def method_labels(df: pd.DataFrame) -> dict[str, str]:
+    """Method name -> display label: its most common ``method_label`` (the name if none); labels
+    shared by several methods get the method name appended."""
+    labels = {}
+    for meth, g in df.groupby("method", sort=True):
+        vals = [v for v in g["method_label"] if isinstance(v, str) and v]
+        labels[meth] = Counter(vals).most_common(1)[0][0] if vals else str(meth)
+    dup = Counter(labels.values())
+    return {k: (f"{v} ({k})" if dup[v] > 1 else v) for k, v in labels.items()}
+
+
+def _means(df: pd.DataFrame, methods: Sequence[str], metrics: Sequence[str]) -> pd.DataFrame:
+    """Per method (rows, in ``methods``' order): the mean of each metric over the ``ok`` cells
+    (NaN where none has a value) and ``n``, the number of those cells."""
+    ok = df[df["status"] == "ok"]
+    present = [m for m in metrics if m in ok.columns]
+    means = ok.groupby("method")[present].agg(_mean) if present else pd.DataFrame(index=[])
+    out = means.reindex(index=list(methods), columns=list(metrics)).astype(float)
+    out["n"] = ok["method"].value_counts().reindex(list(methods), fill_value=0).to_numpy(dtype=int)
+    out.index.name = None
+    return out
+
+
+def _check(df: pd.DataFrame) -> None:
+    missing = [c for c in ("method", "status") if c not in df.columns]
+    if missing:
+        raise ValueError(f"not a cell table from collect(): no column(s) {missing}")
+
+
+def method_table(
+    df: pd.DataFrame, metrics: Sequence[str] = TABLE1_METRICS, order: Sequence[str] | None = None
+) -> pd.DataFrame:
+    """Table 1: the mean of each metric per method over the cells with status ``ok``.
+
+    A metric with no value in some ``ok`` cells is averaged over the cells that have one; the notes
+    say how many lack it and why.
+
+    Args:
+        df: cells from ``collect``.
+        metrics: the value columns, in order.
+        order: method names shown first, in this order; the others follow, sorted by name.
+
+    Returns:
+        One row per method, labelled by ``method_label`` (``index.name`` ``"Method"``), with the
+        ``metrics`` and ``n``, the number of ``ok`` cells (0 for a method whose cells all failed;
+        its values are NaN).
+
+    Raises:
+        ValueError: ``df`` has no ``method`` or ``status`` column.
+    """
+    _check(df)
+    methods = _method_order(df["method"].dropna().astype(str), order)
+    table = _means(df, methods, metrics)
+    labels = method_labels(df)
+    table.index = [labels[m] for m in methods]
+    table.index.name = "Method"
+    table.attrs.update(
+        provenance=provenance_line(df),
+        notes=cell_notes(df, metrics),
+        caption="Means over cells with status ok; n = cells averaged.",
+        highlight="columns",
+        methods=list(methods),
+    )
+    return table
+
+
+def scene_table(df: pd.DataFrame, metric: str = "psnr", order: Sequence[str] | None = None) -> pd.DataFrame:
+    """The mean of one metric per scene and method over the cells with status ``ok``.
+
+    Args:
+        df: cells from ``collect``.
+        metric: the metric of every value.
+        order: the method columns' order, as in :func:`method_table`.
+
+    Returns:
+        One row per scene (sorted, ``index.name`` ``"Scene"``), one column per method (labelled by
+        ``method_label``); NaN where a scene has no value for a method. Best and second best are
+        ranked per scene (``attrs["highlight"] == "rows"``).
+
+    Raises:
+        ValueError: ``df`` has no ``method`` or ``status`` column.
+    """
+    _check(df)
+    methods = _method_order(df["method"].dropna().astype(str), order)
+    labels = method_labels(df)
+    scenes = sorted(df["scene"].dropna().astype(str).unique())
+    ok = df[df["status"] == "ok"]
+    if metric in ok.columns and len(ok):
+        table = ok.groupby(["scene", "method"])[metric].agg(_mean).unstack("method")
+    else:
+        table = pd.DataFrame()
+    table = table.reindex(index=scenes, columns=methods).astype(float)
+    table.columns = [labels[m] for m in methods]
+    table.index.name = "Scene"
+    spec = metric_spec(metric)
+    table.attrs.update(
+        provenance=provenance_line(df),
+        notes=cell_notes(df, [metric]),
+        caption=f"{spec.label} {spec.arrow} per scene: means over cells with status ok.",
+        highlight="rows",
+        metric=metric,
+        methods=list(methods),
+    )
+    return table
+
+
+def ablation_table(df: pd.DataFrame, metrics: Sequence[str] = ABLATION_METRICS) -> pd.DataFrame:
+    """The ablation rows present in ``df``, in the paper's order.
+
+    Args:
+        df: cells from ``collect``; cells of methods outside :data:`ABLATION_ROWS` are ignored,
+            also for provenance and notes.
+        metrics: the value columns, in order.
+
+    Returns:
+        One row per variant (Full, w/o reflection, w/o panorama, w/o DPA, w/o LPW, w/o time
+        travel; ``index.name`` ``"Variant"``) with the means over cells with status ``ok`` and ``n``.
+
+    Raises:
+        ValueError: ``df`` has no ``method`` or ``status`` column.
+    """
+    _check(df)
+    names = [m for m, _ in ABLATION_ROWS if (df["method"] == m).any()]
+    sub = df[df["method"].isin(names)]
+    table = _means(sub, names, metrics)
+    label = dict(ABLATION_ROWS)
+    table.index = [label[m] for m in names]
+    table.index.name = "Variant"
+    table.attrs.update(
+        provenance=provenance_line(sub),
+        notes=cell_notes(sub, metrics),
+        caption="Ablation: means over cells with status ok; n = cells averaged.",
+        highlight="columns",
+        methods=list(names),
+    )
+    return table
+
+
+def _stage_time(df: pd.DataFrame) -> pd.Series:
+    """Per-cell time of what a method controls: its warps plus its sampling (seconds)."""
+    cols = [c for c in ("timings_s.warps", "timings_s.sampling") if c in df.columns]
+    return df[cols].sum(axis=1, min_count=1) if cols else pd.Series(np.nan, index=df.index)
+
+
+def savings_table(
+    df: pd.DataFrame, reference: str = "snellcaster", methods: Sequence[str] = SAVING_METHODS
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Time saved against fidelity lost, per method, over the cells it shares with ``reference``.
+
+    Args:
+        df: cells from ``collect``.
+        reference: the method compared against.
+        methods: the methods compared with it.
+
+    Returns:
+        ``(summary, per_cell)``. ``per_cell`` pairs every ok cell of a method with the
+        ``reference`` cell of the same scene, variation and object: time (warps + sampling) of
+        both, PSNR of both and the difference, and the decisions the method took. ``summary`` has
+        one row per method: cells, mean times, time saved (share of the reference's), mean and
+        largest |ΔPSNR|, cells without the panorama branch, cells without any reflection, mean
+        share of object pixels that kept a reflection, mean share of background treated as at
+        infinity. Both are empty when no method shares a cell with ``reference``.
+    """
+    ok = df[df["status"] == "ok"].copy()
+    ok["_time"] = _stage_time(ok)
+    keys = ["scene", "variation", "object"]
+    ref = ok[ok["method"] == reference].set_index(keys)
+    rows, summary = [], []
+    labels = method_labels(df)
+    for m in methods:
+        sub = ok[ok["method"] == m]
+        if sub.empty or ref.empty:
+            continue
+        cells = []
+        for _, r in sub.iterrows():
+            k = tuple(r[c] for c in keys)
+            if k not in ref.index:
+                continue
+            b = ref.loc[k]
+            if isinstance(b, pd.DataFrame):
+                b = b.iloc[0]
+            cell = {
+                "method": m,
+                "scene": r["scene"],
+                "variation": r["variation"],
+                "object": r["object"],
+                "time_s": r["_time"],
+                "reference_time_s": b["_time"],
+                "psnr": r.get("psnr", np.nan),
+                "reference_psnr": b.get("psnr", np.nan),
+                "panorama_used": r.get("decisions.panorama.used", np.nan),
+                "panorama_observed_share": r.get("decisions.panorama.observed_share", np.nan),
+                "reflection_kept": r.get("decisions.reflection.kept", np.nan),
+                "reflection_share_kept": r.get("decisions.reflection.share_kept", np.nan),
+                "far_fraction": r.get("warps.far_background.far_fraction", np.nan),
+            }
+            cell["delta_psnr"] = cell["psnr"] - cell["reference_psnr"]
+            cells.append(cell)
+        if not cells:
+            continue
+        c = pd.DataFrame(cells)
+        rows.append(c)
+        t, tr = c["time_s"].mean(), c["reference_time_s"].mean()
+        summary.append(
+            {
+                "method": labels.get(m, m),
+                "cells": len(c),
+                "time (s)": t,
+                f"{labels.get(reference, reference)} (s)": tr,
+                "time saved": 1 - t / tr if tr > 0 else np.nan,
+                "mean ΔPSNR (dB)": c["delta_psnr"].mean(),
+                "max |ΔPSNR| (dB)": c["delta_psnr"].abs().max(),
+                "panorama skipped": int((c["panorama_used"] == False).sum()),  # noqa: E712 (NaN is neither)
+                "reflection off": int((c["reflection_kept"] == False).sum()),  # noqa: E712
+                "reflection kept (share of px)": c["reflection_share_kept"].mean(),
+                "far background (share of px)": c["far_fraction"].mean(),
+            }
+        )
+    per_cell = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame()
+    return pd.DataFrame(summary), per_cell
+
+
+# --------------------------------------------------------------------------------------------
+# Ranking
+# --------------------------------------------------------------------------------------------
+
+
+def column_metric(table: pd.DataFrame, col) -> Metric | None:
+    """The metric of a value column: the table's ``attrs["metric"]`` for scene tables, else the
+    column's own; None for ``n`` and for columns that are not metrics."""
+    if col == "n":
+        return None
+    if table.attrs.get("metric"):
+        return metric_spec(table.attrs["metric"])
+    return METRICS.get(col)
+
+
+def rank_marks(table: pd.DataFrame) -> dict[tuple[int, int], int]:
+    """Best and second-best cells of a table.
+
+    Cells are ranked per column, or per row when ``table.attrs["highlight"] == "rows"``, in the
+    direction of their metric (:func:`column_metric`), on the values as displayed (rounded to the
+    metric's format), so ties share the rank. A column (row) with fewer than two values gets no
+    mark; ``n`` and non-metric columns are never ranked.
+
+    Args:
+        table: a table of this module.
+
+    Returns:
+        ``{(row position, column position): 1 for best, 2 for second best}``.
+    """
+    ranks: dict[tuple[int, int], int] = {}
+    by_rows = table.attrs.get("highlight") == "rows"
+    cols = list(table.columns)
+    groups = (
+        [[(i, j) for j in range(len(cols))] for i in range(len(table))]
+        if by_rows
+        else [[(i, j) for i in range(len(table))] for j in range(len(cols))]
+    )
+    for cells in groups:
+        vals = []
+        for i, j in cells:
+            spec = column_metric(table, cols[j])
+            if spec is None:
+                continue
+            v = table.iat[i, j]
+            if v is None or pd.isna(v):
+                continue
+            shown = float(spec.fmt(float(v)))
+            vals.append(((i, j), shown if spec.higher_is_better else -shown))
+        if len(vals) < 2:
+            continue
+        distinct = sorted({v for _, v in vals}, reverse=True)
+        for ij, v in vals:
+            if v == distinct[0]:
+                ranks[ij] = 1
+            elif len(distinct) > 1 and v == distinct[1]:
+                ranks[ij] = 2
+    return ranks

@@ -1,0 +1,336 @@
+"""The speed/accuracy sweep's numbers, a pure function of its run folder: one row per scene x
+setting, the per-setting means, the Pareto front and the reference convergence (written by
+:mod:`.writers`, plotted by :mod:`.figures`).
+
+A sweep's run folder holds ``<scene>-<variation>/<setting slug>/result.json`` per setting and the
+shared inputs under ``<scene>-<variation>/_shared/``; :mod:`snell_bench.experiment.tradeoff`
+describes the layout and the meaning of every field. Folders whose name starts with "." or "_"
+are not settings.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from snell_bench.utils.io import write_json
+
+__all__ = [
+    "STAGES",
+    "TOTAL_STAGES",
+    "TOTAL_NOTE",
+    "RECORD_METRICS",
+    "PRESET_AXIS",
+    "SPP_KEY",
+    "pareto_front",
+    "collect_tradeoff",
+    "reference_psnr_vs_max_spp",
+    "update_spp_records",
+    "tradeoff_table",
+    "fidelity_column",
+]
+
+#: The key of the reference-convergence axis.
+SPP_KEY = "reference.spp"
+
+#: Stage times of ``timings_s``, in pipeline order; ``total`` sums :data:`TOTAL_STAGES`.
+STAGES = ("scene", "warps", "reference", "true_render", "generator", "sampling", "metrics")
+TOTAL_STAGES = ("warps", "sampling", "reference", "metrics")
+TOTAL_NOTE = (
+    "total = warps + sampling + reference + metrics; scene (making the input), true_render "
+    "(procedural-only evaluation) and generator (building the model once) are not included"
+)
+
+#: The metrics a setting records (CLIP and ImageReward are not part of this sweep).
+RECORD_METRICS = ("psnr", "mae", "lpips", "psnr_true", "psnr_converged", "mae_converged", "lpips_converged")
+
+#: The axis of the settings that apply a whole preset (``preset:<name>``).
+PRESET_AXIS = "preset"
+_SCENE_DIR_RE = re.compile(r"^(?P<scene>.+)-(?P<variation>\d+)$")
+
+
+# ---------------------------------------------------------------------------- reference convergence
+def _load_records(root: Path) -> list[dict]:
+    """Every ``result.json`` below ``root`` (``<scene>-<variation>/<slug>/result.json``), each with
+    ``_dir`` (its folder relative to ``root``); unreadable ones as failed records."""
+    out = []
+    for p in sorted(Path(root).glob("*/*/result.json")):
+        rel = p.parent.relative_to(root)
+        if any(part.startswith((".", "_")) for part in rel.parts):
+            continue
+        try:
+            rec = json.loads(p.read_text())
+            if not isinstance(rec, dict):
+                raise ValueError("not a JSON object")
+        except (OSError, ValueError) as e:
+            m = _SCENE_DIR_RE.match(rel.parts[0])
+            rec = {
+                "status": "failed",
+                "reason": f"result.json unreadable: {e}",
+                "setting": rel.parts[1],
+                "scene": m["scene"] if m else rel.parts[0],
+                "variation": int(m["variation"]) if m else None,
+            }
+        rec["_dir"] = rel.as_posix()
+        out.append(rec)
+    return out
+
+
+def _is_spp_record(rec: dict) -> bool:
+    return rec.get("axis") not in (None, PRESET_AXIS) and set(rec.get("overrides") or {}) == {SPP_KEY}
+
+
+def reference_psnr_vs_max_spp(
+    root: str | os.PathLike, records: Sequence[dict] | None = None
+) -> dict[str, float | None]:
+    """How far each reference render of an spp axis is from the highest-spp one.
+
+    For every axis whose settings vary only ``reference.spp``: the masked PSNR (grayscale,
+    histogram-matched) of each setting's saved ``reference.npy`` against the highest-spp setting's
+    of the same scene, over that setting's ``metric_mask.npy``.
+
+    Args:
+        root: the sweep's run folder.
+        records: its records as read by ``_load_records`` (read from ``root`` if not given).
+
+    Returns:
+        ``{record folder relative to root: PSNR}`` for the ok settings of those axes; ``None`` for
+        the highest-spp setting itself, where a file or the mask is missing, or where the PSNR is
+        not finite.
+    """
+    from snell_bench.metrics import MetricUnavailable, masked_psnr
+
+    root = Path(root)
+    records = _load_records(root) if records is None else records
+    groups: dict[tuple, list[dict]] = {}
+    for r in records:
+        if r.get("status") == "ok" and _is_spp_record(r):
+            groups.setdefault((r["_dir"].split("/")[0], r["axis"]), []).append(r)
+    out: dict[str, float | None] = {}
+
+    def load(r, name):
+        p = root / r["_dir"].split("/")[0] / str(r.get("inputs_dir", "")) / name
+        return np.load(p) if p.is_file() else None
+
+    for (_, _), recs in groups.items():
+        best = max(recs, key=lambda r: float((r.get("overrides") or {})[SPP_KEY]))
+        ref_max, mask = load(best, "reference.npy"), load(best, "metric_mask.npy")
+        for r in recs:
+            val = None
+            if r is not best and ref_max is not None and mask is not None:
+                ref = load(r, "reference.npy")
+                if ref is not None and ref.shape == ref_max.shape:
+                    try:
+                        v = float(masked_psnr(ref, ref_max, mask))
+                        val = v if math.isfinite(v) else None
+                    except MetricUnavailable:
+                        val = None
+            out[r["_dir"]] = val
+    return out
+
+
+def update_spp_records(scene_dir: Path) -> None:
+    """Write ``reference_psnr_vs_max_spp`` into the spp-axis records of one scene.
+
+    Each ``result.json`` is rewritten (atomically) only if its value changed.
+
+    Args:
+        scene_dir: the scene's folder, ``<root>/<scene>-<variation>``; nothing happens if it does
+            not exist.
+    """
+    if not scene_dir.is_dir():
+        return
+    root = scene_dir.parent
+    records = [r for r in _load_records(root) if r["_dir"].split("/")[0] == scene_dir.name]
+    values = reference_psnr_vs_max_spp(root, records)
+    for r in records:
+        if r["_dir"] not in values:
+            continue
+        v = values[r["_dir"]]
+        if "reference_psnr_vs_max_spp" in r and r["reference_psnr_vs_max_spp"] == v:
+            continue
+        rec = {k: val for k, val in r.items() if k != "_dir"}
+        rec["reference_psnr_vs_max_spp"] = v
+        write_json(root / r["_dir"] / "result.json", rec)
+
+
+# ---------------------------------------------------------------------------- Pareto front
+def pareto_front(cost: Sequence[float], score: Sequence[float]) -> np.ndarray:
+    """The points not dominated when minimising ``cost`` and maximising ``score``.
+
+    Point ``j`` dominates ``i`` if ``cost[j] <= cost[i]`` and ``score[j] >= score[i]`` with at least
+    one strict. Identical points do not dominate each other (all of them are on the front). A point
+    with NaN cost or score is never on the front and dominates nothing.
+
+    Args:
+        cost: one value per point.
+        score: one value per point.
+
+    Returns:
+        A boolean array, True for the points on the front.
+
+    Raises:
+        ValueError: ``cost`` and ``score`` differ in length.
+    """
+    c = np.asarray(cost, dtype=float).reshape(-1)
+    s = np.asarray(score, dtype=float).reshape(-1)
+    if c.shape != s.shape:
+        raise ValueError(f"cost and score must have the same length, got {c.shape} and {s.shape}")
+    front = np.zeros(c.shape, dtype=bool)
+    valid = np.flatnonzero(~(np.isnan(c) | np.isnan(s)))
+    if valid.size == 0:
+        return front
+    order = valid[np.lexsort((-s[valid], c[valid]))]  # cost ascending, score descending
+    best_before = None  # highest score among strictly cheaper points
+    k = 0
+    while k < order.size:
+        group = [order[k]]
+        while k + len(group) < order.size and c[order[k + len(group)]] == c[order[k]]:
+            group.append(order[k + len(group)])
+        top = s[group[0]]
+        for i in group:
+            front[i] = s[i] == top and (best_before is None or s[i] > best_before)
+        best_before = top if best_before is None else max(best_before, top)
+        k += len(group)
+    return front
+
+
+# ---------------------------------------------------------------------------- tables
+def _float(v) -> float:
+    try:
+        return float("nan") if v is None else float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _value_text(v) -> str | None:
+    """An axis value for a CSV cell: scalars as text, compound values as JSON."""
+    if v is None:
+        return None
+    return json.dumps(v, sort_keys=True) if isinstance(v, (dict, list)) else str(v)
+
+
+def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
+    """One row per scene x setting below ``root``.
+
+    Args:
+        root: the sweep's run folder.
+
+    Returns:
+        A DataFrame with the identity (scene, variation, setting, slug, order, axis, value,
+        overrides, status, reason, model, inputs key), knobs (``knob.<name>``), stage times
+        (``timings_s.<stage>``), sampler breakdown (``sampler_s.<part>``), model calls
+        (``model_calls.<branch>``), the :data:`RECORD_METRICS` with their ``missing.<metric>``
+        reasons, ``reference_psnr_vs_max_spp`` (recomputed from the saved references),
+        ``converged_spp`` and ``dir``; sorted by scene, then the setting's order in the sweep.
+        Empty when there is no ``result.json``.
+    """
+    root = Path(root)
+    records = _load_records(root)
+    conv = reference_psnr_vs_max_spp(root, records)
+    rows = []
+    for r in records:
+        row = {
+            "scene": r.get("scene"),
+            "variation": r.get("variation"),
+            "setting": r.get("setting"),
+            "slug": r.get("slug"),
+            "order": r.get("order"),
+            "axis": r.get("axis"),
+            "value": _value_text(r.get("value")),
+            "overrides": json.dumps(r.get("overrides") or {}, sort_keys=True),
+            "status": r.get("status"),
+            "reason": r.get("reason"),
+            "model": r.get("model"),
+            "inputs_key": r.get("inputs_key"),
+            "inputs_reused_from": r.get("inputs_reused_from"),
+        }
+        for k, v in (r.get("knobs") or {}).items():
+            row[f"knob.{k}"] = v
+        for k in STAGES + ("total",):
+            row[f"timings_s.{k}"] = _float((r.get("timings_s") or {}).get(k))
+        for k, v in (r.get("sampler_timings_s") or {}).items():
+            row[f"sampler_s.{k}"] = _float(v)
+        for k, v in (r.get("model_calls") or {}).items():
+            row[f"model_calls.{k}"] = v
+        for k in RECORD_METRICS:
+            row[k] = _float((r.get("metrics") or {}).get(k))
+            row[f"missing.{k}"] = (r.get("missing") or {}).get(k)
+        row["reference_psnr_vs_max_spp"] = _float(conv.get(r["_dir"], r.get("reference_psnr_vs_max_spp")))
+        row["converged_spp"] = (r.get("converged_reference") or {}).get("spp")
+        row["dir"] = r["_dir"]
+        rows.append(row)
+    df = pd.DataFrame(rows)
+    if df.empty:
+        return df
+    df["order"] = pd.to_numeric(df["order"], errors="coerce")
+    return df.sort_values(["scene", "order", "setting"], na_position="last", kind="mergesort").reset_index(drop=True)
+
+
+def tradeoff_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Per-setting means over the scenes where the setting is ``ok``.
+
+    Args:
+        df: rows from :func:`collect_tradeoff`.
+
+    Returns:
+        One row per setting (index ``setting``, in sweep order): ``axis``, ``n`` (ok scenes),
+        ``n_scenes``, the mean of every stage time, ``psnr``, ``psnr_true``, ``lpips``, ``mae``,
+        the ``*_converged`` metrics and ``reference_psnr_vs_max_spp``; ``lpips_missing`` (the
+        reasons, when LPIPS has no value) and ``pareto``: on the front of (mean total time ↓, mean
+        :func:`fidelity_column` ↑) among the settings that succeeded on every scene.
+
+    Raises:
+        FileNotFoundError: ``df`` is empty.
+    """
+    if df.empty:
+        raise FileNotFoundError("no settings (result.json) to tabulate")
+    n_scenes = df["scene"].nunique()
+    ok = df[df["status"] == "ok"]
+    cols = [f"timings_s.{k}" for k in STAGES + ("total",)] + [
+        "psnr",
+        "psnr_true",
+        "lpips",
+        "mae",
+        "psnr_converged",
+        "mae_converged",
+        "lpips_converged",
+        "reference_psnr_vs_max_spp",
+    ]
+    order = df.groupby("setting", sort=False)["order"].min().sort_values(kind="mergesort")
+    rows = []
+    for setting in order.index:
+        g = ok[ok["setting"] == setting]
+        first = df[df["setting"] == setting].iloc[0]
+        row = {"setting": setting, "axis": first["axis"], "n": len(g), "n_scenes": n_scenes}
+        for c in cols:
+            row[c] = float(g[c].mean()) if c in g.columns and g[c].notna().any() else float("nan")
+        reasons = sorted({str(v) for v in g.get("missing.lpips", pd.Series(dtype=object)).dropna()})
+        row["lpips_missing"] = "; ".join(reasons) if reasons else None
+        rows.append(row)
+    table = pd.DataFrame(rows).set_index("setting")
+    complete = table["n"] == n_scenes
+    cost = table["timings_s.total"].where(complete)
+    table["pareto"] = pareto_front(cost.to_numpy(), table[fidelity_column(table)].where(complete).to_numpy())
+    return table
+
+
+def fidelity_column(table: pd.DataFrame) -> str:
+    """The fidelity the Pareto front uses.
+
+    Args:
+        table: from :func:`tradeoff_table`.
+
+    Returns:
+        ``"psnr_converged"`` (PSNR against the converged reference, which does not move with
+        ``reference.spp``) where the sweep has it, else ``"psnr"`` (against each setting's own
+        reference).
+    """
+    return "psnr_converged" if "psnr_converged" in table and table["psnr_converged"].notna().any() else "psnr"

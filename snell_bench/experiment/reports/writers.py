@@ -1,0 +1,404 @@
+"""Writing tables: Markdown (one pipe-table writer for every report, the speed/accuracy sweep's
+included), LaTeX (booktabs, through :meth:`pandas.io.formats.style.Styler.to_latex`) and CSV.
+
+The Markdown and LaTeX versions of a table from :mod:`.tables` carry a provenance line (which model
+and scene source produced the numbers, how many cells) and notes listing every failed or skipped
+cell with its reason and every metric without a value in some averaged cells. The best value is
+**bold** (``\\textbf``), the second best _italic_ (``\\underline``), as ranked by
+:func:`~snell_bench.experiment.reports.tables.rank_marks`; a missing value is "—".
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections import Counter
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from snell_bench.utils.io import write_text
+
+from .spec import MISSING, metric_spec
+from .tables import column_metric, rank_marks
+from .tradeoff import PRESET_AXIS, RECORD_METRICS, SPP_KEY, TOTAL_NOTE, fidelity_column
+
+__all__ = [
+    "pipe_table",
+    "to_markdown",
+    "plain_markdown",
+    "to_latex",
+    "to_csv",
+    "tex_escape",
+    "tradeoff_markdown",
+    "stdout_table",
+]
+
+_ALIGN = {None: "---", "left": ":---", "right": "---:", "center": ":---:"}
+
+
+def pipe_table(
+    header: Sequence[str], rows: Iterable[Sequence[str]], align: Sequence[str | None] | None = None
+) -> list[str]:
+    """A Markdown pipe table, one string per line, cells written as given (no padding).
+
+    Args:
+        header: the column headers.
+        rows: the cells of each row, already formatted.
+        align: per column ``"left"``, ``"right"``, ``"center"`` or None (the renderer's default);
+            None for all columns if not given.
+
+    Returns:
+        The header line, the alignment line and one line per row.
+
+    Raises:
+        KeyError: an unknown alignment.
+    """
+    align = [None] * len(header) if align is None else list(align)
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(_ALIGN[a] for a in align) + "|"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return lines
+
+
+def _cell_text(table: pd.DataFrame, i: int, j: int) -> str:
+    col = table.columns[j]
+    v = table.iat[i, j]
+    if col == "n":
+        return MISSING if pd.isna(v) else str(int(v))
+    spec = column_metric(table, col) or metric_spec(str(col))
+    return spec.fmt(None if pd.isna(v) else float(v))
+
+
+def _header(table: pd.DataFrame, col) -> str:
+    if col == "n":
+        return "n"
+    spec = column_metric(table, col)
+    if spec is not None and not table.attrs.get("metric"):
+        return f"{spec.label} {spec.arrow}"
+    return str(col)
+
+
+def _resolve(table: pd.DataFrame, provenance: str | None, notes: Sequence[str] | None) -> tuple[str, list[str]]:
+    provenance = table.attrs.get("provenance", "") if provenance is None else provenance
+    notes = list(table.attrs.get("notes", [])) if notes is None else list(notes)
+    return provenance, notes
+
+
+def _marked_cells(table: pd.DataFrame, mark) -> list[list[str]]:
+    """The value cells as text, ``mark(text, rank)`` applied where :func:`rank_marks` ranks one."""
+    ranks = rank_marks(table)
+    return [
+        [mark(_cell_text(table, i, j), ranks.get((i, j))) for j in range(len(table.columns))] for i in range(len(table))
+    ]
+
+
+def to_markdown(
+    table: pd.DataFrame, title: str, provenance: str | None = None, notes: Sequence[str] | None = None
+) -> str:
+    """The table as Markdown.
+
+    Args:
+        table: a table of :mod:`.tables` (or any DataFrame of metric columns).
+        title: the ``##`` heading.
+        provenance: the line under the heading; default ``table.attrs["provenance"]``.
+        notes: the "Notes" list; default ``table.attrs["notes"]``.
+
+    Returns:
+        A ``##`` heading, the provenance line, a pipe table (best value **bold**, second best
+        _italic_, missing "—"), the caption with the legend, and a "Notes" section listing the
+        failed and skipped cells with their reasons and the metrics missing in averaged cells.
+    """
+    provenance, notes = _resolve(table, provenance, notes)
+    cols = list(table.columns)
+    head = [str(table.index.name or "")] + [_header(table, c) for c in cols]
+    cells = _marked_cells(table, lambda t, r: f"**{t}**" if r == 1 else f"_{t}_" if r == 2 else t)
+    lines = [f"## {title}", "", f"_{provenance}_" if provenance else "", ""]
+    lines += pipe_table(
+        head, ([str(idx)] + row for idx, row in zip(table.index, cells)), ["left"] + ["right"] * len(cols)
+    )
+    lines.append("")
+    caption = table.attrs.get("caption")
+    where = "scene" if table.attrs.get("highlight") == "rows" else "column"
+    lines.append(
+        (caption + " " if caption else "") + f"**Bold**: best per {where}; _italic_: second best; {MISSING}: no value."
+    )
+    lines += ["", "### Notes", ""]
+    lines += [f"- {n}" for n in notes] if notes else ["- All cells ok; every metric shown has a value in every cell."]
+    return "\n".join(lines) + "\n"
+
+
+def plain_markdown(table: pd.DataFrame, title: str, note: str = "") -> str:
+    """Any DataFrame as Markdown, without ranking.
+
+    Args:
+        table: the rows to write (the index is not written).
+        title: the ``##`` heading.
+        note: a paragraph under the heading.
+
+    Returns:
+        The heading, the note and a pipe table: floats with 3 decimals ("—" if not finite),
+        everything else as ``str``.
+    """
+
+    def fmt(v):
+        if isinstance(v, (float, np.floating)):
+            return MISSING if not np.isfinite(v) else f"{v:.3f}"
+        return str(v)
+
+    lines = [f"## {title}", ""] + ([note, ""] if note else [])
+    lines += pipe_table(
+        [str(c) for c in table.columns], ([fmt(v) for v in row] for row in table.itertuples(index=False))
+    )
+    return "\n".join(lines) + "\n"
+
+
+_LATEX_ESCAPES = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+    "↑": r"$\uparrow$",
+    "↓": r"$\downarrow$",
+    "·": r"$\cdot$",
+    "×": r"$\times$",
+}
+_LATEX_MARKS = {1: "textbf: --rwrap;", 2: "underline: --rwrap;"}
+
+
+def tex_escape(s) -> str:
+    """``str(s)`` with LaTeX's special characters escaped and ↑ ↓ · × as math symbols (Styler's
+    ``escape="latex"`` leaves those four as they are)."""
+    return "".join(_LATEX_ESCAPES.get(ch, ch) for ch in str(s))
+
+
+def to_latex(
+    table: pd.DataFrame,
+    title: str,
+    provenance: str | None = None,
+    notes: Sequence[str] | None = None,
+    label: str | None = None,
+) -> str:
+    """The table as a LaTeX ``table`` float (booktabs).
+
+    Args:
+        table: a table of :mod:`.tables` (or any DataFrame of metric columns).
+        title: the caption's first sentence.
+        provenance: appended to the caption; default ``table.attrs["provenance"]``.
+        notes: written under the tabular in ``\\footnotesize``; default ``table.attrs["notes"]``.
+        label: the ``\\label``, if any.
+
+    Returns:
+        The float: the caption is ``title`` and the provenance line, the best value per column (per
+        scene for scene tables) is in ``\\textbf{}``, the second best in ``\\underline{}`` (ties
+        share the mark), missing values are "—" (UTF-8, the LaTeX default input encoding), and the
+        notes (failed and skipped cells, missing metrics) follow the tabular.
+    """
+    provenance, notes = _resolve(table, provenance, notes)
+    cols = list(table.columns)
+    caption = tex_escape(title.rstrip("."))
+    if provenance:
+        caption += ". " + tex_escape(provenance)
+    header = [tex_escape(table.index.name or "")] + [tex_escape(_header(table, c)) if c != "n" else "$n$" for c in cols]
+    ranks = rank_marks(table)
+    # positional labels: the Styler needs unique ones, the header text comes from format_index
+    text = pd.DataFrame(
+        [[tex_escape(idx)] + [_cell_text(table, i, j) for j in range(len(cols))] for i, idx in enumerate(table.index)],
+        columns=range(len(header)),
+    )
+    marks = pd.DataFrame("", index=text.index, columns=text.columns)
+    for (i, j), r in ranks.items():
+        marks.iat[i, j + 1] = _LATEX_MARKS[r]
+    styler = text.style.hide(axis="index").format_index(lambda k: header[k], axis=1)
+    styler = styler.apply(lambda _: marks, axis=None)
+    tex = styler.to_latex(
+        environment="table",
+        position="t",
+        position_float="centering",
+        caption=caption + ".",
+        label=label,
+        hrules=True,
+        column_format="l" + "r" * len(cols),
+    )
+    if notes:
+        end = "\\end{table}\n"
+        block = "\n".join([r"\par\smallskip{\footnotesize"] + [tex_escape(n) + r"\\" for n in notes] + ["}"])
+        tex = tex.removesuffix(end) + block + "\n" + end
+    return tex
+
+
+def to_csv(table: pd.DataFrame, path: str | os.PathLike | None = None) -> str:
+    """The table's numbers as CSV: index first, NaN as an empty field, full precision.
+
+    Args:
+        table: any DataFrame.
+        path: where to write it (atomically), if given; ``pandas.read_csv(path, index_col=0)``
+            reads it back.
+
+    Returns:
+        The CSV text.
+    """
+    text = table.to_csv(index=True, float_format=None, lineterminator="\n")
+    if path is not None:
+        write_text(path, text)
+    return text
+
+
+# --------------------------------------------------------------------------------------------
+# Speed/accuracy sweeps
+# --------------------------------------------------------------------------------------------
+
+
+def _fmt(v, spec: str = "{:.2f}") -> str:
+    return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else spec.format(v)
+
+
+def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed/accuracy trade-off") -> str:
+    """The per-setting table as Markdown.
+
+    Args:
+        table: from :func:`tradeoff_table`.
+        df: the rows it was built from (:func:`collect_tradeoff`), for provenance and notes.
+        title: the ``#`` heading.
+
+    Returns:
+        The heading, what the numbers are, the per-setting pipe table (presets in bold, the Pareto
+        front starred, "missing" for LPIPS without a value), the reference convergence of the spp
+        axes, and notes listing failed settings and missing metrics with their reasons.
+    """
+    models = sorted({str(m) for m in df["model"].dropna()}) if "model" in df else []
+    status = Counter(str(s) for s in df["status"])
+    counts = ", ".join(f"{v} {k}" for k, v in sorted(status.items()))
+    spps = sorted({int(v) for v in df.get("converged_spp", pd.Series(dtype=float)).dropna()})
+    conv_text = f"{'/'.join(map(str, spps))} spp" if spps else "none in this sweep"
+    fid_text = "PSNR (conv.)" if fidelity_column(table) == "psnr_converged" else "PSNR"
+    lines = [
+        f"# {title}",
+        "",
+        f"Means over the scenes where a setting succeeded ({', '.join(sorted(df['scene'].dropna().unique()))}); "
+        f"model: {', '.join(models) or 'unknown'}; {len(df)} runs ({counts}). "
+        f"Times in seconds; {TOTAL_NOTE}. PSNR: masked, vs the setting's own reference render (so it also "
+        "moves with reference.spp, see the reference convergence below); PSNR (conv.): vs a converged reference "
+        f"of the same scene, object and resolution ({conv_text}); PSNR (true): vs the true render, traced with "
+        "reference.true_max_bounces (the setting's warps.max_bounces where that is null). "
+        f"**pareto**: on the front of (mean total ↓, mean {fid_text} ↑) among the settings that succeeded on "
+        "every scene. Presets in bold.",
+        "",
+    ]
+    head = [
+        "setting",
+        "scene",
+        "warps",
+        "reference",
+        "true render",
+        "generator",
+        "sampling",
+        "metrics",
+        "total",
+        "PSNR",
+        "PSNR (conv.)",
+        "PSNR (true)",
+        "LPIPS",
+        "n",
+        "pareto",
+    ]
+    rows = []
+    for setting, r in table.iterrows():
+        label = f"**{setting}**" if r["axis"] == PRESET_AXIS else str(setting)
+        lp = _fmt(r["lpips"], "{:.3f}") if not math.isnan(r["lpips"]) else "missing"
+        cells = [label] + [
+            _fmt(r[f"timings_s.{k}"])
+            for k in ("scene", "warps", "reference", "true_render", "generator", "sampling", "metrics", "total")
+        ]
+        cells += [
+            _fmt(r["psnr"]),
+            _fmt(r["psnr_converged"]),
+            _fmt(r["psnr_true"]),
+            lp,
+            f"{int(r['n'])}/{int(r['n_scenes'])}",
+            "★" if r["pareto"] else "",
+        ]
+        if r["axis"] == PRESET_AXIS:
+            cells = [f"**{x}**" if x and not x.startswith("**") else x for x in cells]
+        rows.append(cells)
+    lines += pipe_table(head, rows, [None] + ["right"] * (len(head) - 2) + ["center"])
+    spp = df[df.apply(_is_spp_axis_row, axis=1)] if not df.empty else df
+    if not spp.empty:
+        lines += [
+            "",
+            "## Reference convergence",
+            "",
+            "Masked PSNR (grayscale, histogram-matched) of each reference render against the highest-spp "
+            "reference of its axis for the same scene, over that reference's metric mask; mean over scenes; "
+            "computed from the saved float references (`reference.npy`).",
+            "",
+        ]
+        rows = []
+        for (axis, setting), g in spp.groupby(["axis", "setting"], sort=False):
+            n = int(g["knob.spp"].iloc[0]) if "knob.spp" in g and g["knob.spp"].notna().any() else None
+            top = n is not None and n == spp.loc[spp["axis"] == axis, "knob.spp"].max()
+            v = table.loc[setting, "reference_psnr_vs_max_spp"] if setting in table.index else float("nan")
+            rows.append(
+                [
+                    str(setting),
+                    str(n) if n is not None else "—",
+                    "(highest spp: the comparison reference)" if top else _fmt(v),
+                ]
+            )
+        lines += pipe_table(["setting", "spp", "PSNR vs max spp"], rows, [None, "right", "right"])
+    notes = []
+    for _, r in df[df["status"] != "ok"].iterrows():
+        notes.append(f"{r['status']}: {r['scene']} / {r['setting']} — {' '.join(str(r['reason']).split())}")
+    for m in RECORD_METRICS:
+        col = f"missing.{m}"
+        ok = df[df["status"] == "ok"]
+        if col in ok and ok[m].isna().any():
+            for why, n in Counter(str(v) for v in ok.loc[ok[m].isna(), col]).items():
+                notes.append(f"{m}: missing in {n} of {len(ok)} ok runs — {' '.join(why.split())}")
+    if notes:
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
+    return "\n".join(lines) + "\n"
+
+
+def _is_spp_axis_row(r) -> bool:
+    try:
+        return (
+            r["status"] == "ok"
+            and isinstance(r["axis"], str)
+            and r["axis"] != PRESET_AXIS
+            and set(json.loads(r["overrides"])) == {SPP_KEY}
+        )
+    except (TypeError, ValueError):
+        return False
+
+
+def stdout_table(table: pd.DataFrame) -> str:
+    """The per-setting summary printed at the end of a sweep.
+
+    Args:
+        table: from :func:`tradeoff_table`.
+
+    Returns:
+        Total and sampling seconds, PSNR, PSNR (conv.), PSNR (true), ok/all scenes and the Pareto
+        flag per setting, as a fixed-width text table.
+    """
+    t = pd.DataFrame(
+        {
+            "total s": table["timings_s.total"].map(lambda v: _fmt(v)),
+            "sampling s": table["timings_s.sampling"].map(lambda v: _fmt(v)),
+            "PSNR": table["psnr"].map(lambda v: _fmt(v)),
+            "PSNR conv": table["psnr_converged"].map(lambda v: _fmt(v)),
+            "PSNR true": table["psnr_true"].map(lambda v: _fmt(v)),
+            "n": [f"{int(a)}/{int(b)}" for a, b in zip(table["n"], table["n_scenes"])],
+            "pareto": table["pareto"].map(lambda v: "*" if v else ""),
+        },
+        index=table.index,
+    )
+    return t.to_string()

@@ -1,0 +1,199 @@
+"""Scoring one generated image of an experiment: the run's scorers, built once, and every metric
+of one cell with the reason for each missing one.
+
+- :func:`load_scorers` builds the weight-backed scorers (LPIPS, CLIP, ImageReward) from the
+  ``metrics`` config. A scorer that cannot be built, for any reason (weights not configured, a
+  broken weights file), is kept as the :class:`~snell_bench.metrics.fidelity.MetricUnavailable`
+  that says why: building never raises.
+- :func:`score_cell` scores one image: the metrics of :data:`METRIC_NAMES` against the reference
+  and the prompt, and ``psnr_true`` against the true render over the object mask.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+import torch
+
+from .alignment import METRIC_NAMES, CLIPScore, ImageRewardScorer, ScoreResult, score_all
+from .fidelity import MaskedLPIPS, MetricUnavailable, masked_psnr
+
+__all__ = ["PROMPT_METRICS", "REFERENCE_METRICS", "SCORER_NAMES", "Scorers", "load_scorers", "score_cell"]
+
+#: The metrics of :data:`METRIC_NAMES` scored against the prompt alone (no reference needed).
+PROMPT_METRICS = ("clip", "image_reward")
+
+#: The metrics of :data:`METRIC_NAMES` scored against the reference over the metric mask.
+REFERENCE_METRICS = tuple(name for name in METRIC_NAMES if name not in PROMPT_METRICS)
+
+#: The metrics whose scorer needs weights or a program (built by :func:`load_scorers`).
+SCORER_NAMES = ("lpips", "clip", "image_reward")
+
+
+class Scorers(dict):
+    """The weight-backed scorers of one run, by metric name (:data:`SCORER_NAMES`).
+
+    Each value is the scorer, or the :class:`MetricUnavailable` its constructor raised, or None
+    (not configured). Being a dict of the :func:`score_all` keywords, ``score_all(..., **scorers)``
+    works as well.
+    """
+
+    def scorer(self, name: str) -> Any | None:
+        """The scorer of ``name``, or None when it is missing."""
+        value = self.get(name)
+        return None if isinstance(value, MetricUnavailable) else value
+
+    @property
+    def lpips(self) -> MaskedLPIPS | None:
+        """The LPIPS scorer, or None."""
+        return self.scorer("lpips")
+
+    @property
+    def clip(self) -> CLIPScore | None:
+        """The CLIP scorer, or None."""
+        return self.scorer("clip")
+
+    @property
+    def image_reward(self) -> ImageRewardScorer | None:
+        """The ImageReward scorer, or None."""
+        return self.scorer("image_reward")
+
+    @property
+    def reasons(self) -> dict[str, str]:
+        """``{name: why it is missing}`` for the scorers that could not be built."""
+        return {k: v.reason for k, v in self.items() if isinstance(v, MetricUnavailable)}
+
+
+def _build(factory: Callable[[], Any]) -> Any:
+    try:
+        return factory()
+    except MetricUnavailable as e:
+        return e
+    except Exception as e:  # a broken weights file must not stop the run: it becomes the reason
+        return MetricUnavailable(f"{type(e).__name__}: {e}")
+
+
+def load_scorers(metrics_cfg: Any = None, *, device: str | torch.device = "cpu") -> Scorers:
+    """Build the weight-backed scorers of a run, once.
+
+    Args:
+        metrics_cfg: a config with ``lpips_weights``, ``clip_weights`` and ``image_reward_python``
+            (``MetricsConfig``, a DictConfig or a mapping; a missing key or ``None``: unset, and
+            the scorer looks in its default places).
+        device: where LPIPS and CLIP run.
+
+    Returns:
+        :class:`Scorers` with ``"lpips"``, ``"clip"`` and ``"image_reward"``, each the scorer or
+        the :class:`MetricUnavailable` saying why it is missing: its constructor's own reason
+        (which names the config key to set), or ``"<exception type>: <message>"`` for any other
+        error (e.g. a weights file that does not load). Never raises for a scorer that cannot be
+        built.
+    """
+
+    def get(key):
+        if metrics_cfg is None:
+            return None
+        if isinstance(metrics_cfg, Mapping):
+            return metrics_cfg.get(key)
+        return getattr(metrics_cfg, key, None)
+
+    return Scorers(
+        lpips=_build(lambda: MaskedLPIPS(get("lpips_weights"), device=device)),
+        clip=_build(lambda: CLIPScore(get("clip_weights"), device=device)),
+        image_reward=_build(lambda: ImageRewardScorer(get("image_reward_python"), device=str(device))),
+    )
+
+
+def _finite(x):
+    """NaN and infinities (PSNR of identical pixels) are not table values: None."""
+    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
+
+
+def _hwc(image: Any) -> Any:
+    """A torch image ``(1, 3, H, W)`` or ``(3, H, W)`` as numpy ``(H, W, 3)``; others as given."""
+    if isinstance(image, torch.Tensor):
+        t = image.detach().cpu()
+        return (t[0] if t.ndim == 4 else t).permute(1, 2, 0).numpy()
+    return image
+
+
+def score_cell(
+    generated: Any,
+    reference: np.ndarray | None,
+    mask: np.ndarray | None,
+    prompt: str,
+    scorers: Mapping[str, Any] | None = None,
+    *,
+    reference_reason: str | None = None,
+    true_render: np.ndarray | None = None,
+    object_mask: np.ndarray | None = None,
+    generated_path: str | os.PathLike | None = None,
+) -> ScoreResult:
+    """Every metric of one generated image, each a float or None with the reason.
+
+    With a reference, the metrics of :data:`METRIC_NAMES` are those of :func:`score_all`
+    (PSNR, MAE, LPIPS: masked, grayscale, histogram-matched; CLIP and ImageReward: the full image
+    against ``prompt``). Without one (``reference is None``), PSNR, MAE and LPIPS are None with
+    ``reference_reason`` (default ``"no reference"``), CLIP is still scored, and ImageReward is
+    None. Then, for each scorer that could not be built, its reason replaces the recorded one
+    wherever its metric has no value. With ``true_render``, ``psnr_true`` is the masked PSNR
+    (same protocol) of the image against it over ``object_mask``. Last, NaN and infinite values
+    (e.g. the PSNR of identical pixels) become None.
+
+    Args:
+        generated: the image, numpy ``(H, W, 3)`` in [0, 1] or torch ``(1, 3, H, W)`` / ``(3, H, W)``.
+        reference: the reference render ``(H, W, 3)``, or None when there is none.
+        mask: the metric mask ``(H, W)`` of the reference.
+        prompt: the full prompt (object phrase included).
+        scorers: from :func:`load_scorers` (any mapping of metric name to scorer,
+            :class:`MetricUnavailable` or None); None: no scorer is configured.
+        reference_reason: why there is no reference, for PSNR, MAE and LPIPS.
+        true_render: the true render ``(H, W, 3)``, if any.
+        object_mask: the object's pixels ``(H, W)``, where ``psnr_true`` is scored.
+        generated_path: the saved image, handed to ImageReward as is.
+
+    Returns:
+        ``{"metrics": {name: float | None}, "missing": {name: reason}}``: the names of
+        :data:`METRIC_NAMES` in order, then ``psnr_true`` when ``true_render`` is given.
+
+    Raises:
+        ValueError: ``true_render`` without ``object_mask``.
+    """
+    if true_render is not None and object_mask is None:
+        raise ValueError("score_cell: true_render needs the object_mask it is scored over")
+    scorers = scorers if isinstance(scorers, Scorers) else Scorers(scorers or {})
+    gen = _hwc(generated)
+    if reference is None:
+        metrics: dict[str, float | None] = {name: None for name in METRIC_NAMES}
+        missing = {name: reference_reason or "no reference" for name in REFERENCE_METRICS}
+        if scorers.clip is not None:
+            try:
+                metrics["clip"] = float(scorers.clip(gen, prompt))
+            except MetricUnavailable as e:
+                missing["clip"] = e.reason
+    else:
+        out = score_all(
+            gen,
+            reference,
+            mask,
+            prompt,
+            lpips=scorers.lpips,
+            clip=scorers.clip,
+            image_reward=scorers.image_reward,
+            generated_path=generated_path,
+        )
+        metrics, missing = out["metrics"], out["missing"]
+    for name, reason in scorers.reasons.items():
+        if metrics.get(name) is None:
+            missing[name] = reason
+    if true_render is not None:
+        try:
+            metrics["psnr_true"] = float(masked_psnr(gen, true_render, object_mask))
+        except MetricUnavailable as e:
+            metrics["psnr_true"] = None
+            missing["psnr_true"] = e.reason
+    return {"metrics": {k: _finite(v) for k, v in metrics.items()}, "missing": missing}
