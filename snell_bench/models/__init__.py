@@ -1,14 +1,15 @@
 """Generators (the model backends) behind one protocol, and a registry that builds them by name.
 
-Convention
-----------
-- Every backend implements :class:`~snell_bench.models.base.Generator` (see its docstring for the
-  image, latent, flow-matching and randomness conventions).
-- Backends are registered as ``"module:attribute"`` import paths and imported only when built, so
-  ``import snell_bench.models`` never imports diffusers or transformers, and a backend whose
-  module is missing does not break the others.
-- Names: ``flux`` / ``flux_dev`` (FLUX.1-dev from local weights, keyword ``path`` or
-  ``model_id_or_path``), ``tiny_flux`` (random toy FLUX, CPU), ``analytic`` (CPU, no weights).
+Convention:
+    - Every backend implements :class:`~snell_bench.models.base.Generator` (see its docstring for the
+      image, latent, flow-matching and randomness conventions).
+    - Backends are registered as ``"module:attribute"`` import paths and imported only when built, so
+      ``import snell_bench.models`` never imports diffusers or transformers, and a backend whose
+      module is missing does not break the others.
+    - Names: ``flux`` / ``flux_dev`` (FLUX.1-dev from local weights, keyword ``path`` or
+      ``model_id_or_path``), ``tiny_flux`` (random toy FLUX, CPU), ``analytic`` (CPU, no weights).
+    - Dtypes are given as a ``torch.dtype`` or a name that :func:`parse_dtype` reads
+      (``"bfloat16"`` / ``"bf16"``, ``"float16"`` / ``"fp16"`` / ``"half"``, ``"float32"`` / ``"fp32"``).
 """
 
 from __future__ import annotations
@@ -16,10 +17,12 @@ from __future__ import annotations
 import importlib
 from typing import Any, Callable
 
-from .base import Condition, Generator, LatentGeometry
+from .base import SCHEDULES, Condition, Generator, LatentGeometry
+from .devices import parse_dtype
 from .errors import DeviceNotAvailableError, WeightsNotFoundError
 
 __all__ = [
+    "SCHEDULES",
     "Condition",
     "DeviceNotAvailableError",
     "Generator",
@@ -27,6 +30,7 @@ __all__ = [
     "WeightsNotFoundError",
     "available_generators",
     "build_generator",
+    "parse_dtype",
     "register_generator",
 ]
 
@@ -85,8 +89,17 @@ def available_generators() -> list[str]:
 def build_generator(name: str, **kwargs: Any) -> Generator:
     """Build the generator registered as ``name`` with ``kwargs``.
 
-    Raises ``KeyError`` for an unknown name and ``ImportError`` when the backend's module is
-    missing."""
+    Args:
+        name: a registered name (case-insensitive; ``-`` and ``_`` are the same).
+        **kwargs: passed to the backend's class or factory.
+
+    Returns:
+        The generator.
+
+    Raises:
+        KeyError: for an unknown name.
+        ImportError: when the backend's module is missing.
+    """
     key = name.lower().replace("-", "_")
     if key not in _REGISTRY:
         raise KeyError(f"unknown generator {name!r}; registered: {sorted(_REGISTRY)}")

@@ -4,47 +4,48 @@ This is a stand-in for FLUX, not a generative model of images. It lets every mec
 synchronized sampler (warping, blending, time travel, Fresnel, ablations) run, and be measured, on
 a CPU in seconds, with answers that are known in closed form.
 
-Convention
-----------
-- Latent space: a fixed invertible transform of pixels. An sRGB image in [0, 1] is centred
-  (``2x - 1``), unshuffled into ``f x f`` blocks (``f = downscale``, 8 like FLUX's VAE, giving
-  ``3 f^2`` channels) and mixed by a fixed orthogonal matrix drawn from ``seed``. ``decode`` is the
-  exact inverse, clamped to [0, 1] as a VAE's output would be; so decode -> warp -> encode is a
-  real round trip through a latent space, not a no-op.
-- Data distribution: every latent coordinate is independent Gaussian, ``x0 ~ N(mu, s^2)``, with
-  ``mu = encode(prior image)`` per view and ``s = prior_std``. With ``z = (1 - sigma) x0 + sigma eps``
-  the exact posterior mean is ``E[x0 | z] = mu + k (z - (1 - sigma) mu)``,
-  ``k = (1 - sigma) s^2 / ((1 - sigma)^2 s^2 + sigma^2)``, and the model returns the exact velocity
-  ``v = (z - E[x0 | z]) / sigma`` (so the Euler estimate ``z - sigma v`` is that posterior mean).
-- Priors: the *main* view's prior is I⁻ with an optically wrong glass "blob" in the object region,
-  the way text-to-image models fail at glass: the background seen straight through (no
-  refraction, no flip), softened, tinted, with a specular highlight and a dark rim. The *panorama*
-  prior is the scene's true panorama from the object's centre.
-- Uncertainty: ``s`` is ``prior_std`` where the model is sure of itself (the room, the panorama)
-  and ``glass_std`` in the latent blocks that touch the object, where a text-to-image model does
-  not know what glass shows. ``glass_std`` is the model's *strength* against synchronisation: a
-  small value pulls every estimate in the glass back to the blob; a large one lets the estimate
-  follow the latent, so the blended (warped) estimates win. Different ``s`` per latent position
-  keep the posterior exact: the latent transform mixes only within a block, where ``s`` is constant.
+Convention:
+    - Latent space: a fixed invertible transform of pixels. An sRGB image in [0, 1] is centred
+      (``2x - 1``), unshuffled into ``f x f`` blocks (``f = downscale``, 8 like FLUX's VAE, giving
+      ``3 f^2`` channels) and mixed by a fixed orthogonal matrix drawn from ``seed``. ``decode`` is the
+      exact inverse, clamped to [0, 1] as a VAE's output would be; so decode -> warp -> encode is a
+      real round trip through a latent space, not a no-op.
+    - Data distribution: every latent coordinate is independent Gaussian, ``x0 ~ N(mu, s^2)``, with
+      ``mu = encode(prior image)`` per view and ``s = prior_std``. With ``z = (1 - sigma) x0 + sigma eps``
+      the exact posterior mean is ``E[x0 | z] = mu + k (z - (1 - sigma) mu)``,
+      ``k = (1 - sigma) s^2 / ((1 - sigma)^2 s^2 + sigma^2)``, and the model returns the exact velocity
+      ``v = (z - E[x0 | z]) / sigma`` (so the Euler estimate ``z - sigma v`` is that posterior mean).
+    - Priors: the *main* view's prior is I⁻ with an optically wrong glass "blob" in the object region,
+      the way text-to-image models fail at glass: the background seen straight through (no
+      refraction, no flip), softened, tinted, with a specular highlight and a dark rim. The *panorama*
+      prior is the scene's true panorama from the object's centre.
+    - Uncertainty: ``s`` is ``prior_std`` where the model is sure of itself (the room, the panorama)
+      and ``glass_std`` in the latent blocks that touch the object, where a text-to-image model does
+      not know what glass shows. ``glass_std`` is the model's *strength* against synchronisation: a
+      small value pulls every estimate in the glass back to the blob; a large one lets the estimate
+      follow the latent, so the blended (warped) estimates win. Different ``s`` per latent position
+      keep the posterior exact: the latent transform mixes only within a block, where ``s`` is constant.
 """
 
 from __future__ import annotations
 
 import math
 
-import numpy as np
 import torch
 import torch.nn.functional as F
+from kornia.filters import filter2d_separable
 
-from snell_bench.models.base import Condition, LatentGeometry
+from snell_bench.models.base import Condition, LatentGeometry, check_schedule
+from snell_bench.sampler.schedule import flux_sigmas, linear_sigmas
+from snell_bench.utils.tensors import as_tensor, hwc_to_bchw
 
 __all__ = ["AnalyticGenerator", "glass_blob_prior"]
 
 
 def _as_image(x) -> torch.Tensor:
-    t = torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x, dtype=torch.float32)
+    t = as_tensor(x, dtype=torch.float32)
     if t.ndim == 3 and t.shape[-1] == 3:  # (H, W, 3) numpy layout
-        t = t.permute(2, 0, 1)
+        t = hwc_to_bchw(t)
     if t.ndim == 3:
         t = t[None]
     if t.ndim != 4 or t.shape[1] != 3:
@@ -52,15 +53,39 @@ def _as_image(x) -> torch.Tensor:
     return t.contiguous()
 
 
+def _blur(img: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Separable Gaussian blur of ``(B, C, H, W)`` with standard deviation ``sigma`` (pixels), a
+    kernel of ``2 ceil(2.5 sigma) + 1`` taps, and the border replicated."""
+    k = int(2 * math.ceil(2.5 * sigma) + 1)
+    # the kernel is computed here rather than by kornia's gaussian_blur2d, which rounds sigma to
+    # float32 before squaring it: its weights can differ in the last bit, and so would every prior
+    g = torch.exp(-((torch.arange(k) - k // 2).float() ** 2) / (2 * sigma**2))
+    g = (g / g.sum())[None]
+    return filter2d_separable(img, g, g, border_type="replicate")
+
+
 def glass_blob_prior(i_minus, object_mask, *, blur_px: float | None = None) -> torch.Tensor:
-    """I⁻ with an optically wrong glass blob in ``object_mask`` ``(H, W)``: ``(1, 3, H, W)``.
+    """I⁻ with an optically wrong glass blob in the object mask.
 
     Inside the mask: the background straight through (no refraction), blurred, slightly tinted
     and brightened, plus a soft highlight at the upper left and a darker rim: what a model that does
     not know optics paints for "a glass sphere".
+
+    Args:
+        i_minus: the object-free image, ``(H, W, 3)`` or ``(1, 3, H, W)``, sRGB in [0, 1].
+        object_mask: boolean ``(H, W)``, where the object is.
+        blur_px: the Gaussian blur's standard deviation in pixels (default: the object's
+            radius / 12, at least 1); the kernel spans ``2 ceil(2.5 blur_px) + 1`` pixels and the
+            image's border is replicated.
+
+    Returns:
+        The prior image ``(1, 3, H, W)``.
+
+    Raises:
+        ValueError: if the mask's size is not the image's.
     """
     img = _as_image(i_minus)
-    mask = torch.as_tensor(np.asarray(object_mask), dtype=torch.bool)
+    mask = as_tensor(object_mask, dtype=torch.bool)
     if mask.shape != img.shape[-2:]:
         raise ValueError(f"object mask {tuple(mask.shape)} does not match the image {tuple(img.shape[-2:])}")
     if not mask.any():
@@ -68,13 +93,7 @@ def glass_blob_prior(i_minus, object_mask, *, blur_px: float | None = None) -> t
     ys, xs = torch.nonzero(mask, as_tuple=True)
     cy, cx = ys.float().mean(), xs.float().mean()
     radius = max(float((ys.max() - ys.min() + 1).item()), float((xs.max() - xs.min() + 1).item())) / 2
-    sigma = blur_px if blur_px is not None else max(1.0, radius / 12)
-    k = int(2 * math.ceil(2.5 * sigma) + 1)
-    g = torch.exp(-((torch.arange(k) - k // 2).float() ** 2) / (2 * sigma**2))
-    g = g / g.sum()
-    pad = k // 2
-    blurred = F.conv2d(F.pad(img, (pad, pad, 0, 0), mode="replicate"), g.view(1, 1, 1, k).repeat(3, 1, 1, 1), groups=3)
-    blurred = F.conv2d(F.pad(blurred, (0, 0, pad, pad), mode="replicate"), g.view(1, 1, k, 1).repeat(3, 1, 1, 1), groups=3)
+    blurred = _blur(img, blur_px if blur_px is not None else max(1.0, radius / 12))
     H, W = mask.shape
     yy, xx = torch.meshgrid(torch.arange(H).float(), torch.arange(W).float(), indexing="ij")
     r = torch.sqrt((yy - cy) ** 2 + (xx - cx) ** 2) / max(radius, 1.0)
@@ -88,7 +107,21 @@ def glass_blob_prior(i_minus, object_mask, *, blur_px: float | None = None) -> t
 
 
 class AnalyticGenerator:
-    """Exact velocity of a per-coordinate Gaussian data distribution (see the module docs)."""
+    """Exact velocity of a per-coordinate Gaussian data distribution (see the module docs).
+
+    Args:
+        main_prior: the main view's prior image, ``(H, W, 3)`` or ``(1, 3, H, W)``.
+        pano_prior: the panorama's prior image (``None``: no panorama view).
+        prior_std: the data distribution's standard deviation where the model is sure.
+        glass_std: the standard deviation in the latent blocks touching ``glass_mask``.
+        glass_mask: boolean ``(H, W)`` of the main view, where the model is unsure.
+        downscale: the latent block size ``f``.
+        seed: draws the latent transform's orthogonal matrix.
+
+    Raises:
+        ValueError: for a non-positive or infinite standard deviation, a bad ``downscale``, or
+            prior sizes that are not multiples of it.
+    """
 
     name = "analytic"
 
@@ -136,7 +169,7 @@ class AnalyticGenerator:
         self._priors[view] = self.encode(img)
         std = torch.full((1, 1, h, w), self.prior_std)
         if glass_mask is not None:
-            m = torch.as_tensor(np.asarray(glass_mask), dtype=torch.float32)
+            m = as_tensor(glass_mask, dtype=torch.float32)
             if m.shape != img.shape[-2:]:
                 raise ValueError(f"glass mask {tuple(m.shape)} does not match the prior {tuple(img.shape[-2:])}")
             touched = F.max_pool2d(m[None, None], self.downscale) > 0
@@ -156,6 +189,31 @@ class AnalyticGenerator:
     def decode(self, latents: torch.Tensor) -> torch.Tensor:
         x = torch.einsum("dc,bdhw->bchw", self._mix, latents.float())
         return ((F.pixel_shuffle(x, self.downscale) + 1) / 2).clamp(0, 1)
+
+    # ------------------------------------------------------------------ schedule
+    def sigmas(self, num_steps: int, height: int, width: int, kind: str = "flux") -> torch.Tensor:
+        """The noise schedule, from the float64 closed forms of :mod:`snell_bench.sampler.schedule`.
+
+        Args:
+            num_steps: the number of denoising steps ``T``.
+            height: the image height in pixels (a multiple of ``downscale``).
+            width: the image width in pixels.
+            kind: ``"flux"``: FLUX.1-dev's shifted schedule (base/max sequence length 256/4096,
+                shift 0.5/1.15) for ``(h / 2) (w / 2)`` tokens of this model's ``h x w`` latent
+                grid; ``"linear"``: ``1, 1 - 1/T, ..., 0``.
+
+        Returns:
+            A float64 tensor ``(T + 1,)``, decreasing from 1 to 0.
+
+        Raises:
+            ValueError: for an unknown kind, a bad step count or an image size that is not a
+                multiple of ``downscale``.
+        """
+        check_schedule(kind, num_steps)
+        if kind == "linear":
+            return linear_sigmas(num_steps)
+        _, h, w = self.geometry.latent_shape(height, width)
+        return flux_sigmas(num_steps, (h // 2) * (w // 2))
 
     # ------------------------------------------------------------------ model
     def condition(self, prompts: list[str], views: list[str]) -> Condition:

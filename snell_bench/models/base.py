@@ -1,14 +1,16 @@
 """The generator protocol every backend implements (analytic, FLUX, tiny FLUX).
 
-Convention
-----------
-- Images: float32 tensors ``(B, 3, H, W)``, sRGB-encoded, in [0, 1].
-- Latents: *unpacked* float tensors ``(B, C, h, w)`` with ``h = H / downscale``; a backend that
-  packs latents internally (FLUX: ``(B, N, 4C)``) does so inside :meth:`Generator.velocity`.
-- Flow matching (rectified flow): ``z_sigma = (1 - sigma) x0 + sigma eps``; the model's velocity
-  is ``v = eps - x0``, so the Euler estimate of the clean latent is ``x0_hat = z - sigma v``.
-- ``sigma``: a float or a ``(B,)`` tensor in (0, 1].
-- Randomness comes only from the ``torch.Generator`` passed in (bitwise reproducible on CPU).
+Convention:
+    - Images: float32 tensors ``(B, 3, H, W)``, sRGB-encoded, in [0, 1].
+    - Latents: *unpacked* float tensors ``(B, C, h, w)`` with ``h = H / downscale``; a backend that
+      packs latents internally (FLUX: ``(B, N, 4C)``) does so inside :meth:`Generator.velocity`.
+    - Flow matching (rectified flow): ``z_sigma = (1 - sigma) x0 + sigma eps``; the model's velocity
+      is ``v = eps - x0``, so the Euler estimate of the clean latent is ``x0_hat = z - sigma v``.
+    - ``sigma``: a float or a ``(B,)`` tensor in (0, 1].
+    - Schedules: :meth:`Generator.sigmas` gives ``T + 1`` noise levels ``1 = sigma_0 > ... >
+      sigma_T = 0`` (step ``i`` goes from ``sigmas[i]`` to ``sigmas[i + 1]``), of a kind in
+      :data:`SCHEDULES`: ``"flux"`` (the backend's own resolution-shifted schedule) or ``"linear"``.
+    - Randomness comes only from the ``torch.Generator`` passed in (bitwise reproducible on CPU).
 """
 
 from __future__ import annotations
@@ -18,7 +20,26 @@ from typing import Any, Protocol, runtime_checkable
 
 import torch
 
-__all__ = ["Condition", "Generator", "LatentGeometry"]
+__all__ = ["SCHEDULES", "Condition", "Generator", "LatentGeometry", "check_schedule"]
+
+#: Schedule kinds every backend's :meth:`Generator.sigmas` accepts.
+SCHEDULES = ("flux", "linear")
+
+
+def check_schedule(kind: str, num_steps: int) -> None:
+    """Validate the arguments of :meth:`Generator.sigmas`.
+
+    Args:
+        kind: the schedule kind, one of :data:`SCHEDULES`.
+        num_steps: the number of denoising steps.
+
+    Raises:
+        ValueError: for an unknown kind or a step count that is not a positive integer.
+    """
+    if kind not in SCHEDULES:
+        raise ValueError(f"unknown schedule {kind!r} (config key sampler.schedule); use one of {SCHEDULES}")
+    if isinstance(num_steps, bool) or int(num_steps) != num_steps or num_steps < 1:
+        raise ValueError(f"the number of steps must be a positive integer, got {num_steps!r}")
 
 
 @dataclass
@@ -46,6 +67,11 @@ class LatentGeometry:
     multiple: int
 
     def latent_shape(self, height: int, width: int) -> tuple[int, int, int]:
+        """The latent shape ``(C, h, w)`` of an image of ``height x width`` pixels.
+
+        Raises:
+            ValueError: if the size is not a multiple of ``multiple``.
+        """
         if height % self.multiple or width % self.multiple:
             raise ValueError(
                 f"image size {height}x{width} must be a multiple of {self.multiple} for this generator; "
@@ -76,4 +102,23 @@ class Generator(Protocol):
 
     def velocity(self, z: torch.Tensor, sigma, cond: Condition) -> torch.Tensor:
         """The flow-matching velocity ``(B, C, h, w)`` at noise level ``sigma``."""
+        ...
+
+    def sigmas(self, num_steps: int, height: int, width: int, kind: str = "flux") -> torch.Tensor:
+        """The noise schedule for sampling ``height x width`` images in ``num_steps`` steps.
+
+        Args:
+            num_steps: the number of denoising steps ``T`` (a positive integer).
+            height: the image height in pixels (a multiple of ``geometry.multiple``).
+            width: the image width in pixels.
+            kind: ``"flux"`` (the backend's resolution-shifted schedule) or ``"linear"``
+                (``1, 1 - 1/T, ..., 0``), see :data:`SCHEDULES`.
+
+        Returns:
+            A float CPU tensor ``(num_steps + 1,)`` (float64 in the backends here), decreasing
+            from 1 to 0.
+
+        Raises:
+            ValueError: for an unknown kind, a bad step count or an image size the geometry rejects.
+        """
         ...

@@ -1,9 +1,9 @@
 """Errors raised by the model backends, with messages that say which config key to change.
 
-Convention
-----------
-- Every message names the config key that fixes the problem (``model.path``, ``model.device``).
-- Both classes subclass :class:`RuntimeError`, so generic handlers keep working.
+Convention:
+    - Every message names the config key that fixes the problem (``model.path``, ``model.device``,
+      ``method.model_id``).
+    - Both classes subclass :class:`RuntimeError`, so generic handlers keep working.
 """
 
 from __future__ import annotations

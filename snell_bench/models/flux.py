@@ -1,26 +1,25 @@
 """FLUX (diffusers) as a :class:`~snell_bench.models.base.Generator`: VAE, text conditioning and the
 transformer's velocity, with the sampling loop left to the caller.
 
-Convention
-----------
-- Images: float32 ``(B, 3, H, W)`` in [0, 1], ``H`` and ``W`` multiples of 16. The VAE sees
-  ``2 x - 1``; latents are normalised as in FLUX: ``z = (mean_or_sample - shift) * scale``
-  (FLUX.1-dev: shift 0.1159, scale 0.3611), and ``decode`` inverts it and clamps to [0, 1].
-- Latents: unpacked ``(B, 16, H/8, W/8)``. The transformer sees them packed into 2x2 patches,
-  ``(B, (h/2)(w/2), 64)`` (diffusers' ``FluxPipeline._pack_latents``), with image position ids
-  ``(row, col)`` of the patch grid (``_prepare_latent_image_ids``); :meth:`FluxGenerator.velocity`
-  packs and unpacks internally.
-- Flow matching: ``z_sigma = (1 - sigma) x0 + sigma eps`` and the transformer predicts
-  ``v = eps - x0``. The transformer's ``timestep`` input is ``sigma`` itself (``FluxPipeline`` passes
-  ``t / 1000`` with ``t = 1000 sigma``; the model multiplies by 1000 inside).
-- Guidance: FLUX.1-dev is guidance-distilled: the guidance scale (default 3.5) is an input of the
-  transformer (a ``(B,)`` tensor), not classifier-free guidance; one model call per velocity.
-- Precision and placement: the model runs in bfloat16 on CUDA and float32 on the CPU (unless
-  ``dtype`` is given). Outputs come back on the input's device: ``encode`` / ``decode`` give
-  float32, ``velocity`` gives ``z``'s dtype. A :class:`Condition` lives on the model's device.
-- Every call runs under :func:`torch.no_grad`; every module is in eval mode.
-- Randomness: only ``encode(..., generator=g)`` draws (the VAE posterior sample); everything else
-  is deterministic.
+Convention:
+    - Images: float32 ``(B, 3, H, W)`` in [0, 1], ``H`` and ``W`` multiples of 16. The VAE sees
+      ``2 x - 1``; latents are normalised as in FLUX: ``z = (mean_or_sample - shift) * scale``
+      (FLUX.1-dev: shift 0.1159, scale 0.3611), and ``decode`` inverts it and clamps to [0, 1].
+    - Latents: unpacked ``(B, 16, H/8, W/8)``. The transformer sees them packed into 2x2 patches,
+      ``(B, (h/2)(w/2), 64)`` (diffusers' ``FluxPipeline._pack_latents``), with image position ids
+      ``(row, col)`` of the patch grid (``_prepare_latent_image_ids``); :meth:`FluxGenerator.velocity`
+      packs and unpacks internally.
+    - Flow matching: ``z_sigma = (1 - sigma) x0 + sigma eps`` and the transformer predicts
+      ``v = eps - x0``. The transformer's ``timestep`` input is ``sigma`` itself (``FluxPipeline`` passes
+      ``t / 1000`` with ``t = 1000 sigma``; the model multiplies by 1000 inside).
+    - Guidance: FLUX.1-dev is guidance-distilled: the guidance scale (default 3.5) is an input of the
+      transformer (a ``(B,)`` tensor), not classifier-free guidance; one model call per velocity.
+    - Precision and placement: the model runs in bfloat16 on CUDA and float32 on the CPU (unless
+      ``dtype`` is given). Outputs come back on the input's device: ``encode`` / ``decode`` give
+      float32, ``velocity`` gives ``z``'s dtype. A :class:`Condition` lives on the model's device.
+    - Every call runs under :func:`torch.no_grad`; every module is in eval mode.
+    - Randomness: only ``encode(..., generator=g)`` draws (the VAE posterior sample); everything else
+      is deterministic.
 """
 
 from __future__ import annotations
@@ -33,8 +32,12 @@ from typing import Any, Sequence
 
 import torch
 
-from .base import Condition, LatentGeometry
-from .errors import DeviceNotAvailableError, WeightsNotFoundError
+from snell_bench.sampler.schedule import linear_sigmas
+
+from .base import Condition, LatentGeometry, check_schedule
+from .devices import default_dtype, dtype_kwarg, parse_dtype
+from .devices import resolve_device as _resolve_device
+from .errors import WeightsNotFoundError
 
 __all__ = ["FLUX_DEV_ID", "FluxGenerator", "resolve_device", "resolve_weights_folder"]
 
@@ -45,6 +48,14 @@ FLUX_DEV_ID = "black-forest-labs/FLUX.1-dev"
 #: Sub-folders of a diffusers FLUX layout.
 FLUX_COMPONENTS = ("scheduler", "text_encoder", "text_encoder_2", "tokenizer", "tokenizer_2", "transformer", "vae")
 VIEWS = ("main", "pano")
+
+#: Scheduler options that :meth:`FluxGenerator.sigmas` leaves to ``set_timesteps``.
+_SCHEDULER_OPTIONS_VIA_SET_TIMESTEPS = (
+    "shift_terminal",
+    "use_karras_sigmas",
+    "use_exponential_sigmas",
+    "use_beta_sigmas",
+)
 
 _REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[\w.-]+$")
 
@@ -66,13 +77,23 @@ def _weights_help(what: str) -> str:
 def resolve_weights_folder(model_id_or_path: str | os.PathLike, *, local_files_only: bool = True, revision: str | None = None) -> str:
     """The local folder of a diffusers FLUX pipeline, from a folder path or a Hugging Face id.
 
-    Convention
-    ----------
-    - An existing folder must contain ``model_index.json``.
-    - A hub id (``owner/name``, not an existing path) is looked up in the Hugging Face cache only
-      (``HF_HOME`` / ``HF_HUB_CACHE`` are honoured); with ``local_files_only=False`` the id is
-      returned unchanged and diffusers may download it.
-    - Anything else raises :class:`WeightsNotFoundError` naming the config key ``model.path``.
+    Convention:
+        - An existing folder must contain ``model_index.json``.
+        - A hub id (``owner/name``, not an existing path) is looked up in the Hugging Face cache only
+          (``HF_HOME`` / ``HF_HUB_CACHE`` are honoured); with ``local_files_only=False`` the id is
+          returned unchanged and diffusers may download it.
+
+    Args:
+        model_id_or_path: a local folder or a Hugging Face id (config key ``model.path``).
+        local_files_only: look a hub id up in the local cache only.
+        revision: the hub revision to look up.
+
+    Returns:
+        The folder (or, with ``local_files_only=False``, possibly the hub id itself).
+
+    Raises:
+        WeightsNotFoundError: naming the config key ``model.path``, when the folder or the cached
+            snapshot is missing or has no ``model_index.json``.
     """
     text = os.fspath(model_id_or_path)
     path = Path(text).expanduser()
@@ -98,49 +119,27 @@ def resolve_weights_folder(model_id_or_path: str | os.PathLike, *, local_files_o
 
 
 def resolve_device(device: str | torch.device | None) -> torch.device:
-    """``None`` / ``"auto"`` / ``"cuda[:i]"`` need a CUDA device; ``"cpu"`` forces the CPU.
+    """The device FLUX runs on: ``None`` / ``"auto"`` / ``"cuda[:i]"`` need CUDA; ``"cpu"`` forces the CPU.
 
-    Raises :class:`DeviceNotAvailableError` naming the config key ``model.device`` when CUDA is
-    asked for (explicitly or by default) and missing."""
-    if device is None or str(device) == "auto":
-        device = "cuda"
-    dev = torch.device(device)
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise DeviceNotAvailableError(
+    Args:
+        device: the requested device (config key ``model.device``).
+
+    Returns:
+        The device.
+
+    Raises:
+        DeviceNotAvailableError: naming the config key ``model.device``, when CUDA is asked for
+            (explicitly or by default) and missing.
+    """
+    return _resolve_device(
+        device,
+        unavailable=(
             "FLUX.1-dev needs a CUDA GPU (its weights are ~34 GB in bfloat16) and none is available on this "
             "machine. Run on a machine with a GPU, or set the config key model.device=cpu to run it on the CPU "
             "anyway (float32, ~70 GB of RAM, minutes per model call). The tests use the tiny random model "
             "(model=tiny_flux) instead."
-        )
-    return dev
-
-
-def _default_dtype(device: torch.device) -> torch.dtype:
-    return torch.bfloat16 if device.type == "cuda" else torch.float32
-
-
-_DTYPE_ALIASES = {"bf16": "bfloat16", "fp16": "float16", "half": "float16", "fp32": "float32", "float": "float32"}
-
-
-def _as_dtype(dtype: torch.dtype | str | None) -> torch.dtype | None:
-    """``None``, a ``torch.dtype`` or its name (``"bfloat16"``, ``"bf16"``, ``"torch.float32"``, ...)."""
-    if dtype is None or isinstance(dtype, torch.dtype):
-        return dtype
-    name = str(dtype).removeprefix("torch.")
-    value = getattr(torch, _DTYPE_ALIASES.get(name, name), None)
-    if not isinstance(value, torch.dtype):
-        raise ValueError(f"unknown dtype {dtype!r} (config key model.dtype): use bfloat16, float16 or float32")
-    return value
-
-
-def _dtype_kwarg(dtype: torch.dtype) -> dict:
-    """diffusers >= 0.42 takes ``dtype=`` (``torch_dtype=`` is deprecated there); older ones only
-    ``torch_dtype=``."""
-    try:
-        from diffusers.utils.deprecation_utils import _resolve_dtype  # noqa: F401
-    except ImportError:
-        return {"torch_dtype": dtype}
-    return {"dtype": dtype}
+        ),
+    )
 
 
 def _flux_pipeline_cls():
@@ -156,10 +155,9 @@ class FluxGenerator:
     cache) or :meth:`from_pipeline` (any ``FluxPipeline``, e.g. the tiny random one). The pipeline's
     ``__call__`` is never used: the caller's sampler owns the loop and calls :meth:`velocity`.
 
-    Convention
-    ----------
-    See the module docstring: images in [0, 1], unpacked latents ``(B, 16, H/8, W/8)`` normalised
-    with FLUX's shift/scale, ``v = eps - x0``, ``timestep = sigma``, guidance as a model input.
+    Convention:
+        See the module docstring: images in [0, 1], unpacked latents ``(B, 16, H/8, W/8)`` normalised
+        with FLUX's shift/scale, ``v = eps - x0``, ``timestep = sigma``, guidance as a model input.
     """
 
     name: str = "flux"
@@ -178,11 +176,21 @@ class FluxGenerator:
     ):
         """Wrap ``pipe`` (a ``FluxPipeline``), moving it to ``device`` / ``dtype``.
 
-        ``device=None`` keeps the pipeline's current device; ``dtype=None`` means bfloat16 on
-        CUDA and float32 otherwise. ``vae_tiling`` lets the VAE work in overlapping tiles on images
-        larger than its ``sample_size`` (1024 for FLUX.1-dev: the 1024 x 2048 panorama is tiled);
-        ``vae_slicing`` runs the VAE one image at a time. ``max_sequence_length`` is the T5 token
-        count (512 for FLUX.1-dev)."""
+        Args:
+            pipe: the pipeline whose components are used (its ``__call__`` is not).
+            device: where the model runs; ``None`` keeps the pipeline's current device.
+            dtype: a dtype or its name (:func:`~snell_bench.models.devices.parse_dtype`);
+                ``None`` means bfloat16 on CUDA and float32 otherwise.
+            guidance: the default guidance scale (a transformer input).
+            max_sequence_length: the T5 token count (512 for FLUX.1-dev).
+            vae_tiling: let the VAE work in overlapping tiles on images larger than its
+                ``sample_size`` (1024 for FLUX.1-dev: the 1024 x 2048 panorama is tiled).
+            vae_slicing: run the VAE one image at a time.
+
+        Raises:
+            ValueError: if the pipeline's latent channels or VAE downscale are not FLUX's, or the
+                dtype name is unknown.
+        """
         vae_factor = int(getattr(pipe, "vae_scale_factor", 8))
         channels = int(pipe.transformer.config.in_channels) // 4
         if (channels, vae_factor) != (self.geometry.channels, self.geometry.downscale):
@@ -193,12 +201,12 @@ class FluxGenerator:
         if device is None:
             device = next(pipe.transformer.parameters()).device
         device = torch.device(device)
-        dtype = _as_dtype(dtype) or _default_dtype(device)
+        dtype = parse_dtype(dtype) or default_dtype(device)
         for component in (pipe.transformer, pipe.vae, pipe.text_encoder, pipe.text_encoder_2):
             if component is None:
                 continue
             component.to(device)
-            if component.dtype != dtype:  # loaded with ``torch_dtype`` already: keep fp32-pinned layers
+            if component.dtype != dtype:  # loaded in ``dtype`` already: keep fp32-pinned layers
                 component.to(dtype)
             component.eval().requires_grad_(False)
         if vae_tiling:
@@ -238,18 +246,31 @@ class FluxGenerator:
     ) -> "FluxGenerator":
         """Load FLUX.1-dev (or another FLUX checkpoint in diffusers layout) without downloading.
 
-        ``model_id_or_path`` is a local folder (config key ``model.path``) or a Hugging Face id
-        looked up in the local cache. ``device=None`` needs CUDA (config key ``model.device``;
-        ``"cpu"`` forces the CPU).
+        Args:
+            model_id_or_path: a local folder (config key ``model.path``) or a Hugging Face id
+                looked up in the local cache.
+            device: ``None`` needs CUDA (config key ``model.device``); ``"cpu"`` forces the CPU.
+            dtype: a dtype or its name; ``None``: bfloat16 on CUDA, float32 otherwise.
+            local_files_only: never download (with ``False`` diffusers may).
+            vae_tiling: see the constructor.
+            vae_slicing: see the constructor.
+            guidance: the default guidance scale.
+            max_sequence_length: the T5 token count.
+            revision: the hub revision of a Hugging Face id.
 
-        Raises :class:`WeightsNotFoundError` when the weights are missing or incomplete, and
-        :class:`DeviceNotAvailableError` when CUDA is needed but absent."""
+        Returns:
+            The generator.
+
+        Raises:
+            WeightsNotFoundError: when the weights are missing or incomplete.
+            DeviceNotAvailableError: when CUDA is needed but absent.
+        """
         folder = resolve_weights_folder(model_id_or_path, local_files_only=local_files_only, revision=revision)
         dev = resolve_device(device)
-        dtype = _as_dtype(dtype) or _default_dtype(dev)
+        dtype = parse_dtype(dtype) or default_dtype(dev)
         FluxPipeline = _flux_pipeline_cls()
         try:
-            pipe = FluxPipeline.from_pretrained(folder, local_files_only=local_files_only, **_dtype_kwarg(dtype))
+            pipe = FluxPipeline.from_pretrained(folder, local_files_only=local_files_only, **dtype_kwarg(dtype))
         except (OSError, ValueError) as err:  # missing / partial component folders or weight files
             raise WeightsNotFoundError(_weights_help(f"loading {folder!r} failed: {err}")) from err
         return cls(
@@ -376,25 +397,56 @@ class FluxGenerator:
 
     # ------------------------------------------------------------------ schedule
 
-    def sigmas(self, num_steps: int, height: int, width: int) -> torch.Tensor:
-        """FluxPipeline's noise levels for ``num_steps`` steps at image size ``height x width``:
-        float32 ``(num_steps + 1,)``, decreasing, ending in 0 (resolution-dependent shift ``mu``
-        from ``calculate_shift`` on the packed sequence length)."""
+    def sigmas(self, num_steps: int, height: int, width: int, kind: str = "flux") -> torch.Tensor:
+        """The noise schedule for ``num_steps`` steps at image size ``height x width``.
+
+        Args:
+            num_steps: the number of denoising steps ``T``.
+            height: the image height in pixels (a multiple of 16).
+            width: the image width in pixels.
+            kind: ``"flux"``: ``FluxPipeline``'s schedule from the pipeline's scheduler and its
+                config: ``linspace(1, 1/T, T)`` shifted with ``mu = calculate_shift`` of the packed
+                sequence length ``(h / 2) (w / 2)`` (the config's base/max sequence lengths and
+                shifts), then 0; ``"linear"``: ``1, 1 - 1/T, ..., 0``.
+
+        Returns:
+            A float64 tensor ``(T + 1,)``, decreasing from 1 to 0. With dynamic shifting (FLUX.1-dev)
+            the scheduler's own ``time_shift`` is evaluated in float64, which equals FLUX's closed
+            form (:func:`~snell_bench.sampler.schedule.flux_sigmas`) bit for bit; ``set_timesteps``
+            rounds to float32 first (up to ~7e-8 off), which a float32 model amplifies. Scheduler
+            options beyond that (a static shift, ``shift_terminal``, Karras / exponential / beta
+            sigmas) go through ``set_timesteps`` and its float32 values.
+
+        Raises:
+            ValueError: for an unknown kind, a bad step count, a size that is not a multiple of 16,
+                or a scheduler with ``invert_sigmas`` (its noise levels rise from 0 to 1).
+        """
         import numpy as np
         from diffusers.pipelines.flux.pipeline_flux import calculate_shift
 
+        check_schedule(kind, num_steps)
         _, h, w = self.geometry.latent_shape(height, width)
-        sched_cfg = self.pipe.scheduler.config
-        scheduler = type(self.pipe.scheduler).from_config(sched_cfg)
+        if kind == "linear":
+            return linear_sigmas(num_steps)
+        cfg = self.pipe.scheduler.config
+        if cfg.get("invert_sigmas"):
+            raise ValueError("the pipeline's scheduler inverts its sigmas (0 -> 1); the sampler needs them from 1 to 0")
+        scheduler = type(self.pipe.scheduler).from_config(cfg)
         mu = calculate_shift(
             (h // 2) * (w // 2),
-            sched_cfg.get("base_image_seq_len", 256),
-            sched_cfg.get("max_image_seq_len", 4096),
-            sched_cfg.get("base_shift", 0.5),
-            sched_cfg.get("max_shift", 1.15),
+            cfg.get("base_image_seq_len", 256),
+            cfg.get("max_image_seq_len", 4096),
+            cfg.get("base_shift", 0.5),
+            cfg.get("max_shift", 1.15),
         )
-        scheduler.set_timesteps(sigmas=np.linspace(1.0, 1 / num_steps, num_steps), mu=mu, device="cpu")
-        return scheduler.sigmas.to(torch.float32).clone()
+        if cfg.get("use_dynamic_shifting") and hasattr(scheduler, "time_shift") and not any(
+            cfg.get(k) for k in _SCHEDULER_OPTIONS_VIA_SET_TIMESTEPS
+        ):
+            shifted = scheduler.time_shift(mu, 1.0, torch.linspace(1.0, 1.0 / num_steps, num_steps, dtype=torch.float64))
+        else:  # exactly as FluxPipeline
+            scheduler.set_timesteps(sigmas=np.linspace(1.0, 1 / num_steps, num_steps), mu=mu, device="cpu")
+            shifted = scheduler.sigmas[:-1].to(torch.float64)
+        return torch.cat([shifted, torch.zeros(1, dtype=torch.float64)])
 
     # ------------------------------------------------------------------ internals
 

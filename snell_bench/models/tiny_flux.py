@@ -6,17 +6,16 @@ for the token embeddings), only far smaller, so every code path of
 :class:`~snell_bench.models.flux.FluxGenerator` runs on a CPU in milliseconds. Its outputs mean
 nothing: the weights are random.
 
-Convention
-----------
-- Built deterministically from ``seed`` inside :func:`torch.random.fork_rng`: the caller's global
-  RNG state is left untouched, and two builds with the same seed have identical weights.
-- Every module is in ``.eval()`` mode (modules built from configs start in train mode, and T5's
-  dropout would otherwise randomise the embeddings).
-- No file is downloaded. The T5 side uses the byte-level ``ByT5Tokenizer`` (no vocabulary file);
-  the CLIP side uses a ``CLIPTokenizer`` written from open_clip's shipped BPE vocabulary
-  (``bpe_simple_vocab_16e6.txt.gz``) into ``$SNELL_BENCH_CACHE/clip_bpe_tokenizer`` (default
-  ``~/.cache/snell_bench``; a temporary folder if that is not writable), once per machine.
-- The VAE's ``sample_size`` is 1024, as in FLUX.1-dev, so VAE tiling starts at the same image size.
+Convention:
+    - Built deterministically from ``seed`` inside :func:`torch.random.fork_rng`: the caller's global
+      RNG state is left untouched, and two builds with the same seed have identical weights.
+    - Every module is in ``.eval()`` mode (modules built from configs start in train mode, and T5's
+      dropout would otherwise randomise the embeddings).
+    - No file is downloaded. The T5 side uses the byte-level ``ByT5Tokenizer`` (no vocabulary file);
+      the CLIP side uses a ``CLIPTokenizer`` written from open_clip's shipped BPE vocabulary
+      (``bpe_simple_vocab_16e6.txt.gz``) into ``$SNELL_BENCH_CACHE/clip_bpe_tokenizer`` (default
+      ``~/.cache/snell_bench``; a temporary folder if that is not writable), once per machine.
+    - The VAE's ``sample_size`` is 1024, as in FLUX.1-dev, so VAE tiling starts at the same image size.
 """
 
 from __future__ import annotations
@@ -31,6 +30,8 @@ from pathlib import Path
 
 import torch
 
+from snell_bench.utils.io import write_text
+
 from .flux import FluxGenerator
 
 __all__ = ["TinyFluxGenerator", "build_tiny_flux_pipeline", "clip_tokenizer_from_open_clip_vocab"]
@@ -44,19 +45,9 @@ _CLIP_NUM_MERGES = 49152 - 256 - 2
 _CLIP_VOCAB_SIZE = 49408
 _CLIP_BOS, _CLIP_EOS = "<|startoftext|>", "<|endoftext|>"
 _TOKENIZER_FOLDER_NAME = "clip_bpe_tokenizer"
-
-
-def _bytes_to_unicode() -> dict[int, str]:
-    """GPT-2/CLIP's reversible map from bytes to printable unicode characters."""
-    bs = list(range(ord("!"), ord("~") + 1)) + list(range(ord("¡"), ord("¬") + 1)) + list(range(ord("®"), ord("ÿ") + 1))
-    cs = bs[:]
-    n = 0
-    for b in range(256):
-        if b not in bs:
-            bs.append(b)
-            cs.append(256 + n)
-            n += 1
-    return dict(zip(bs, (chr(c) for c in cs)))
+#: FLUX Fill's transformer input: packed latents (16 x 4) + packed masked-image latents (16 x 4)
+#: + the packed pixel mask (8 x 8 per latent pixel, x 4).
+_FILL_IN_CHANNELS = 16 * 4 + 16 * 4 + 8 * 8 * 4
 
 
 def _open_clip_bpe_path() -> Path:
@@ -77,11 +68,23 @@ def _cache_root() -> Path:
 def _write_clip_tokenizer_files(folder: Path) -> None:
     """Write ``vocab.json`` and ``merges.txt`` (Hugging Face CLIP format) from open_clip's BPE file.
 
-    Files are written to a temporary name and renamed, so concurrent writers never expose a
-    partial file."""
-    lines = gzip.open(_open_clip_bpe_path()).read().decode("utf-8").split("\n")
+    Each file is written atomically (:func:`~snell_bench.utils.io.write_text`), so concurrent
+    writers never expose a partial file.
+
+    Args:
+        folder: the target folder (created if missing).
+
+    Raises:
+        OSError: if the folder or a file cannot be written.
+        RuntimeError: if open_clip or its vocabulary is missing.
+    """
+    bpe_path = _open_clip_bpe_path()
+    from open_clip.tokenizer import bytes_to_unicode
+
+    with gzip.open(bpe_path) as f:
+        lines = f.read().decode("utf-8").split("\n")
     merges = lines[1 : _CLIP_NUM_MERGES + 1]
-    symbols = list(_bytes_to_unicode().values())
+    symbols = list(bytes_to_unicode().values())
     vocab = symbols + [s + "</w>" for s in symbols] + ["".join(m.split()) for m in merges] + [_CLIP_BOS, _CLIP_EOS]
     assert len(vocab) == _CLIP_VOCAB_SIZE, len(vocab)
     folder.mkdir(parents=True, exist_ok=True)
@@ -90,11 +93,7 @@ def _write_clip_tokenizer_files(folder: Path) -> None:
         "merges.txt": "#version: 0.2\n" + "\n".join(merges) + "\n",
     }
     for name, text in contents.items():
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name}.")
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, folder / name)
+        write_text(folder / name, text)
 
 
 def _clip_tokenizer_folder() -> Path:
@@ -120,20 +119,38 @@ def clip_tokenizer_from_open_clip_vocab():
     return CLIPTokenizer.from_pretrained(str(_clip_tokenizer_folder()), model_max_length=77)
 
 
-def build_tiny_flux_pipeline(seed: int = 0):
-    """A ``FluxPipeline`` with FLUX.1-dev's architecture at toy size and random weights.
+def build_tiny_flux_pipeline(seed: int = 0, *, fill: bool = False):
+    """A ``FluxPipeline`` (or ``FluxFillPipeline``) with FLUX.1-dev's architecture at toy size and
+    random weights.
 
-    Convention
-    ----------
-    - Transformer: ``in_channels=64`` (16 latent channels x 2x2 patches), 1 double + 1 single
-      block, 2 heads of 16, text width 32, pooled width 32, RoPE axes (4, 6, 6), guidance-embedded.
-    - VAE: 16 latent channels, 4 blocks (downscale 8), channels (8, 16, 16, 16), 4 norm groups,
-      no quant convs, scaling 0.3611 / shift 0.1159 (FLUX.1-dev's values).
-    - Text: CLIP text model (width 32, projection 32, CLIP's 49408-token vocabulary, 77 tokens);
-      T5 encoder (``d_model`` 32) over ByT5 bytes.
-    - Weights are drawn from ``torch.manual_seed(seed)`` in a forked RNG; every module is in eval mode.
+    Convention:
+        - Transformer: ``in_channels=64`` (16 latent channels x 2x2 patches), 1 double + 1 single
+          block, 2 heads of 16, text width 32, pooled width 32, RoPE axes (4, 6, 6), guidance-embedded.
+          The Fill variant (as FLUX.1-Fill-dev) reads ``in_channels = 64 + 64 + 256 = 384`` (the
+          packed noisy latents, the packed latents of the masked image, and the 8x8 pixel mask per
+          latent pixel packed into 2x2 patches) and writes ``out_channels=64``.
+        - VAE: 16 latent channels, 4 blocks (downscale 8), channels (8, 16, 16, 16), 4 norm groups,
+          no quant convs, scaling 0.3611 / shift 0.1159 (FLUX.1-dev's values).
+        - Text: CLIP text model (width 32, projection 32, CLIP's 49408-token vocabulary, 77 tokens);
+          T5 encoder (``d_model`` 32) over ByT5 bytes.
+        - Scheduler: ``FlowMatchEulerDiscreteScheduler`` with FLUX.1-dev's dynamic shifting
+          (sequence lengths 256 / 4096, shifts 0.5 / 1.15).
+        - Weights are drawn from ``torch.manual_seed(seed)`` in a forked RNG; every module is in eval mode.
+
+    Args:
+        seed: seeds the random weights.
+        fill: build a ``FluxFillPipeline`` (inpainting) instead of a ``FluxPipeline``.
+
+    Returns:
+        The pipeline, on the CPU in float32.
     """
-    from diffusers import AutoencoderKL, FlowMatchEulerDiscreteScheduler, FluxPipeline, FluxTransformer2DModel
+    from diffusers import (
+        AutoencoderKL,
+        FlowMatchEulerDiscreteScheduler,
+        FluxFillPipeline,
+        FluxPipeline,
+        FluxTransformer2DModel,
+    )
     from transformers import ByT5Tokenizer, CLIPTextConfig, CLIPTextModel, T5Config, T5EncoderModel
 
     tokenizer = clip_tokenizer_from_open_clip_vocab()
@@ -142,7 +159,8 @@ def build_tiny_flux_pipeline(seed: int = 0):
         torch.manual_seed(seed)
         transformer = FluxTransformer2DModel(
             patch_size=1,
-            in_channels=64,
+            in_channels=_FILL_IN_CHANNELS if fill else 64,
+            out_channels=64,
             num_layers=1,
             num_single_layers=1,
             attention_head_dim=16,
@@ -208,7 +226,7 @@ def build_tiny_flux_pipeline(seed: int = 0):
     )
     for module in (transformer, vae, text_encoder, text_encoder_2):
         module.eval().requires_grad_(False)
-    return FluxPipeline(
+    return (FluxFillPipeline if fill else FluxPipeline)(
         scheduler=scheduler,
         vae=vae,
         text_encoder=text_encoder,
@@ -222,11 +240,19 @@ def build_tiny_flux_pipeline(seed: int = 0):
 class TinyFluxGenerator(FluxGenerator):
     """:class:`FluxGenerator` around :func:`build_tiny_flux_pipeline` (CPU, float32 by default).
 
-    Convention
-    ----------
-    - ``name == "tiny_flux"``; same geometry (16 channels, downscale 8, sizes multiple of 16),
-      latent normalisation, packing, timestep and guidance conventions as FLUX.1-dev.
-    - Outputs are deterministic functions of ``seed`` and the inputs; they mean nothing.
+    Convention:
+        - ``name == "tiny_flux"``; same geometry (16 channels, downscale 8, sizes multiple of 16),
+          latent normalisation, packing, timestep, guidance and schedule conventions as FLUX.1-dev.
+        - Outputs are deterministic functions of ``seed`` and the inputs; they mean nothing.
+
+    Args:
+        seed: seeds the random weights.
+        device: where the model runs.
+        dtype: a dtype or its name (:func:`~snell_bench.models.devices.parse_dtype`).
+        guidance: the default guidance scale.
+        max_sequence_length: the T5 token count.
+        vae_tiling: see :class:`FluxGenerator`.
+        vae_slicing: see :class:`FluxGenerator`.
     """
 
     name = "tiny_flux"
@@ -236,7 +262,7 @@ class TinyFluxGenerator(FluxGenerator):
         seed: int = 0,
         *,
         device: str | torch.device = "cpu",
-        dtype: torch.dtype = torch.float32,
+        dtype: torch.dtype | str = torch.float32,
         guidance: float = 3.5,
         max_sequence_length: int = 512,
         vae_tiling: bool = True,

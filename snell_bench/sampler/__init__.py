@@ -1,6 +1,9 @@
-"""Flow-matching sampling: schedules, pure steps, and the synchronized Snellcaster loop."""
+"""Flow-matching sampling: closed-form schedules, pure steps, and the synchronized Snellcaster loop.
 
-from snell_bench.sampler.schedule import flux_shift, flux_sigmas, linear_sigmas, make_sigmas
+The loop takes its noise schedule from the generator (:meth:`~snell_bench.models.base.Generator.sigmas`).
+"""
+
+from snell_bench.sampler.schedule import flux_shift, flux_sigmas, linear_sigmas
 from snell_bench.sampler.settings import SYNC_MODES, SamplerSettings
 from snell_bench.sampler.steps import euler_estimate, renoise, stochastic_step, sync_step
 
@@ -8,7 +11,6 @@ __all__ = [
     "flux_shift",
     "flux_sigmas",
     "linear_sigmas",
-    "make_sigmas",
     "euler_estimate",
     "renoise",
     "stochastic_step",

@@ -8,6 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Optional
 
+from snell_bench.models.base import SCHEDULES
+
 __all__ = ["SamplerSettings", "SYNC_MODES"]
 
 SYNC_MODES = ("snellcaster", "none")
@@ -19,7 +21,8 @@ class SamplerSettings:
 
     #: Denoising steps T (the paper: 20).
     steps: int = 20
-    #: ``flux`` (FLUX's resolution-shifted schedule) or ``linear``.
+    #: ``flux`` (the generator's resolution-shifted schedule) or ``linear`` (see
+    #: :meth:`~snell_bench.models.base.Generator.sigmas`).
     schedule: str = "flux"
     #: ``snellcaster`` (synchronized) or ``none`` (the generator alone from the full prompt).
     sync: str = "snellcaster"
@@ -60,6 +63,8 @@ class SamplerSettings:
     def __post_init__(self) -> None:
         if self.sync not in SYNC_MODES:
             raise ValueError(f"sampler.sync={self.sync!r} is unknown; use one of {SYNC_MODES}")
+        if self.schedule not in SCHEDULES:
+            raise ValueError(f"sampler.schedule={self.schedule!r} is unknown; use one of {SCHEDULES}")
         for name in ("steps", "levels", "tt_length", "tt_repeats_main", "tt_repeats_pano"):
             v = getattr(self, name)
             if int(v) != v or v < 1:

@@ -34,7 +34,6 @@ from snell_bench.imaging.pyramid import gaussian_pyramid, laplacian_from_gaussia
 from snell_bench.models.base import Generator
 from snell_bench.optics.warps import WarpSet
 from snell_bench.sampler.adaptive import decide
-from snell_bench.sampler.schedule import make_sigmas
 from snell_bench.sampler.settings import SamplerSettings
 from snell_bench.sampler.steps import euler_estimate, renoise, stochastic_step, sync_step
 
@@ -163,10 +162,28 @@ def sample(
 ) -> SampleResult:
     """Generate the main image (and the panorama) for one scene. Deterministic for a given seed.
 
-    ``i_minus``: ``(1, 3, H, W)`` sRGB object-free image of the warps' camera. With
-    ``settings.sync == "none"`` the generator runs alone on ``prompt`` (the text-to-image baseline).
-    Without the panorama branch, the reflection comes from I⁻ where the mirror ray reaches a
-    surface it shows, and is left out elsewhere.
+    With ``settings.sync == "none"`` the generator runs alone on ``prompt`` (the text-to-image
+    baseline). Without the panorama branch, the reflection comes from I⁻ where the mirror ray
+    reaches a surface it shows, and is left out elsewhere. Both branches step through the
+    generator's schedule for the main view, ``gen.sigmas(settings.steps, H, W, kind=settings.schedule)``
+    (their noise levels must match to be blended).
+
+    Args:
+        gen: the generator (any backend of :class:`~snell_bench.models.base.Generator`).
+        warps: the scene's warps; their camera fixes the image size ``H x W``.
+        i_minus: ``(1, 3, H, W)`` sRGB object-free image of the warps' camera.
+        prompt: the main view's prompt.
+        pano_prompt: the panorama's prompt.
+        settings: the sampler's knobs.
+        seed: seeds the initial noise and every stochastic step.
+
+    Returns:
+        The main image ``(1, 3, H, W)``, the panorama (or ``None``), model-call counts, timings,
+        dumps and the run's decisions.
+
+    Raises:
+        ValueError: if ``i_minus`` has the wrong shape or is not finite, or the generator's
+            schedule does not have ``settings.steps + 1`` levels.
     """
     H, W = warps.camera.shape
     if tuple(i_minus.shape) != (1, 3, H, W):
@@ -181,8 +198,10 @@ def sample(
     use_pano = s.uses_panorama
     shape_m = gen.geometry.latent_shape(H, W)
     shape_p = gen.geometry.latent_shape(*warps.pano.shape) if use_pano else None
-    sig = make_sigmas(s.schedule, s.steps, shape_m[1:])
+    sig = gen.sigmas(s.steps, H, W, kind=s.schedule)
     T = s.steps
+    if tuple(sig.shape) != (T + 1,):
+        raise ValueError(f"{gen.name}.sigmas gave {tuple(sig.shape)} noise levels for {T} steps, expected ({T + 1},)")
 
     z_m = torch.randn((1,) + shape_m, generator=g)
     z_p = torch.randn((1,) + shape_p, generator=g) if use_pano else None

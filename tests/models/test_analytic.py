@@ -6,7 +6,7 @@ import torch
 
 from snell_bench.models.analytic import AnalyticGenerator, glass_blob_prior
 from snell_bench.models.base import Generator
-from snell_bench.sampler import linear_sigmas
+from snell_bench.sampler import flux_sigmas, linear_sigmas
 
 
 def prior(h=16, w=24, seed=0):
@@ -98,3 +98,51 @@ def test_glass_blob_is_wrong_only_inside_the_object():
     assert torch.equal(out[..., ~torch.from_numpy(mask)], img[..., ~torch.from_numpy(mask)])
     assert float((out - img)[..., torch.from_numpy(mask)].abs().mean()) > 0.05
     assert torch.equal(glass_blob_prior(img, np.zeros((32, 32), bool)), img)  # empty mask
+
+
+def test_sigmas_are_the_float64_closed_forms():
+    g = AnalyticGenerator(prior(96, 160), downscale=8)
+    s = g.sigmas(20, 96, 160)
+    assert s.dtype == torch.float64 and s.shape == (21,) and float(s[0]) == pytest.approx(1.0) and s[-1] == 0.0
+    assert torch.equal(s, flux_sigmas(20, (12 // 2) * (20 // 2)))  # tokens of the 12 x 20 latent grid
+    assert torch.equal(g.sigmas(4, 96, 160, kind="linear"), linear_sigmas(4))
+    assert (g.sigmas(20, 192, 320)[1:-1] > s[1:-1]).all()  # larger images: shifted towards noise
+    with pytest.raises(ValueError, match="schedule"):
+        g.sigmas(4, 96, 160, kind="cosine")
+    with pytest.raises(ValueError, match="positive integer"):
+        g.sigmas(0, 96, 160)
+    with pytest.raises(ValueError, match="multiple of 8"):
+        g.sigmas(4, 90, 160)
+
+
+@pytest.mark.parametrize("sigma", [1.0, 1.1666666666666667, 2.3, 4.0])
+def test_blur_is_a_replicate_padded_separable_gaussian(sigma):
+    """Against an explicit pad + two 1-D convolutions with the same kernel."""
+    import math
+
+    import torch.nn.functional as F
+
+    from snell_bench.models.analytic import _blur
+
+    img = prior(24, 40, 2)
+    k = int(2 * math.ceil(2.5 * sigma) + 1)
+    g = torch.exp(-((torch.arange(k) - k // 2).float() ** 2) / (2 * sigma**2))
+    g = g / g.sum()
+    pad = k // 2
+    ref = F.conv2d(F.pad(img, (pad, pad, 0, 0), mode="replicate"), g.view(1, 1, 1, k).repeat(3, 1, 1, 1), groups=3)
+    ref = F.conv2d(F.pad(ref, (0, 0, pad, pad), mode="replicate"), g.view(1, 1, k, 1).repeat(3, 1, 1, 1), groups=3)
+    assert torch.equal(_blur(img, sigma), ref)
+    assert float((_blur(torch.full_like(img, 0.3), sigma) - 0.3).abs().max()) < 1e-6  # weights sum to 1
+
+
+def test_image_and_mask_layouts_give_the_same_prior():
+    img = prior(32, 32)
+    mask = np.zeros((32, 32), bool)
+    mask[8:20, 10:22] = True
+    hwc = img[0].permute(1, 2, 0).numpy().astype(np.float64)
+    ref = glass_blob_prior(img, mask)
+    assert torch.equal(glass_blob_prior(hwc, mask.tolist()), ref)
+    assert torch.equal(glass_blob_prior(img, torch.from_numpy(mask)), ref)
+    a = AnalyticGenerator(img, glass_mask=mask, downscale=8)
+    b = AnalyticGenerator(hwc, glass_mask=mask.astype(np.float32), downscale=8)
+    assert torch.equal(a._priors["main"], b._priors["main"]) and torch.equal(a._std["main"], b._std["main"])

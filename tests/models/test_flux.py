@@ -9,6 +9,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 import torch
 
@@ -52,13 +53,11 @@ class TestConstruction:
         assert (gen.geometry.channels, gen.geometry.downscale, gen.geometry.multiple) == (16, 8, 16)
         assert gen.dtype == torch.float32 and gen.device.type == "cpu"
 
-    def test_dtype_names(self):
-        from snell_bench.models.flux import _as_dtype
-
-        assert _as_dtype("bf16") is torch.bfloat16 and _as_dtype("torch.float32") is torch.float32
-        assert _as_dtype(None) is None and _as_dtype(torch.float16) is torch.float16
+    def test_dtype_names(self, gen):
+        assert FluxGenerator.from_pipeline(gen.pipe, dtype="fp32").dtype == torch.float32
+        assert FluxGenerator.from_pipeline(gen.pipe, dtype="torch.float32").dtype == torch.float32
         with pytest.raises(ValueError, match="model.dtype"):
-            _as_dtype("float13")
+            FluxGenerator.from_pipeline(gen.pipe, dtype="float13")
 
     def test_modules_in_eval_mode(self, gen):
         p = gen.pipe
@@ -83,6 +82,26 @@ class TestConstruction:
             build_generator("no_such_model")
         with pytest.raises(WeightsNotFoundError, match="model.path"):
             build_generator("flux", path="/nonexistent/flux")
+
+    def test_clip_tokenizer_files(self, tmp_path):
+        """Written atomically with the umask's mode; the tokenizer splits text as open_clip's does."""
+        from open_clip.tokenizer import SimpleTokenizer
+        from transformers import CLIPTokenizer
+
+        from snell_bench.models.tiny_flux import _write_clip_tokenizer_files
+
+        folder = tmp_path / "tok"
+        _write_clip_tokenizer_files(folder)
+        assert sorted(p.name for p in folder.iterdir()) == ["merges.txt", "vocab.json"]  # no temporaries left
+        mask = os.umask(0)
+        os.umask(mask)
+        assert all((folder / n).stat().st_mode & 0o777 == 0o666 & ~mask for n in ("merges.txt", "vocab.json"))
+        tok = CLIPTokenizer.from_pretrained(str(folder), model_max_length=77)
+        ref = SimpleTokenizer()
+        for text in PROMPTS + ["Ünïcödé glass, 360° — ok?"]:
+            ids = tok(text).input_ids
+            assert ids[0] == ref.sot_token_id and ids[-1] == ref.eot_token_id
+            assert ids[1:-1] == ref.encode(text)
 
     def test_import_is_light(self):
         code = "import sys, snell_bench.models; assert 'diffusers' not in sys.modules and 'transformers' not in sys.modules"
@@ -256,18 +275,56 @@ class TestVelocity:
 
 class TestSampling:
     def test_sigmas_match_flux_pipeline(self, gen):
-        import numpy as np
         from diffusers.pipelines.flux.pipeline_flux import calculate_shift, retrieve_timesteps
 
         s = gen.sigmas(20, 720, 1280)
-        assert s.shape == (21,) and s[-1] == 0 and float(s[0]) == pytest.approx(1.0)
+        assert s.shape == (21,) and s.dtype == torch.float64 and s[-1] == 0 and float(s[0]) == pytest.approx(1.0)
         assert (s[1:] < s[:-1]).all()
         sched = type(gen.pipe.scheduler).from_config(gen.pipe.scheduler.config)
         mu = calculate_shift(45 * 80, 256, 4096, 0.5, 1.15)
         timesteps, _ = retrieve_timesteps(sched, 20, "cpu", sigmas=np.linspace(1.0, 1 / 20, 20), mu=mu)
-        torch.testing.assert_close(s[:-1], timesteps.float() / 1000)
+        torch.testing.assert_close(s[:-1].float(), timesteps.float() / 1000)
         # larger images shift the schedule towards noise
         assert (gen.sigmas(20, 1024, 2048)[1:-1] > s[1:-1]).all()
+
+    @pytest.mark.parametrize("steps,hw", [(20, (720, 1280)), (4, (64, 96)), (28, (1024, 1024))])
+    def test_sigmas_equal_the_closed_form(self, gen, steps, hw):
+        """Evaluated in float64, the scheduler's shift is FLUX's closed form bit for bit."""
+        from snell_bench.sampler import flux_sigmas
+
+        h, w = hw
+        assert torch.equal(gen.sigmas(steps, h, w), flux_sigmas(steps, (h // 16) * (w // 16)))
+
+    def test_sigmas_follow_the_scheduler_config(self):
+        from diffusers import FlowMatchEulerDiscreteScheduler
+        from diffusers.pipelines.flux.pipeline_flux import calculate_shift
+
+        g = TinyFluxGenerator(seed=0)
+        cfg = g.pipe.scheduler.config
+        ref = g.sigmas(8, 512, 512)
+        g.pipe.scheduler = FlowMatchEulerDiscreteScheduler.from_config(cfg, max_shift=2.0)
+        assert (g.sigmas(8, 512, 512)[1:-1] > ref[1:-1]).all()  # a larger shift: more steps at high noise
+        # an option the float64 path does not model goes through set_timesteps (float32 values)
+        g.pipe.scheduler = FlowMatchEulerDiscreteScheduler.from_config(cfg, shift_terminal=0.1)
+        s = g.sigmas(8, 512, 512)
+        sched = FlowMatchEulerDiscreteScheduler.from_config(cfg, shift_terminal=0.1)
+        sched.set_timesteps(sigmas=np.linspace(1.0, 1 / 8, 8), mu=calculate_shift(32 * 32))
+        assert s.dtype == torch.float64 and torch.equal(s, sched.sigmas.double())
+        assert float(s[-2]) == pytest.approx(0.1) and (s[1:] < s[:-1]).all()
+        g.pipe.scheduler = FlowMatchEulerDiscreteScheduler.from_config(cfg, invert_sigmas=True)
+        with pytest.raises(ValueError, match="1 to 0"):
+            g.sigmas(8, 512, 512)
+
+    def test_sigmas_kinds_and_errors(self, gen):
+        from snell_bench.sampler import linear_sigmas
+
+        assert torch.equal(gen.sigmas(4, 64, 64, kind="linear"), linear_sigmas(4))
+        with pytest.raises(ValueError, match="schedule"):
+            gen.sigmas(4, 64, 64, kind="cosine")
+        with pytest.raises(ValueError, match="positive integer"):
+            gen.sigmas(0, 64, 64)
+        with pytest.raises(ValueError, match="multiple of 16"):
+            gen.sigmas(4, 64, 72)
 
     def test_euler_loop(self, gen):
         """Plain Euler sampling, x0_hat = z - sigma v, as the synchronized sampler does per view."""

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from conftest import sphere_at
-from snell_bench.experiment.generate import refraction_psnr
+from snell_bench.metrics.refraction import refraction_psnr
 from snell_bench.models.analytic import AnalyticGenerator
 from snell_bench.optics import compute_warps
 from snell_bench.sampler import SamplerSettings, sample
@@ -140,3 +140,37 @@ def test_tiny_flux_two_branch_loop_with_time_travel():
     assert a.model_calls["main"] > a.model_calls["pano"] == 5
     b = sample(gen, ws, i_minus, "a glass sphere on a table", "a panorama", s, seed=0)
     assert torch.equal(a.image, b.image)
+
+
+class _Schedule:
+    """A generator that records its schedule requests and can hand back a given schedule."""
+
+    def __init__(self, gen, sigmas=None) -> None:
+        self._gen, self._sigmas, self.calls = gen, sigmas, []
+
+    def __getattr__(self, name):
+        return getattr(self._gen, name)
+
+    def sigmas(self, num_steps, height, width, kind="flux"):
+        self.calls.append((num_steps, height, width, kind))
+        return self._gen.sigmas(num_steps, height, width, kind) if self._sigmas is None else self._sigmas
+
+
+@pytest.mark.parametrize("kind", ["flux", "linear"])
+def test_schedule_comes_from_the_generator(setup, kind):
+    _, _, _, ws, i_minus, gen = setup
+    s = replace(FAST, steps=3, schedule=kind, time_travel=False)
+    spy = _Schedule(gen)
+    out = sample(spy, ws, i_minus, "p", "p360", s, seed=0)
+    assert spy.calls == [(3, H, W, kind)]
+    assert torch.equal(out.image, run(setup, s).image)
+    # another schedule from the generator changes the result
+    other = _Schedule(gen, torch.tensor([1.0, 0.9, 0.3, 0.0], dtype=torch.float64))
+    assert not torch.equal(sample(other, ws, i_minus, "p", "p360", s, seed=0).image, out.image)
+
+
+def test_schedule_of_the_wrong_length_is_an_error(setup):
+    _, _, _, ws, i_minus, gen = setup
+    bad = _Schedule(gen, torch.linspace(1.0, 0.0, 3, dtype=torch.float64))
+    with pytest.raises(ValueError, match="noise levels for 3 steps"):
+        sample(bad, ws, i_minus, "p", "p360", replace(FAST, steps=3), seed=0)

@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from snell_bench.sampler import euler_estimate, flux_sigmas, linear_sigmas, make_sigmas, renoise, stochastic_step, sync_step
+from snell_bench.sampler import euler_estimate, flux_sigmas, linear_sigmas, renoise, stochastic_step, sync_step
 
 
 class TestSchedules:
@@ -25,12 +25,18 @@ class TestSchedules:
         torch.testing.assert_close(flux_sigmas(steps, seq), sch.sigmas.double(), atol=1e-6, rtol=0)
 
     def test_shapes_and_monotone(self):
-        s = make_sigmas("flux", 20, (90, 160))
+        s = flux_sigmas(20, 45 * 80)
         assert len(s) == 21 and s[0] == 1.0 and s[-1] == 0.0 and torch.all(s[1:] < s[:-1])
-        with pytest.raises(ValueError, match="schedule"):
-            make_sigmas("cosine", 20, (8, 8))
         with pytest.raises(ValueError, match="positive integer"):
             linear_sigmas(0)
+        with pytest.raises(ValueError, match="positive integer"):
+            flux_sigmas(2.5, 64)
+
+    def test_unknown_schedule_is_a_settings_error(self):
+        from snell_bench.sampler import SamplerSettings
+
+        with pytest.raises(ValueError, match="sampler.schedule"):
+            SamplerSettings(schedule="cosine")
 
 
 class TestSteps:
