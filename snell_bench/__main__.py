@@ -2,21 +2,22 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import hydra
 from omegaconf import DictConfig
 
 from snell_bench.config import register_configs
 
 register_configs()
-CONFIG_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+CONFIG_DIR = "conf"
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="config")
 def main(cfg: DictConfig) -> None:
+    from hydra.core.hydra_config import HydraConfig
+
     from snell_bench.experiment import run_job
 
+    cfg.overrides = list(HydraConfig.get().overrides.task)  # a sweep composes its cells from them
     run_job(cfg)
 
 

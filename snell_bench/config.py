@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any, Iterator, Optional, Sequence
 
 from hydra.core.config_store import ConfigStore
-from omegaconf import MISSING
+from omegaconf import MISSING, DictConfig
 
 from snell_bench.sampler.settings import SamplerSettings
 
@@ -51,10 +52,14 @@ class ObjectConfig:
     name: str = "sphere"
     #: The word for it in the prompt ("a big glass {noun}").
     noun: str = "sphere"
-    #: ``sphere``, ``cylinder``, ``pyramid`` or ``mesh`` (then ``path`` names the file).
-    shape: str = "sphere"
+    #: What builds the canonical (unplaced) object: a ``_target_`` node instantiated with
+    #: ``ior=object.ior`` (and ``path=`` the resolved ``object.path`` when the node has ``path``),
+    #: e.g. ``snell_bench.scene.objects.GlassObject.sphere`` or ``...GlassObject.from_file``.
+    factory: Any = None
+    #: A mesh file, for factories that read one (relative paths: to the working folder, else to the
+    #: checkout, where ``datasets/`` lies).
     path: Optional[str] = None
-    #: The file's up axis (``y``, ``z``, ``-z``, ...), for ``shape: mesh``.
+    #: The mesh file's up axis (``y``, ``z``, ``-z``, ...).
     up_axis: str = "y"
     #: A material name (glass, water, acrylic, diamond, ...) or a number.
     ior: Any = "glass"
@@ -90,6 +95,12 @@ class ModelConfig:
     #: ``analytic`` (CPU stand-in with an exact velocity), ``tiny_flux`` (random weights, tests),
     #: ``flux`` (FLUX.1-dev through diffusers, GPU).
     name: str = "analytic"
+    #: What builds the generator: a ``_target_`` node (conf/model/ interpolates its arguments from
+    #: the keys below).
+    generator: Any = None
+    #: The generator is built from the scene: ``generator`` is also given ``i_minus``,
+    #: ``object_mask`` and ``panorama`` (the analytic stand-in's priors).
+    from_scene: bool = True
     #: analytic: std of the data distribution around its prior where the model is sure (the room).
     prior_std: float = 0.05
     #: analytic: the same inside the glass, the model's strength: smaller resists synchronisation more.
@@ -175,13 +186,15 @@ class TradeoffConfig:
     #: An object spec (``sphere`` or ``sphere:1.33``) and a method (conf/method/).
     object: str = "sphere"
     method: str = "snellcaster"
-    #: Axis name -> ``{key: <dotted config key>, values: [...]}``, or ``{values: [{<dotted key>: v, ...}]}``
-    #: for a compound knob such as the resolution.
+    #: Axis name -> a Hydra sweep override (``"sampler.steps=4,8,12"``: one setting per value), or
+    #: a mapping ``label -> [override, ...]`` for knobs that change together (the resolution).
     axes: dict = field(default_factory=dict)
     #: Also score every setting against a converged reference rendered with this many samples per
     #: pixel (one per scene, object and resolution, shared by all settings): fidelity that does not
     #: move with ``reference.spp``; the Pareto front uses it. ``null``: off.
     converged_spp: Optional[int] = 64
+    #: The axes to run (names of ``axes``); ``null``: all of them.
+    only: Optional[list] = None
     #: Presets (conf/preset/) measured as extra points of the sweep.
     presets: list = field(default_factory=lambda: ["fast", "balanced", "paper"])
     #: Recompute settings that already finished (else they are reused).
@@ -209,6 +222,59 @@ class Config:
     reports_dir: str = "reports"
     #: Where the job writes; defaults to Hydra's run directory.
     output_dir: str = MISSING
+    #: The overrides this config was composed from (set by ``python -m snell_bench`` and by
+    #: :func:`compose`): a sweep composes each of its cells from them and the cell's own choices.
+    overrides: list = field(default_factory=list)
+
+
+CONFIG_MODULE = "snell_bench.conf"
+
+
+@contextmanager
+def config_context() -> Iterator[None]:
+    """Hydra's global state for composing: the running application's when there is one, else
+    the package's config groups (:data:`CONFIG_MODULE`) for the duration of the block."""
+    from hydra import initialize_config_module
+    from hydra.core.global_hydra import GlobalHydra
+
+    register_configs()
+    if GlobalHydra.instance().is_initialized():
+        yield
+    else:
+        with initialize_config_module(config_module=CONFIG_MODULE, version_base="1.3"):
+            yield
+
+
+def compose(overrides: Sequence[str] = (), config_name: str = "config") -> DictConfig:
+    """The config ``python -m snell_bench OVERRIDES`` would run, composed with Hydra from the
+    config groups shipped in :mod:`snell_bench.conf` (defaults lists honoured, schema kept).
+
+    Inside a running Hydra application its search path is used; elsewhere the package's. The
+    overrides are recorded in ``cfg.overrides``.
+
+    Args:
+        overrides: Hydra override strings, e.g. ``["+experiment=smoke", "scene.width=320"]``.
+        config_name: the primary config.
+
+    Returns:
+        The composed config (struct mode on).
+    """
+    from hydra import compose as hydra_compose
+
+    overrides = [str(o) for o in overrides]
+    with config_context():
+        cfg = hydra_compose(config_name=config_name, overrides=overrides)
+    cfg.overrides = overrides
+    return cfg
+
+
+def group_options(group: str) -> list[str]:
+    """The names a config group offers (``conf/<group>/*.yaml`` and registered nodes)."""
+    from hydra.core.global_hydra import GlobalHydra
+
+    with config_context():
+        names = GlobalHydra.instance().config_loader().get_group_options(group)
+    return sorted(n for n in names if not n.startswith("base_"))
 
 
 def register_configs() -> None:

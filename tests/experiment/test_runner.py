@@ -8,13 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
 
-from snell_bench.config import register_configs
+from snell_bench.config import compose
 
 REPO = Path(__file__).resolve().parents[2]
-CONF = str(REPO / "conf")
-register_configs()
 
 TINY = [
     "scene.width=160",
@@ -28,12 +25,8 @@ TINY = [
 
 
 def make_cfg(tmp_path, overrides):
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        return compose(
-            "config",
-            overrides=["+experiment=smoke", *TINY, f"runs_dir={tmp_path / 'runs'}",
-                       f"reports_dir={tmp_path / 'reports'}", f"output_dir={tmp_path}", *overrides],
-        )
+    return compose(["+experiment=smoke", *TINY, f"runs_dir={tmp_path / 'runs'}", f"reports_dir={tmp_path / 'reports'}",
+                    f"output_dir={tmp_path}", *overrides])
 
 
 def metrics_of(root: Path) -> dict:
@@ -134,17 +127,37 @@ def test_unknown_names_fail_before_any_work(tmp_path):
 
 
 def test_ior_spec_and_cell_config():
-    from snell_bench.experiment.runner import cell_config, object_dir_name, parse_object_spec
+    from omegaconf import OmegaConf
+
+    from snell_bench.experiment.plan import compose_cell, object_dir_name, parse_object_spec
+    from snell_bench.experiment.runner import cell_overrides
+    from snell_bench.sampler.settings import SamplerSettings
 
     assert parse_object_spec("sphere:1.333") == ("sphere", 1.333) and object_dir_name("sphere:1.333") == "sphere-ior1.333"
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose("config", overrides=["+experiment=ablation", "output_dir=/tmp/x"])
-    c = cell_config(cfg, "office", 2, "cylinder:1.333", "no_dpa")
-    assert c.scene.name == "office" and c.scene.variation == 2 and c.scene.width == 640
-    assert c.object.shape == "cylinder" and c.object.ior == 1.333
+    assert parse_object_spec("sphere:water") == ("sphere", "water") and object_dir_name("sphere:water") == "sphere-iorwater"
+    cfg = compose(["+experiment=ablation", "sampler.lam=0.3", "output_dir=/tmp/x"])
+    c = compose_cell(cfg, cell_overrides("office", 2, "cylinder:1.333", "no_dpa"))
+    assert c.scene.name == "office" and c.scene.variation == 2 and c.scene.width == 640  # the preset's size
+    assert c.object.factory._target_.endswith("GlassObject.cylinder") and c.object.ior == 1.333
     assert c.sampler.dpa is False and c.sampler.lpw is True and c.method.label == "w/o DPA"
+    assert c.sampler.lam == 0.3  # the run's own overrides are kept
+    settings = OmegaConf.to_object(c.sampler)  # the structured schema survives composition and the switches
+    assert isinstance(settings, SamplerSettings) and settings.dpa is False
 
 
+def test_a_config_changed_after_composition_is_refused(tmp_path):
+    """Cells are composed from the run's overrides: a change made to the object afterwards would be
+    lost, so the grid refuses it and names the key."""
+    from snell_bench.experiment.runner import run_grid
+
+    cfg = make_cfg(tmp_path, [])
+    cfg.scene.width = 320
+    with pytest.raises(ValueError, match="scene.width"):
+        run_grid(cfg)
+    assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("launcher", ["submitit_local", "local_processes"])
 def test_parallel_launchers(tmp_path, launcher):
     """Two scene subsets in two processes through Hydra's submitit_local (the Slurm launcher's local

@@ -8,66 +8,37 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from hydra import compose, initialize_config_dir
+from hydra.core.config_store import ConfigStore
 from omegaconf import OmegaConf
 
-from snell_bench.config import register_configs
+from snell_bench.config import compose
 
-REPO = Path(__file__).resolve().parents[2]
-CONF = str(REPO / "conf")
-register_configs()
-
-TINY = [
-    "scene.width=112",
-    "scene.height=64",
-    "scene.supersample=1",
-    "warps.pano_height=32",
-    "sampler.steps=5",
-    "sampler.levels=2",
-    "reference.spp=1",
-    "reference.true_spp=1",
-    "tradeoff.converged_spp=3",
-]
-SCENES = ["living_room", "kitchen"]
-AXES = {
-    "steps": {"key": "sampler.steps", "values": [3, 5]},  # 5 is the base value
-    "spp": {"key": "reference.spp", "values": [1, 2]},  # 1 is the base value
+#: Test-size presets (the real ones are 640 x 360 and larger): the run uses ``tiny_base``, and the
+#: sweep measures ``tiny`` as a preset point (a preset replaces the run's preset, as on the command line).
+TINY_BASE = {
+    "scene": {"width": 112, "height": 64, "supersample": 1},
+    "warps": {"pano_height": 32, "max_bounces": 8},
+    "sampler": {"steps": 5, "levels": 2, "tt_repeats_main": 3, "tt_repeats_pano": 1},
+    "reference": {"spp": 1, "true_spp": 1},
 }
-#: A preset-like entry at test size (the real presets are 640 x 360 and larger).
-TINY_PRESET = {"sampler": {"steps": 4, "tt_repeats_main": 1, "levels": 1}, "warps": {"max_bounces": 4}}
+TINY_PRESET = OmegaConf.to_container(OmegaConf.merge(TINY_BASE, {"sampler": {"steps": 4, "tt_repeats_main": 1,
+                                                                             "levels": 1},
+                                                                 "warps": {"max_bounces": 4}}))
+for _name, _node in (("tiny_base", TINY_BASE), ("tiny", TINY_PRESET)):
+    ConfigStore.instance().store(group="preset", name=_name, node=_node, package="_global_")
+
+TINY = ["preset=tiny_base", "tradeoff.converged_spp=3"]
+SCENES = ["living_room", "kitchen"]
+AXES = ["tradeoff.axes.steps='sampler.steps=3,5'",  # 5 is the base value
+        "tradeoff.axes.spp='reference.spp=1,2'",  # 1 is the base value
+        "tradeoff.only=[steps,spp]"]
 SETTINGS = ["baseline", "steps=3", "steps=5", "spp=1", "spp=2", "preset:tiny"]
 
 
-def make_cfg(tmp_path, overrides=(), axes=None, presets=("tiny",), scenes=SCENES):
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(
-            "config",
-            overrides=["+experiment=tradeoff", *TINY, f"runs_dir={tmp_path / 'runs'}",
-                       f"reports_dir={tmp_path / 'reports'}", f"output_dir={tmp_path}", *overrides],
-        )
-    # a mapping given as a Hydra override is merged into the experiment's axes; replace them here
-    cfg.tradeoff.axes = AXES if axes is None else axes
-    cfg.tradeoff.presets = list(presets)
-    cfg.tradeoff.scenes = list(scenes)
-    return cfg
-
-
-def with_tiny_preset(load_group):
-    """``load_group`` where ``preset:tiny`` is :data:`TINY_PRESET`; other presets from conf/preset/."""
-
-    def load(group, name):
-        if (group, name) == ("preset", "tiny"):
-            return OmegaConf.create(TINY_PRESET)
-        return load_group(group, name)
-
-    return load
-
-
-@pytest.fixture(autouse=True)
-def tiny_preset(monkeypatch):
-    import snell_bench.experiment.tradeoff as tr
-
-    monkeypatch.setattr(tr, "load_group", with_tiny_preset(tr.load_group))
+def make_cfg(tmp_path, overrides=(), axes=AXES, presets=("tiny",), scenes=SCENES):
+    return compose(["+experiment=tradeoff", *TINY, f"runs_dir={tmp_path / 'runs'}", f"reports_dir={tmp_path / 'reports'}",
+                    f"output_dir={tmp_path}", *axes, f"tradeoff.presets=[{','.join(presets)}]",
+                    f"tradeoff.scenes=[{','.join(scenes)}]", *overrides])
 
 
 def results(root: Path) -> dict:
@@ -76,17 +47,11 @@ def results(root: Path) -> dict:
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
-    import snell_bench.experiment.tradeoff as tr
+    from snell_bench.experiment.tradeoff import run_tradeoff
 
-    mp = pytest.MonkeyPatch()  # module scope: the autouse fixture is per test
-    mp.setattr(tr, "load_group", with_tiny_preset(tr.load_group))
     tmp = tmp_path_factory.mktemp("tradeoff")
     cfg = make_cfg(tmp)
-    try:
-        summary = tr.run_tradeoff(cfg)
-    finally:
-        mp.undo()
-    return tmp, cfg, summary
+    return tmp, cfg, run_tradeoff(cfg)
 
 
 # ---------------------------------------------------------------------------- Pareto front
@@ -132,20 +97,19 @@ def test_pareto_front_matches_brute_force_with_ties_and_nan():
 
 # ---------------------------------------------------------------------------- settings and errors
 def test_axes_formats_labels_and_presets(tmp_path):
-    from snell_bench.experiment.tradeoff import build_settings, parse_axes, preset_settings
+    from snell_bench.experiment.tradeoff import build_settings
 
-    cfg = make_cfg(tmp_path, presets=())
-    s = parse_axes({"resolution": {"values": [{"scene.width": 320, "scene.height": 180},
-                                              {"scene.width": 1280, "scene.height": 720, "scene.supersample": 2}]},
-                    "pano": {"key": "warps.pano_height", "values": [256], "labels": ["small"]}}, cfg)
-    assert [x.label for x in s] == ["resolution=320x180", "resolution=1280x720x2", "pano=small"]
-    assert s[1].overrides == {"scene.width": 1280, "scene.height": 720, "scene.supersample": 2}
-    fast = preset_settings(["fast"], cfg)[0]
-    assert fast.label == "preset:fast" and fast.slug == "preset-fast" and fast.overrides["sampler.steps"] == 8
+    cfg = make_cfg(tmp_path, axes=["+tradeoff.axes.pano='warps.pano_height=256'",
+                                   "+tradeoff.axes.res={320x180:['scene.width=320','scene.height=180']}",
+                                   "tradeoff.only=[res,pano]"], presets=("fast",))
+    s = build_settings(cfg)
+    assert [x.label for x in s] == ["baseline", "res=320x180", "pano=256", "preset:fast"]
+    assert s[1].overrides == ("scene.width=320", "scene.height=180") and s[1].value == "320x180"
+    assert s[1].override_values() == {"scene.width": 320, "scene.height": 180}
+    assert s[2].value == 256 and s[3].slug == "preset-fast" and s[3].overrides == ("preset=fast",)
     assert [x.label for x in build_settings(make_cfg(tmp_path))] == SETTINGS
-    # the experiment file itself parses: 1 + 5 + 4 + 3 + 6 + 6 + 3 + 3 + 3 + 3 settings
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        full = compose("config", overrides=["+experiment=tradeoff", "output_dir=/tmp/x"])
+    # the experiment file itself: 1 + 5 + 4 + 3 + 4 + 5 + 3 + 3 + 3 + 3 settings
+    full = compose(["+experiment=tradeoff", "output_dir=/tmp/x"])
     labels = [x.label for x in build_settings(full)]
     assert len(labels) == 34 and "resolution=1280x720-ss2" in labels and labels[-1] == "preset:paper"
     assert full.scene.width == 640 and full.sampler.steps == 20 and full.reference.spp == 16
@@ -154,12 +118,13 @@ def test_axes_formats_labels_and_presets(tmp_path):
 @pytest.mark.parametrize(
     "axes, match",
     [
-        ({"steps": {"key": "sampler.stepz", "values": [3]}}, "sampler.stepz"),
-        ({"res": {"values": [{"scene.widht": 320, "scene.height": 180}]}}, "scene.widht"),
-        ({"steps": {"key": "sampler", "values": [3]}}, "whole config node"),
-        ({"steps": {"key": "sampler.steps", "values": ["many"]}}, "sampler.steps"),
-        ({"steps": {"key": "sampler.steps", "values": [3, 3]}}, "duplicate"),
-        ({"steps": {"key": "sampler.steps", "values": []}}, "non-empty"),
+        (["tradeoff.axes.steps='sampler.stepz=3'", "tradeoff.only=[steps]"], "sampler.stepz"),
+        (["+tradeoff.axes.res={a:['scene.widht=320']}", "tradeoff.only=[res]"], "scene.widht"),
+        (["tradeoff.axes.steps='sampler=3'", "tradeoff.only=[steps]"], "sampler"),
+        (["tradeoff.axes.steps='sampler.steps=many'", "tradeoff.only=[steps]"], "sampler.steps"),
+        (["tradeoff.axes.steps='sampler.steps=3,3'", "tradeoff.only=[steps]"], "duplicate"),
+        (["tradeoff.axes.steps='sampler.steps='", "tradeoff.only=[steps]"], "steps"),
+        (["tradeoff.only=[stepz]"], "stepz"),
     ],
 )
 def test_bad_axes_fail_before_any_folder_is_written(tmp_path, axes, match):
@@ -216,9 +181,14 @@ def test_every_run_recorded_with_its_knobs(sweep):
     from snell_bench.experiment.tradeoff import KNOBS
 
     by_key = {v: k for k, v in KNOBS.items()}
+    tiny_knobs = {"steps": 4, "tt_repeats_main": 1, "tt_repeats_pano": 1, "levels": 1, "max_bounces": 4,
+                  "width": 112, "height": 64, "supersample": 1, "pano_height": 32, "spp": 1}
     for where, r in res.items():
         assert r["status"] == "ok" and r["scene"] == where.split("/")[0].rsplit("-", 1)[0]
-        expect = dict(base_knobs, **{by_key[k]: v for k, v in r["overrides"].items()})
+        if r["axis"] == "preset":
+            expect = tiny_knobs
+        else:
+            expect = dict(base_knobs, **{by_key[k]: v for k, v in r["overrides"].items()})
         assert r["knobs"] == expect, where
         t = r["timings_s"]
         assert t["total"] == pytest.approx(t["warps"] + t["sampling"] + t["reference"] + t["metrics"], abs=2e-4)
@@ -227,8 +197,7 @@ def test_every_run_recorded_with_its_knobs(sweep):
         assert (tmp / "runs" / "tradeoff" / where / "image.png").is_file()
     pre = res["kitchen-0/preset-tiny"]
     assert pre["axis"] == "preset" and pre["value"] == "tiny"
-    assert pre["overrides"] == {"sampler.steps": 4, "sampler.tt_repeats_main": 1, "sampler.levels": 1,
-                                "warps.max_bounces": 4}
+    assert pre["overrides"] == {"preset": "tiny"}
     assert res["living_room-0/steps=3"]["axis"] == "steps" and res["living_room-0/steps=3"]["value"] == 3
 
 
@@ -339,8 +308,9 @@ def test_resume_skips_and_recompute_redoes(sweep):
 def test_a_failing_setting_does_not_stop_the_sweep(tmp_path):
     from snell_bench.experiment.tradeoff import run_tradeoff
 
-    cfg = make_cfg(tmp_path, ["reference.true_render=false"], axes={"levels": {"key": "sampler.levels", "values": [0]}},
-                   presets=(), scenes=["living_room"])
+    cfg = make_cfg(tmp_path, ["reference.true_render=false"],
+                   axes=["tradeoff.axes.levels='sampler.levels=0'", "tradeoff.only=[levels]"], presets=(),
+                   scenes=["living_room"])
     summary = run_tradeoff(cfg)
     res = results(tmp_path / "runs" / "tradeoff")
     assert summary["ok"] == 1 and summary["failed"] == 1
@@ -369,7 +339,7 @@ def test_converged_reference_is_shared_and_independent_of_the_settings_spp(sweep
 def test_figure_keeps_the_bulk_and_points_at_isolated_outliers():
     from matplotlib.figure import Figure
 
-    from snell_bench.experiment.tradeoff_report import _clip_outliers
+    from snell_bench.experiment.reports import _clip_outliers
 
     x = np.array([4.0, 8.0, 10.0, 12.0, 15.0, 17.0])
     y = np.array([26.1, 28.4, 27.4, 27.5, 27.4, 13.3])  # one isolated low point (one bounce)

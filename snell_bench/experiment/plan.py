@@ -1,0 +1,101 @@
+"""Composing the cells of a sweep with Hydra.
+
+A cell's config is composed like a command line: the run's own overrides (``cfg.overrides``)
+followed by the cell's (``scene=kitchen scene.variation=2 object=sphere object.ior=1.333
+method=no_dpa``, or a sweep setting's ``sampler.steps=8``), so defaults lists are honoured, the
+schema is kept, and later overrides win. The method's switches are then applied
+(:func:`snell_bench.pipeline.apply_method`).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+from omegaconf import DictConfig, OmegaConf
+
+from snell_bench.config import compose, config_context, group_options
+
+__all__ = [
+    "parse_object_spec",
+    "object_overrides",
+    "object_dir_name",
+    "check_names",
+    "check_reproducible",
+    "compose_cell",
+]
+
+#: Keys that do not change a cell's result (left out when comparing configs).
+_NOT_RESULTS = ("output_dir", "overrides")
+
+
+def parse_object_spec(spec: str) -> tuple[str, float | str | None]:
+    """``"sphere"`` or ``"sphere:1.33"`` / ``"sphere:water"`` (a material override)."""
+    name, _, ior = str(spec).partition(":")
+    if not ior:
+        return name, None
+    try:
+        return name, float(ior)
+    except ValueError:
+        return name, ior
+
+
+def object_overrides(spec: str) -> list[str]:
+    """The overrides of an object spec: ``["object=sphere", "object.ior=1.33"]``."""
+    name, ior = parse_object_spec(spec)
+    return [f"object={name}"] + ([] if ior is None else [f"object.ior={ior}"])
+
+
+def object_dir_name(spec: str) -> str:
+    """The folder of an object spec: ``sphere``, ``sphere-ior1.333``."""
+    name, ior = parse_object_spec(spec)
+    if ior is None:
+        return name
+    return f"{name}-ior{format(ior, '.10g') if isinstance(ior, float) else ior}"
+
+
+def check_names(group: str, names: Sequence[str], key: str) -> None:
+    """Raise ``ValueError`` naming ``key`` unless every name is an entry of the config group."""
+    options = group_options(group)
+    for n in names:
+        if str(n) not in options:
+            raise ValueError(f"{key}: unknown {group} {str(n)!r}; choose from {options} (snell_bench/conf/{group}/)")
+
+
+def _comparable(cfg: DictConfig) -> dict:
+    d = OmegaConf.to_container(cfg, resolve=False)
+    for k in _NOT_RESULTS:
+        d.pop(k, None)
+    return d
+
+
+def check_reproducible(cfg: DictConfig) -> None:
+    """Raise ``ValueError`` unless composing ``cfg.overrides`` gives ``cfg`` again: the cells of a
+    sweep are composed from the overrides, so a change made to the object afterwards would be
+    lost silently."""
+    again = compose(list(cfg.overrides))
+    a, b = _comparable(cfg), _comparable(again)
+    if a != b:
+        diff = sorted(_diff_keys(a, b))
+        raise ValueError(
+            f"the config differs from what its overrides {list(cfg.overrides)} compose, at {diff}; give every "
+            "setting as an override (snell_bench.config.compose([...]) or the command line)"
+        )
+
+
+def _diff_keys(a, b, prefix: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for k in sorted(set(a) | set(b), key=str):
+            out += _diff_keys(a.get(k), b.get(k), f"{prefix}{k}.")
+        return out
+    return [] if a == b else [prefix.rstrip(".")]
+
+
+def compose_cell(cfg: DictConfig, overrides: Sequence[str], *, method: bool = True) -> DictConfig:
+    """The config of one cell: ``cfg.overrides`` then ``overrides``, composed; with ``method``
+    the method's switches applied."""
+    from snell_bench.pipeline import apply_method
+
+    with config_context():
+        c = compose([*cfg.overrides, *overrides])
+    return apply_method(c) if method else c

@@ -1,0 +1,454 @@
+"""The Snellcaster pipeline: every stage from a config to a scored image, in order.
+
+Every job (``preview``, ``generate``, the experiment grid and the speed/accuracy sweep) calls
+these two functions and wires no stage itself::
+
+    inputs = prepare_inputs(cfg)           # 1-5: what every method of a (scene, object) shares
+    result = run_method(cfg, inputs)       # 6-8: one method's image, scored
+
+1. scene source: I⁻ (sRGB), its z-depth and camera (:func:`load_scene`);
+2. the glass object, built from ``object.factory`` (:func:`build_object`) and placed on a
+   supporting surface (:func:`place`);
+3. ray-traced warps (:func:`trace_warps`);
+4. the reference render and its metric mask, by an independent renderer (:func:`render_reference`);
+5. the true render of the full procedural scene with the object (:func:`render_true_scene`);
+6. the generator, built from ``model.generator`` once per inputs (:func:`build_generator`);
+7. sampling with the method's settings (:func:`sample_method`);
+8. masked metrics against the reference (:func:`score`).
+
+Conventions: images handed between stages are ``(1, 3, H, W)`` float32 sRGB tensors in [0, 1]
+(``CellInputs.i_minus``, ``CellResult.image``) or ``(H, W, 3)`` numpy arrays where a stage
+works in numpy (``SceneInputs.image``, references); depth is camera-frame z in scene units;
+the camera frame is OpenCV's. Stage times are wall seconds in ``timings`` (one
+:class:`~snell_bench.utils.timing.Timer` per call), keyed ``scene``, ``warps``, ``reference``,
+``true_render`` (inputs) and ``generator``, ``sampling``, ``metrics`` (a method).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from snell_bench.optics.warps import WarpSet
+from snell_bench.scene.camera import Camera
+from snell_bench.scene.objects import GlassObject
+from snell_bench.utils.tensors import hwc_to_bchw
+from snell_bench.utils.timing import Timer
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "SceneInputs",
+    "CellInputs",
+    "CellResult",
+    "Skip",
+    "apply_method",
+    "full_prompt",
+    "load_scene",
+    "build_object",
+    "place",
+    "trace_warps",
+    "render_reference",
+    "render_true_scene",
+    "scene_panorama",
+    "build_generator",
+    "sample_method",
+    "score",
+    "prepare_inputs",
+    "run_method",
+    "save_inputs",
+]
+
+#: The checkout's root (``datasets/`` is found there when a relative mesh path is not found in the
+#: working folder).
+_CHECKOUT = Path(__file__).resolve().parents[1]
+
+
+class Skip(Exception):
+    """A method that cannot run here; the message says why."""
+
+
+@dataclass
+class SceneInputs:
+    """What a scene source gives: I⁻, its depth and camera."""
+
+    image: np.ndarray  #: (H, W, 3) float32 sRGB in [0, 1]: I⁻
+    depth: np.ndarray  #: (H, W) float32 camera-frame z
+    camera: Camera
+    up: np.ndarray | None  #: scene up in camera coordinates, if the source knows it
+    source: Any  #: the scene source (e.g. a ProceduralScene), for panoramas and ground truth
+
+
+@dataclass
+class CellInputs:
+    """Everything the methods of one (scene, variation, object) share."""
+
+    scene: SceneInputs
+    obj: GlassObject  #: placed, in the camera frame
+    warps: WarpSet
+    warps_config: dict  #: the resolved ``warps`` node the warps were traced with
+    i_minus: torch.Tensor  #: (1, 3, H, W) float32 sRGB
+    reference: Any = None  #: a ReferenceRender (image, mask, unobserved) or None
+    reference_reason: str | None = None  #: why there is no reference
+    true_render: np.ndarray | None = None  #: (H, W, 3) sRGB, procedural scenes only
+    timings: dict = field(default_factory=dict)
+    #: generators built on these inputs, by model config (built once, shared by methods)
+    generators: dict = field(default_factory=dict, repr=False)
+
+
+@dataclass
+class CellResult:
+    """One method's output on one :class:`CellInputs`."""
+
+    image: torch.Tensor  #: (1, 3, H, W) float32 sRGB
+    panorama: torch.Tensor | None = None  #: (1, 3, h, 2h) or None
+    stats: dict = field(default_factory=dict)  #: model_calls, sampler_timings_s, decisions
+    dumps: list = field(default_factory=list)  #: intermediate estimates (sampler.dump_every)
+    scores: dict = field(default_factory=dict)  #: {"metrics": ..., "missing": ...} when scored
+    timings: dict = field(default_factory=dict)
+    warps: WarpSet | None = None  #: the warps the method used
+
+
+# ---------------------------------------------------------------------------- config helpers
+def apply_method(cfg: DictConfig) -> DictConfig:
+    """A copy of ``cfg`` with its method's switches (``method.sampler``, ``method.warps``) merged
+    over the ``sampler`` and ``warps`` nodes, keeping their structured schema (an unknown key is
+    an error); ``cfg`` itself is unchanged. Idempotent."""
+    c = cfg.copy()
+    c.sampler = OmegaConf.merge(c.sampler, c.method.sampler or {})
+    c.warps = OmegaConf.merge(c.warps, c.method.warps or {})
+    return c
+
+
+def full_prompt(cfg: DictConfig) -> str:
+    """The full prompt p of a config, ``{object}`` replaced by the object's noun."""
+    return str(cfg.scene.prompt).replace("{object}", str(cfg.object.noun))
+
+
+def _plain(node) -> Any:
+    return OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else node
+
+
+# ---------------------------------------------------------------------------- 1. scene source
+def load_scene(scene_cfg: DictConfig) -> SceneInputs:
+    """Stage 1: I⁻, its depth and camera from ``scene.source``."""
+    if scene_cfg.source != "procedural":
+        raise ValueError(f"scene.source={scene_cfg.source!r} is not available; use scene.source=procedural")
+    from snell_bench.scene.procedural import ProceduralScene
+
+    scene = ProceduralScene(kind=scene_cfg.kind, seed=int(scene_cfg.seed_offset) + int(scene_cfg.variation))
+    r = scene.render(width=int(scene_cfg.width), height=int(scene_cfg.height), supersample=int(scene_cfg.supersample))
+    return SceneInputs(image=r.image, depth=r.depth, camera=r.camera, up=scene.up, source=scene)
+
+
+# ---------------------------------------------------------------------------- 2. the object
+def _mesh_path(obj_cfg: DictConfig) -> str:
+    path = Path(str(obj_cfg.path))
+    if not path.is_absolute() and not path.exists():
+        path = _CHECKOUT / path
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"object {obj_cfg.name!r}: mesh file {obj_cfg.path!r} not found; set object.path to an existing "
+            ".ply/.obj/.glb/.stl file"
+        )
+    return str(path)
+
+
+def build_object(obj_cfg: DictConfig) -> GlassObject:
+    """Stage 2a: the canonical (unplaced) object, ``instantiate(object.factory, ior=object.ior)``
+    (with ``path=`` the resolved ``object.path`` for factories that read a file)."""
+    from hydra.errors import InstantiationException
+    from hydra.utils import instantiate
+
+    factory = obj_cfg.get("factory")
+    if not factory or "_target_" not in factory:
+        raise ValueError(
+            f"object {obj_cfg.get('name')!r} has no object.factory._target_; choose an object (object=sphere) or set "
+            "it, e.g. object.factory._target_=snell_bench.scene.objects.GlassObject.sphere"
+        )
+    kwargs: dict[str, Any] = {"ior": obj_cfg.ior}
+    if "path" in factory:
+        if not obj_cfg.path:
+            raise ValueError(f"object {obj_cfg.name!r} reads a mesh file: set object.path")
+        kwargs["path"] = _mesh_path(obj_cfg)
+    try:
+        return instantiate(factory, **kwargs)
+    except InstantiationException as e:
+        cause = e.__cause__
+        if isinstance(cause, (ValueError, FileNotFoundError)):
+            raise cause from None
+        raise ValueError(f"object.factory._target_={factory['_target_']!r} failed: {cause or e}") from None
+
+
+def place(obj: GlassObject, scene: SceneInputs, obj_cfg: DictConfig, seed: int = 0) -> GlassObject:
+    """Stage 2b: ``obj`` standing on a supporting surface of the scene (``object.size``,
+    ``object.relative_size``, ``object.yaw_deg``)."""
+    from snell_bench.scene.placement import place_object
+
+    kwargs: dict[str, Any] = {"seed": seed}
+    if scene.up is not None:
+        kwargs["up_hint"] = scene.up
+    return place_object(
+        obj,
+        scene.depth,
+        scene.camera,
+        size=obj_cfg.size,
+        relative_size=float(obj_cfg.relative_size),
+        yaw_deg=float(obj_cfg.yaw_deg),
+        **kwargs,
+    )
+
+
+# ---------------------------------------------------------------------------- 3. warps
+def trace_warps(scene: SceneInputs, obj: GlassObject, warps_cfg: DictConfig) -> WarpSet:
+    """Stage 3: :func:`~snell_bench.optics.compute_warps` with the ``warps`` node."""
+    from snell_bench.optics.warps import compute_warps
+
+    w = warps_cfg
+    return compute_warps(
+        scene.depth,
+        scene.camera,
+        obj,
+        pano_height=int(w.pano_height),
+        max_bounces=int(w.max_bounces),
+        normals=str(w.normals),
+        edge_threshold=float(w.edge_threshold),
+        cache_dir=w.cache_dir,
+        roi=bool(w.roi),
+        infinity_tolerance_px=w.infinity_tolerance_px,
+    )
+
+
+# ---------------------------------------------------------------------------- 4-5. references
+def render_reference(cfg: DictConfig, scene: SceneInputs, obj: GlassObject, *, spp: int | None = None):
+    """Stage 4: the reference render and metric mask (``reference.*``), or ``(None, reason)``."""
+    if not cfg.reference.enabled:
+        return None, "reference.enabled=false"
+    try:
+        from snell_bench.render import render_reference as render
+    except ImportError as e:
+        reason = f"reference renderer unavailable ({e}); install the render extra: make setup EXTRAS=test,render"
+        log.warning(reason)
+        return None, reason
+    ref = render(
+        scene.image,
+        scene.depth,
+        scene.camera,
+        obj,
+        spp=int(cfg.reference.spp if spp is None else spp),
+        edge_threshold=float(cfg.warps.edge_threshold),
+        seed=int(cfg.seed),
+        unobserved_threshold=float(cfg.reference.unobserved_threshold),
+    )
+    return ref, None
+
+
+def render_true_scene(cfg: DictConfig, scene: SceneInputs, obj: GlassObject) -> np.ndarray | None:
+    """Stage 5: the procedural scene rendered with the object (``reference.true_render``), or None."""
+    if not (cfg.reference.true_render and cfg.scene.source == "procedural"):
+        return None
+    from snell_bench.render import render_true
+
+    bounces = cfg.reference.true_max_bounces or cfg.warps.max_bounces
+    return render_true(scene.source, scene.camera, obj, spp=int(cfg.reference.true_spp), max_bounces=int(bounces),
+                       seed=int(cfg.seed))
+
+
+def prepare_inputs(cfg: DictConfig, *, references: bool = True) -> CellInputs:
+    """Stages 1-5 for the scene, object, warps and reference settings of ``cfg``.
+
+    Args:
+        cfg: a composed config (the method's switches are not applied here: methods that change
+            the warps get their own in :func:`run_method`).
+        references: render the reference and the true render (stages 4 and 5).
+
+    Returns:
+        The shared inputs, with ``timings`` for ``scene``, ``warps``, ``reference``, ``true_render``.
+    """
+    t = Timer()
+    with t("scene"):
+        scene = load_scene(cfg.scene)
+        obj = place(build_object(cfg.object), scene, cfg.object, seed=int(cfg.seed))
+    with t("warps"):
+        ws = trace_warps(scene, obj, cfg.warps)
+    reference, reason, true = None, "not rendered", None
+    if references:
+        with t("reference"):
+            reference, reason = render_reference(cfg, scene, obj)
+        with t("true_render"):
+            true = render_true_scene(cfg, scene, obj)
+    return CellInputs(scene=scene, obj=obj, warps=ws, warps_config=_plain(cfg.warps), i_minus=hwc_to_bchw(scene.image),
+                      reference=reference, reference_reason=reason, true_render=true, timings=t.seconds)
+
+
+# ---------------------------------------------------------------------------- 6. generator
+def scene_panorama(scene: SceneInputs, pano, supersample: int = 1) -> np.ndarray:
+    """The source's true panorama seen by a :class:`~snell_bench.imaging.PanoramaCamera` (sRGB)."""
+    if not hasattr(scene.source, "render_panorama"):
+        raise ValueError("this scene source cannot render panoramas")
+    return scene.source.render_panorama(
+        center=pano.center,
+        height=pano.height,
+        up=-pano.rotation[:, 1],
+        forward=pano.rotation[:, 2],
+        supersample=supersample,
+    )
+
+
+def build_generator(model_cfg: DictConfig, inputs: CellInputs):
+    """Stage 6: ``instantiate(model.generator)``; a generator built from the scene
+    (``model.from_scene``) also gets ``i_minus``, ``object_mask`` and the true ``panorama``."""
+    from hydra.utils import instantiate
+
+    if not model_cfg.get("generator"):
+        raise ValueError(f"model {model_cfg.name!r} has no model.generator._target_; choose a model (model=analytic)")
+    kwargs = {}
+    if model_cfg.from_scene:
+        kwargs = {"i_minus": inputs.scene.image, "object_mask": inputs.warps.object_mask,
+                  "panorama": scene_panorama(inputs.scene, inputs.warps.pano)}
+    return instantiate(model_cfg.generator, **kwargs)
+
+
+def _generator(cfg: DictConfig, inputs: CellInputs, t: Timer):
+    """The generator of ``cfg.model`` on ``inputs``, built once; ``generator`` time is the time it
+    took to build (the same for every method that reuses it)."""
+    key = OmegaConf.to_yaml(cfg.model, resolve=True)
+    if key not in inputs.generators:
+        inputs.generators.clear()  # one model per inputs at a time
+        build = Timer()
+        with build("generator"):
+            gen = build_generator(cfg.model, inputs)
+        inputs.generators[key] = (gen, build.seconds["generator"])
+    gen, seconds = inputs.generators[key]
+    t.seconds["generator"] = seconds
+    return gen
+
+
+# ---------------------------------------------------------------------------- 7. sampling
+def _check_requirements(cfg: DictConfig) -> None:
+    if "gpu" in list(cfg.method.requires or []) and not torch.cuda.is_available():
+        raise Skip(f"{cfg.method.label} needs a CUDA GPU and its weights ({cfg.method.model_id}); none here")
+
+
+def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
+    """Stage 7: the method's image (``method.kind``: ``snellcaster``, ``t2i``, ``inpaint``,
+    ``external``). Raises :class:`Skip` for a method that cannot run here."""
+    from snell_bench.sampler.settings import SamplerSettings
+    from snell_bench.sampler.snellcaster import sample
+
+    _check_requirements(cfg)
+    kind, prompt = cfg.method.kind, full_prompt(cfg)
+    if kind == "external":
+        from snell_bench.models.external import generate_external
+
+        with t("sampling"):
+            img = generate_external(cfg.method.model_id, prompt, warps.camera.shape, seed=int(cfg.seed),
+                                    steps=int(cfg.sampler.steps))
+        return CellResult(image=img, warps=warps)
+    if kind not in ("snellcaster", "t2i", "inpaint"):
+        raise ValueError(f"method.kind={kind!r} is unknown; use snellcaster, t2i, inpaint or external")
+    if kind == "inpaint" and cfg.model.name != "analytic":
+        from snell_bench.models.external import inpaint_external
+
+        with t("sampling"):
+            img = inpaint_external(cfg.method.model_id, prompt, inputs.i_minus, warps.object_mask, seed=int(cfg.seed),
+                                   steps=int(cfg.sampler.steps))
+        return CellResult(image=img, warps=warps)
+    gen = _generator(cfg, inputs, t)
+    settings = OmegaConf.to_object(cfg.sampler)
+    assert isinstance(settings, SamplerSettings)
+    with t("sampling"):
+        res = sample(gen, warps, inputs.i_minus, prompt, str(cfg.scene.pano_prompt), settings, seed=int(cfg.seed))
+    img = res.image
+    if kind == "inpaint":  # CPU stand-in: the generator fills the object region of I⁻, no optics
+        img = torch.where(torch.from_numpy(warps.object_mask)[None, None], img, inputs.i_minus)
+    stats = {"model_calls": res.model_calls, "sampler_timings_s": {k: round(v, 3) for k, v in res.timings.items()},
+             "decisions": res.decisions}
+    return CellResult(image=img, panorama=res.panorama, stats=stats, dumps=res.dumps, warps=warps)
+
+
+# ---------------------------------------------------------------------------- 8. metrics
+def score(cfg: DictConfig, inputs: CellInputs, image: torch.Tensor, scorers, *, image_path=None,
+          reference=None) -> dict:
+    """Stage 8: masked metrics of ``image`` against the reference (``reference``: another
+    ReferenceRender to score against, e.g. a converged one) and PSNR against the true render:
+    ``{"metrics": {name: float | None}, "missing": {name: reason}}``."""
+    from snell_bench.metrics import score_cell
+    from snell_bench.utils.tensors import bchw_to_hwc
+
+    ref = inputs.reference if reference is None else reference
+    return score_cell(
+        bchw_to_hwc(image),
+        None if ref is None else ref.image,
+        None if ref is None else ref.mask,
+        full_prompt(cfg),
+        scorers,
+        reference_reason=inputs.reference_reason,
+        true_render=inputs.true_render if reference is None else None,
+        object_mask=inputs.warps.object_mask,
+        generated_path=image_path,
+    )
+
+
+def run_method(cfg: DictConfig, inputs: CellInputs, *, scorers=None, image_path=None) -> CellResult:
+    """Stages 6-8: one method (``cfg`` with :func:`apply_method` applied) on shared inputs.
+
+    A method whose ``warps`` settings differ from those the inputs were traced with gets its own
+    warps (timed as ``warps``). With ``scorers`` (:func:`snell_bench.metrics.load_scorers`) the
+    image is scored and ``CellResult.scores`` filled; ``image_path`` is the saved image, handed to
+    scorers that read files. Raises :class:`Skip` for a method that cannot run here.
+    """
+    t = Timer()
+    warps = inputs.warps
+    if _plain(cfg.warps) != inputs.warps_config:
+        with t("warps"):
+            warps = trace_warps(inputs.scene, inputs.obj, cfg.warps)
+    result = sample_method(cfg, inputs, warps, t)
+    if scorers is not None:
+        if image_path is not None:
+            from snell_bench.utils.io import save_png
+            from snell_bench.utils.tensors import bchw_to_hwc
+
+            save_png(image_path, bchw_to_hwc(result.image))
+        with t("metrics"):
+            result.scores = score(cfg, inputs, result.image, scorers, image_path=image_path)
+    result.timings = {**t.seconds, **result.timings}
+    return result
+
+
+# ---------------------------------------------------------------------------- files
+def save_inputs(inputs: CellInputs, folder: Path, *, arrays: bool = False) -> dict[str, Path]:
+    """Write the inputs that define a cell into ``folder`` (atomically): ``I_minus.png``,
+    ``depth.npy``, ``camera.json``, ``object.ply``, and where rendered ``reference.png``,
+    ``mask.png``, ``unobserved.npy``, ``true.png``; with ``arrays`` also the float
+    ``reference.npy`` and ``metric_mask.npy``. Returns ``{file name: path}`` of the files a cell
+    links (not the arrays)."""
+    from snell_bench.utils.io import atomic_write_bytes, save_npy, save_png, write_json
+
+    folder.mkdir(parents=True, exist_ok=True)
+    obj, sc = inputs.obj, inputs.scene
+    files = {
+        "I_minus.png": save_png(folder / "I_minus.png", sc.image),
+        "depth.npy": save_npy(folder / "depth.npy", sc.depth.astype(np.float32)),
+        "camera.json": write_json(folder / "camera.json", dict(sc.camera.to_dict(), ior=obj.ior, object=obj.name,
+                                                               up=obj.up.tolist() if obj.up is not None else None)),
+        "object.ply": atomic_write_bytes(folder / "object.ply", obj.mesh.export(file_type="ply")),
+    }
+    ref = inputs.reference
+    if ref is not None:
+        files["reference.png"] = save_png(folder / "reference.png", ref.image)
+        files["mask.png"] = save_png(folder / "mask.png", ref.mask.astype(np.float32))
+        save_npy(folder / "unobserved.npy", ref.unobserved.astype(np.float16))
+        if arrays:
+            save_npy(folder / "reference.npy", np.asarray(ref.image, np.float32))
+            save_npy(folder / "metric_mask.npy", np.asarray(ref.mask, bool))
+    if inputs.true_render is not None:
+        files["true.png"] = save_png(folder / "true.png", inputs.true_render)
+    return files
+

@@ -1,0 +1,102 @@
+"""The pipeline's stages: each one against the functions it wires, and the methods' plumbing."""
+
+import numpy as np
+import pytest
+import torch
+
+from snell_bench import pipeline
+from snell_bench.config import compose
+
+TINY = ["scene.width=128", "scene.height=64", "scene.supersample=1", "warps.pano_height=32", "warps.cache_dir=null",
+        "sampler.steps=3", "sampler.progress=false", "reference.spp=1", "reference.true_spp=1", "output_dir=/tmp/x"]
+
+
+@pytest.fixture(scope="module")
+def inputs():
+    return pipeline.prepare_inputs(compose(TINY))
+
+
+def test_prepare_inputs_equals_the_stages_called_by_hand(inputs):
+    from snell_bench.optics.warps import compute_warps
+    from snell_bench.scene.objects import GlassObject
+    from snell_bench.scene.placement import place_object
+    from snell_bench.scene.procedural import ProceduralScene
+
+    scene = ProceduralScene("room", 0)
+    r = scene.render(width=128, height=64, supersample=1)
+    obj = place_object(GlassObject.sphere(ior="glass"), r.depth, r.camera, size=None, relative_size=0.25,
+                       yaw_deg=0.0, seed=0, up_hint=scene.up)
+    ws = compute_warps(r.depth, r.camera, obj, pano_height=32, max_bounces=8, cache_dir=None)
+    np.testing.assert_array_equal(inputs.scene.image, r.image)
+    np.testing.assert_array_equal(inputs.obj.vertices, obj.vertices)
+    np.testing.assert_array_equal(inputs.warps.refraction, ws.refraction)
+    np.testing.assert_array_equal(inputs.warps.fresnel, ws.fresnel)
+    assert inputs.i_minus.shape == (1, 3, 64, 128) and inputs.i_minus.dtype == torch.float32
+    assert set(inputs.timings) == {"scene", "warps", "reference", "true_render"}
+    assert inputs.reference is not None and inputs.reference.image.shape == (64, 128, 3)
+    assert inputs.true_render is not None
+
+
+def test_build_object_instantiates_the_factory_with_the_material():
+    from snell_bench.scene.objects import GlassObject
+
+    cfg = compose(["object=cylinder", "object.ior=water", "output_dir=/tmp/x"])
+    obj = pipeline.build_object(cfg.object)
+    ref = GlassObject.cylinder(ior="water")
+    np.testing.assert_array_equal(obj.vertices, ref.vertices)
+    assert obj.ior == ref.ior == pytest.approx(1.333, abs=1e-3)
+    spot = pipeline.build_object(compose(["object=spot", "output_dir=/tmp/x"]).object)
+    assert spot.name and len(spot.mesh.faces) > 1000
+
+
+def test_generators_get_their_model_keys(inputs):
+    from snell_bench.models.analytic import AnalyticGenerator
+    from snell_bench.models.tiny_flux import TinyFluxGenerator
+
+    gen = pipeline.build_generator(compose(["model=tiny_flux", "model.guidance=2.0", "output_dir=/tmp/x"]).model, inputs)
+    assert isinstance(gen, TinyFluxGenerator) and gen.guidance == 2.0
+    ana = pipeline.build_generator(compose(["model.prior_std=0.07", "output_dir=/tmp/x"]).model, inputs)
+    assert isinstance(ana, AnalyticGenerator) and ana.prior_std == 0.07
+
+
+def test_run_method_applies_switches_and_shares_the_generator(inputs):
+    base = compose(TINY)
+    snell = pipeline.run_method(pipeline.apply_method(base), inputs)
+    assert snell.warps is inputs.warps and "warps" not in snell.timings
+    assert snell.image.shape == (1, 3, 64, 128) and 0 <= snell.image.min() and snell.image.max() <= 1
+    assert snell.stats["model_calls"]["pano"] == 3
+    again = pipeline.run_method(pipeline.apply_method(base), inputs)
+    torch.testing.assert_close(again.image, snell.image, rtol=0, atol=0)  # deterministic for the seed
+    assert len(inputs.generators) == 1 and again.timings["generator"] == snell.timings["generator"]
+    # a method with its own warp settings gets its own warps
+    adaptive = pipeline.run_method(pipeline.apply_method(compose([*TINY, "method=adaptive"])), inputs)
+    assert adaptive.warps is not inputs.warps and "warps" in adaptive.timings
+    assert adaptive.warps.options["infinity_tolerance_px"] == 1.0
+    t2i = pipeline.run_method(pipeline.apply_method(compose([*TINY, "method=t2i"])), inputs)
+    assert t2i.stats["model_calls"]["pano"] == 0
+
+
+def test_methods_that_cannot_run_here_are_skipped(inputs):
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA machine runs external methods")
+    with pytest.raises(pipeline.Skip, match="GPU"):
+        pipeline.run_method(pipeline.apply_method(compose([*TINY, "method=flux2_dev"])), inputs)
+
+
+def test_scores_against_the_reference_and_the_true_render(inputs):
+    from snell_bench.metrics import load_scorers, masked_psnr
+
+    cfg = pipeline.apply_method(compose(TINY))
+    res = pipeline.run_method(cfg, inputs, scorers=load_scorers(cfg.metrics))
+    img = res.image[0].permute(1, 2, 0).numpy()
+    m = res.scores["metrics"]
+    assert m["psnr"] == pytest.approx(masked_psnr(img, inputs.reference.image, inputs.reference.mask))
+    assert m["psnr_true"] == pytest.approx(masked_psnr(img, inputs.true_render, inputs.warps.object_mask))
+    assert m["lpips"] is None and "lpips_weights" in res.scores["missing"]["lpips"]
+    assert "metrics" in res.timings
+
+
+def test_full_prompt_names_the_object():
+    cfg = compose(["object=spot", "output_dir=/tmp/x"])
+    p = pipeline.full_prompt(cfg)
+    assert "{object}" not in p and "glass cow" in p
