@@ -16,13 +16,13 @@ python benchmarks/bench_adaptive.py [--height 720 --width 1280 --pano 1024 --ste
 
 from __future__ import annotations
 
-import snell_bench  # noqa: F401  (first: sets the OpenMP wait policy before torch loads)
-
 import argparse
 import os
 import platform
 import time
 from dataclasses import replace
+
+import snell_bench  # noqa: F401  (first: sets the OpenMP wait policy before torch loads)
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
@@ -60,27 +60,35 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=3)
     ap.add_argument("--repeat", type=int, default=2)
     args = ap.parse_args()
-    print(f"snell_bench adaptive benchmark ({platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}); "
-          f"view {args.height}x{args.width}, panorama {args.pano}x{2 * args.pano}, best of {args.repeat}")
+    print(
+        f"snell_bench adaptive benchmark ({platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}); "
+        f"view {args.height}x{args.width}, panorama {args.pano}x{2 * args.pano}, best of {args.repeat}"
+    )
 
     # 1. warps
     scene, r, obj = scene_setup("room", 0, args)
     full, t_full = best(lambda: compute_warps(r.depth, r.camera, obj, args.pano, roi=False), args.repeat)
     roi, t_roi = best(lambda: compute_warps(r.depth, r.camera, obj, args.pano, roi=True), args.repeat)
     print("\nwarps (room, sphere)")
-    print(f"  full frame {t_full:6.2f} s  primary {full.stats['timings_s']['primary']:.2f} s  "
-          f"({full.stats['traced_primary_rays']} rays)")
-    print(f"  ROI        {t_roi:6.2f} s  primary {roi.stats['timings_s']['primary']:.2f} s  "
-          f"({roi.stats['traced_primary_rays']} rays)   speed-up x{t_full / t_roi:.2f}")
+    print(
+        f"  full frame {t_full:6.2f} s  primary {full.stats['timings_s']['primary']:.2f} s  "
+        f"({full.stats['traced_primary_rays']} rays)"
+    )
+    print(
+        f"  ROI        {t_roi:6.2f} s  primary {roi.stats['timings_s']['primary']:.2f} s  "
+        f"({roi.stats['traced_primary_rays']} rays)   speed-up x{t_full / t_roi:.2f}"
+    )
     _, ro, oo = scene_setup("outdoor", 700, args)  # the desert
     ex, t_ex = best(lambda: compute_warps(ro.depth, ro.camera, oo, args.pano), args.repeat)
     inf, t_inf = best(lambda: compute_warps(ro.depth, ro.camera, oo, args.pano, infinity_tolerance_px=1.0), args.repeat)
     fb = inf.stats["far_background"]
     both = torch.from_numpy(ex.refraction).isfinite().all(-1) & torch.from_numpy(inf.refraction).isfinite().all(-1)
     dmax = float((torch.from_numpy(ex.refraction) - torch.from_numpy(inf.refraction)).abs()[both].max())
-    print(f"warps (desert, sphere): exact {t_ex:.2f} s, far background at infinity {t_inf:.2f} s "
-          f"(x{t_ex / t_inf:.2f}); {100 * fb['far_fraction']:.1f} % of pixels far (depth >= "
-          f"{fb['nearest_far_depth'] or float('nan'):.0f}), largest change of π^R {dmax:.3f} px")
+    print(
+        f"warps (desert, sphere): exact {t_ex:.2f} s, far background at infinity {t_inf:.2f} s "
+        f"(x{t_ex / t_inf:.2f}); {100 * fb['far_fraction']:.1f} % of pixels far (depth >= "
+        f"{fb['nearest_far_depth'] or float('nan'):.0f}), largest change of π^R {dmax:.3f} px"
+    )
 
     # 2. sampler windows
     p = roi.pano
@@ -90,7 +98,9 @@ def main() -> None:
     base = SamplerSettings(steps=args.steps, time_travel=False, progress=False)
 
     def per_step(res):
-        return res.timings["warp_blend"] / args.steps, sum(v for k, v in res.timings.items() if k != "setup") / args.steps
+        return res.timings["warp_blend"] / args.steps, sum(
+            v for k, v in res.timings.items() if k != "setup"
+        ) / args.steps
 
     a, _ = best(lambda: sample(gen, roi, i_minus, "p", "p360", replace(base, roi=False), seed=0), args.repeat)
     b, _ = best(lambda: sample(gen, roi, i_minus, "p", "p360", replace(base, roi=True), seed=0), args.repeat)
@@ -98,8 +108,10 @@ def main() -> None:
     diff = float((a.image - b.image).abs().max())
     print("\nsampler per synchronized step (room, sphere IOR 1.5)")
     print(f"  whole frames  warp+blend {wa:6.3f} s  step {sa:6.3f} s")
-    print(f"  windows (ROI) warp+blend {wb:6.3f} s  step {sb:6.3f} s   warp+blend x{wa / wb:.2f}, step x{sa / sb:.2f}; "
-          f"max image difference {diff:.1e}")
+    print(
+        f"  windows (ROI) warp+blend {wb:6.3f} s  step {sb:6.3f} s   warp+blend x{wa / wb:.2f}, step x{sa / sb:.2f}; "
+        f"max image difference {diff:.1e}"
+    )
 
     # 3. adaptive decisions on a weak lens
     _, rw, ow = scene_setup("room", 0, args, ior=1.05)
@@ -114,10 +126,12 @@ def main() -> None:
     d = ad_w.decisions
     print("\nsampler per step, weak lens (IOR 1.05)")
     print(f"  all modelled  step {sf:6.3f} s  model calls {full_w.model_calls}")
-    print(f"  adaptive      step {sa2:6.3f} s  model calls {ad_w.model_calls}   x{sf / sa2:.2f}; reflection kept on "
-          f"{100 * d['reflection']['share_kept']:.1f} % of object pixels, panorama used: {d['panorama']['used']} "
-          f"({100 * d['panorama'].get('observed_share', float('nan')):.1f} % observed); object PSNR between the two "
-          f"{10 * torch.log10(torch.tensor(1 / max(mse, 1e-12))).item():.1f} dB")
+    print(
+        f"  adaptive      step {sa2:6.3f} s  model calls {ad_w.model_calls}   x{sf / sa2:.2f}; reflection kept on "
+        f"{100 * d['reflection']['share_kept']:.1f} % of object pixels, panorama used: {d['panorama']['used']} "
+        f"({100 * d['panorama'].get('observed_share', float('nan')):.1f} % observed); object PSNR between the two "
+        f"{10 * torch.log10(torch.tensor(1 / max(mse, 1e-12))).item():.1f} dB"
+    )
 
 
 if __name__ == "__main__":

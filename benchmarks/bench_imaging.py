@@ -20,9 +20,9 @@ import platform
 import statistics
 import time
 
-import snell_bench  # noqa: F401  (first: sets the OpenMP wait policy before torch loads)
 import torch
 
+import snell_bench  # noqa: F401  (first: sets the OpenMP wait policy before torch loads)
 from snell_bench.imaging import blend_pyramids, laplacian_pyramid, lod_warp, pyramid_warp
 from snell_bench.imaging.remap import remap
 
@@ -81,8 +81,10 @@ def main() -> None:
     }
     times = {name: median_time(fn, args.repeat) for name, fn in cases.items()}
 
-    print(f"snell_bench imaging benchmark  ({platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"{torch.get_num_threads()} torch threads, torch {torch.__version__})")
+    print(
+        f"snell_bench imaging benchmark  ({platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"{torch.get_num_threads()} torch threads, torch {torch.__version__})"
+    )
     valid = torch.isfinite(c).all(-1).float().mean()
     print(f"RGB {H}x{W}, synthetic bulge + swirl map ({valid:.0%} valid), median of {args.repeat}")
     base = times["remap"]

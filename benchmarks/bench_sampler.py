@@ -9,11 +9,11 @@ Usage: python benchmarks/bench_sampler.py [--height 720 --width 1280 --pano 1024
 
 from __future__ import annotations
 
-import snell_bench  # noqa: F401  (first: sets the OpenMP wait policy before torch loads)
-
 import argparse
 import os
 import platform
+
+import snell_bench  # noqa: F401  (first: sets the OpenMP wait policy before torch loads)
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
@@ -51,17 +51,23 @@ def main() -> None:
 
         gens.append(("tiny_flux", lambda: TinyFluxGenerator(seed=0)))
     print(f"snell_bench sampler benchmark ({platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__})")
-    print(f"view {args.height}x{args.width}, panorama {args.pano}x{2 * args.pano}, {args.steps} steps, no time travel; "
-          "seconds per synchronized step (both branches)")
-    print(f"  {'backend':10s} {'model':>8s} {'codec':>8s} {'warp+blend':>11s} {'step':>7s} {'total':>8s} {'sync overhead':>14s}")
+    print(
+        f"view {args.height}x{args.width}, panorama {args.pano}x{2 * args.pano}, {args.steps} steps, no time travel; "
+        "seconds per synchronized step (both branches)"
+    )
+    print(
+        f"  {'backend':10s} {'model':>8s} {'codec':>8s} {'warp+blend':>11s} {'step':>7s} {'total':>8s} {'sync overhead':>14s}"
+    )
     for name, build in gens:
         gen = build()
         res = sample(gen, ws, i_minus, "a glass sphere", "a panorama", settings, seed=0)
         t = {k: v / args.steps for k, v in res.timings.items() if k != "setup"}
         total = sum(t.values())
         overhead = (t["codec"] + t["warp_blend"]) / total
-        print(f"  {name:10s} {t['model']:8.3f} {t['codec']:8.3f} {t['warp_blend']:11.3f} {t['step']:7.3f} "
-              f"{total:8.3f} {overhead:13.0%}   (once per run: warps of I⁻ {res.timings['setup']:.2f} s)")
+        print(
+            f"  {name:10s} {t['model']:8.3f} {t['codec']:8.3f} {t['warp_blend']:11.3f} {t['step']:7.3f} "
+            f"{total:8.3f} {overhead:13.0%}   (once per run: warps of I⁻ {res.timings['setup']:.2f} s)"
+        )
 
 
 if __name__ == "__main__":

@@ -16,11 +16,11 @@ import platform
 import statistics
 import time
 
-import snell_bench  # noqa: F401  (first: sets the OpenMP wait policy before torch loads)
 import numpy as np
 import open3d as o3d
 import torch
 
+import snell_bench  # noqa: F401  (first: sets the OpenMP wait policy before torch loads)
 from snell_bench.optics import compute_warps
 from snell_bench.scene.depth_mesh import depth_to_mesh
 from snell_bench.scene.objects import GlassObject
@@ -59,13 +59,13 @@ def omp_wait_policy_probe() -> dict[tuple[str, bool], float]:
 
     out = {}
     for contended in (False, True):
-        busy = (
-            subprocess.Popen([sys.executable, "-c", "while True: pass"]) if contended else None
-        )
+        busy = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if contended else None
         try:
             for policy in ("ACTIVE", "PASSIVE"):
                 env = dict(os.environ, OMP_WAIT_POLICY=policy)
-                r = subprocess.run([sys.executable, "-c", _OMP_PROBE], env=env, capture_output=True, text=True, check=True)
+                r = subprocess.run(
+                    [sys.executable, "-c", _OMP_PROBE], env=env, capture_output=True, text=True, check=True
+                )
                 out[policy, contended] = float(r.stdout.strip())
         finally:
             if busy is not None:
@@ -99,11 +99,15 @@ def main() -> None:
         full.append(time.perf_counter() - t0)
         stages.append(ws.stats["timings_s"])
     raw_t, full_t = statistics.median(raw), statistics.median(full)
-    print(f"snell_bench warp benchmark  ({platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"torch {torch.__version__}, open3d {o3d.__version__})")
-    print(f"frame {args.height}x{args.width} ({len(d):,} rays, {len(faces):,} background triangles, "
-          f"{len(obj.faces):,} object triangles), panorama {args.pano}x{2 * args.pano}, "
-          f"object pixels {int(ws.object_mask.sum()):,}, median of {args.repeat}")
+    print(
+        f"snell_bench warp benchmark  ({platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"torch {torch.__version__}, open3d {o3d.__version__})"
+    )
+    print(
+        f"frame {args.height}x{args.width} ({len(d):,} rays, {len(faces):,} background triangles, "
+        f"{len(obj.faces):,} object triangles), panorama {args.pano}x{2 * args.pano}, "
+        f"object pixels {int(ws.object_mask.sum()):,}, median of {args.repeat}"
+    )
     print(f"  raw Open3D cast (scene build + 1 cast): {raw_t:7.3f} s")
     print(f"  full WarpSet (compute_warps)          : {full_t:7.3f} s")
     print(f"  ratio WarpSet / raw cast              : {full_t / raw_t:7.2f}x   (goal: <= 4x)")
@@ -111,7 +115,9 @@ def main() -> None:
     med = {k: statistics.median(s[k] for s in stages) for k in keys}
     print("  WarpSet stages: " + ", ".join(f"{k} {v:.3f} s" for k, v in med.items()))
     probe = omp_wait_policy_probe()
-    print("OpenMP wait policy, one small torch op (54k x 3, float64; snell_bench sets PASSIVE unless OMP_WAIT_POLICY is set):")
+    print(
+        "OpenMP wait policy, one small torch op (54k x 3, float64; snell_bench sets PASSIVE unless OMP_WAIT_POLICY is set):"
+    )
     for contended, label in ((False, "idle machine"), (True, "one busy process beside it")):
         a, p = probe["ACTIVE", contended], probe["PASSIVE", contended]
         print(f"  {label:27s}: ACTIVE {a * 1e3:7.2f} ms, PASSIVE {p * 1e3:6.2f} ms, ACTIVE / PASSIVE {a / p:6.1f}x")

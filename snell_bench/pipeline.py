@@ -256,8 +256,9 @@ def render_true_scene(cfg: DictConfig, scene: SceneInputs, obj: GlassObject) -> 
     from snell_bench.render import render_true
 
     bounces = cfg.reference.true_max_bounces or cfg.warps.max_bounces
-    return render_true(scene.source, scene.camera, obj, spp=int(cfg.reference.true_spp), max_bounces=int(bounces),
-                       seed=int(cfg.seed))
+    return render_true(
+        scene.source, scene.camera, obj, spp=int(cfg.reference.true_spp), max_bounces=int(bounces), seed=int(cfg.seed)
+    )
 
 
 def prepare_inputs(cfg: DictConfig, *, references: bool = True) -> CellInputs:
@@ -283,8 +284,17 @@ def prepare_inputs(cfg: DictConfig, *, references: bool = True) -> CellInputs:
             reference, reason = render_reference(cfg, scene, obj)
         with t("true_render"):
             true = render_true_scene(cfg, scene, obj)
-    return CellInputs(scene=scene, obj=obj, warps=ws, warps_config=_plain(cfg.warps), i_minus=hwc_to_bchw(scene.image),
-                      reference=reference, reference_reason=reason, true_render=true, timings=t.seconds)
+    return CellInputs(
+        scene=scene,
+        obj=obj,
+        warps=ws,
+        warps_config=_plain(cfg.warps),
+        i_minus=hwc_to_bchw(scene.image),
+        reference=reference,
+        reference_reason=reason,
+        true_render=true,
+        timings=t.seconds,
+    )
 
 
 # ---------------------------------------------------------------------------- 6. generator
@@ -310,8 +320,11 @@ def build_generator(model_cfg: DictConfig, inputs: CellInputs):
         raise ValueError(f"model {model_cfg.name!r} has no model.generator._target_; choose a model (model=analytic)")
     kwargs = {}
     if model_cfg.from_scene:
-        kwargs = {"i_minus": inputs.scene.image, "object_mask": inputs.warps.object_mask,
-                  "panorama": scene_panorama(inputs.scene, inputs.warps.pano)}
+        kwargs = {
+            "i_minus": inputs.scene.image,
+            "object_mask": inputs.warps.object_mask,
+            "panorama": scene_panorama(inputs.scene, inputs.warps.pano),
+        }
     return instantiate(model_cfg.generator, **kwargs)
 
 
@@ -348,8 +361,9 @@ def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer)
         from snell_bench.models.external import generate_external
 
         with t("sampling"):
-            img = generate_external(cfg.method.model_id, prompt, warps.camera.shape, seed=int(cfg.seed),
-                                    steps=int(cfg.sampler.steps))
+            img = generate_external(
+                cfg.method.model_id, prompt, warps.camera.shape, seed=int(cfg.seed), steps=int(cfg.sampler.steps)
+            )
         return CellResult(image=img, warps=warps)
     if kind not in ("snellcaster", "t2i", "inpaint"):
         raise ValueError(f"method.kind={kind!r} is unknown; use snellcaster, t2i, inpaint or external")
@@ -357,8 +371,14 @@ def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer)
         from snell_bench.models.external import inpaint_external
 
         with t("sampling"):
-            img = inpaint_external(cfg.method.model_id, prompt, inputs.i_minus, warps.object_mask, seed=int(cfg.seed),
-                                   steps=int(cfg.sampler.steps))
+            img = inpaint_external(
+                cfg.method.model_id,
+                prompt,
+                inputs.i_minus,
+                warps.object_mask,
+                seed=int(cfg.seed),
+                steps=int(cfg.sampler.steps),
+            )
         return CellResult(image=img, warps=warps)
     gen = _generator(cfg, inputs, t)
     settings = OmegaConf.to_object(cfg.sampler)
@@ -368,14 +388,18 @@ def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer)
     img = res.image
     if kind == "inpaint":  # CPU stand-in: the generator fills the object region of I⁻, no optics
         img = torch.where(torch.from_numpy(warps.object_mask)[None, None], img, inputs.i_minus)
-    stats = {"model_calls": res.model_calls, "sampler_timings_s": {k: round(v, 3) for k, v in res.timings.items()},
-             "decisions": res.decisions}
+    stats = {
+        "model_calls": res.model_calls,
+        "sampler_timings_s": {k: round(v, 3) for k, v in res.timings.items()},
+        "decisions": res.decisions,
+    }
     return CellResult(image=img, panorama=res.panorama, stats=stats, dumps=res.dumps, warps=warps)
 
 
 # ---------------------------------------------------------------------------- 8. metrics
-def score(cfg: DictConfig, inputs: CellInputs, image: torch.Tensor, scorers, *, image_path=None,
-          reference=None) -> dict:
+def score(
+    cfg: DictConfig, inputs: CellInputs, image: torch.Tensor, scorers, *, image_path=None, reference=None
+) -> dict:
     """Stage 8: masked metrics of ``image`` against the reference (``reference``: another
     ReferenceRender to score against, e.g. a converged one) and PSNR against the true render:
     ``{"metrics": {name: float | None}, "missing": {name: reason}}``."""
@@ -436,8 +460,10 @@ def save_inputs(inputs: CellInputs, folder: Path, *, arrays: bool = False) -> di
     files = {
         "I_minus.png": save_png(folder / "I_minus.png", sc.image),
         "depth.npy": save_npy(folder / "depth.npy", sc.depth.astype(np.float32)),
-        "camera.json": write_json(folder / "camera.json", dict(sc.camera.to_dict(), ior=obj.ior, object=obj.name,
-                                                               up=obj.up.tolist() if obj.up is not None else None)),
+        "camera.json": write_json(
+            folder / "camera.json",
+            dict(sc.camera.to_dict(), ior=obj.ior, object=obj.name, up=obj.up.tolist() if obj.up is not None else None),
+        ),
         "object.ply": atomic_write_bytes(folder / "object.ply", obj.mesh.export(file_type="ply")),
     }
     ref = inputs.reference
@@ -451,4 +477,3 @@ def save_inputs(inputs: CellInputs, folder: Path, *, arrays: bool = False) -> di
     if inputs.true_render is not None:
         files["true.png"] = save_png(folder / "true.png", inputs.true_render)
     return files
-

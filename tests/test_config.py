@@ -24,11 +24,25 @@ def test_config_groups_ship_inside_the_package():
 
 
 def test_compose_records_its_overrides_and_later_overrides_win():
-    cfg = compose(["+experiment=smoke", "scene=kitchen", "scene=office", "sampler.steps=3", "sampler.steps=5",
-                   "output_dir=/tmp/x"])
+    cfg = compose(
+        [
+            "+experiment=smoke",
+            "scene=kitchen",
+            "scene=office",
+            "sampler.steps=3",
+            "sampler.steps=5",
+            "output_dir=/tmp/x",
+        ]
+    )
     assert cfg.scene.name == "office" and cfg.sampler.steps == 5
-    assert list(cfg.overrides) == ["+experiment=smoke", "scene=kitchen", "scene=office", "sampler.steps=3",
-                                   "sampler.steps=5", "output_dir=/tmp/x"]
+    assert list(cfg.overrides) == [
+        "+experiment=smoke",
+        "scene=kitchen",
+        "scene=office",
+        "sampler.steps=3",
+        "sampler.steps=5",
+        "output_dir=/tmp/x",
+    ]
 
 
 @pytest.mark.parametrize("group", ["scene", "object", "method", "model", "preset", "experiment"])
@@ -70,9 +84,15 @@ def test_check_reproducible_names_the_changed_key():
 
 
 def test_cli_prints_the_composed_config():
-    out = subprocess.run([sys.executable, "-m", "snell_bench", "+experiment=smoke", "--cfg", "job"], cwd=REPO,
-                         capture_output=True, text=True, check=True, timeout=300,
-                         env={**os.environ, "HF_HUB_OFFLINE": "1"})
+    out = subprocess.run(
+        [sys.executable, "-m", "snell_bench", "+experiment=smoke", "--cfg", "job"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=300,
+        env={**os.environ, "HF_HUB_OFFLINE": "1"},
+    )
     cfg = OmegaConf.create(out.stdout)
     assert cfg.experiment_name == "smoke" and cfg.grid.methods == ["snellcaster", "t2i"]
     assert list(cfg.overrides) == ["+experiment=smoke"]
@@ -83,8 +103,23 @@ def test_installed_package_runs_from_any_folder(tmp_path):
     """``pip install --no-deps --target DIR .`` (no checkout on the path): ``python -m snell_bench``
     from another folder finds its configs inside the package."""
     site = tmp_path / "site"
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--target",
-                    str(site), str(REPO)], check=True, timeout=600, capture_output=True)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "-q",
+            "--no-deps",
+            "--no-build-isolation",
+            "--target",
+            str(site),
+            str(REPO),
+        ],
+        check=True,
+        timeout=600,
+        capture_output=True,
+    )
     assert (site / "snell_bench" / "conf" / "experiment" / "smoke.yaml").is_file()
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONPATH": str(site)}
     where = tmp_path / "elsewhere"
@@ -92,6 +127,13 @@ def test_installed_package_runs_from_any_folder(tmp_path):
     code = "import snell_bench, sys; print(snell_bench.__file__)"
     found = subprocess.run([sys.executable, "-c", code], cwd=where, env=env, capture_output=True, text=True, check=True)
     assert found.stdout.strip().startswith(str(site))
-    out = subprocess.run([sys.executable, "-m", "snell_bench", "+experiment=smoke", "--cfg", "job"], cwd=where,
-                         env=env, capture_output=True, text=True, check=True, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-m", "snell_bench", "+experiment=smoke", "--cfg", "job"],
+        cwd=where,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=300,
+    )
     assert OmegaConf.create(out.stdout).experiment_name == "smoke"

@@ -7,8 +7,18 @@ import torch
 from snell_bench import pipeline
 from snell_bench.config import compose
 
-TINY = ["scene.width=128", "scene.height=64", "scene.supersample=1", "warps.pano_height=32", "warps.cache_dir=null",
-        "sampler.steps=3", "sampler.progress=false", "reference.spp=1", "reference.true_spp=1", "output_dir=/tmp/x"]
+TINY = [
+    "scene.width=128",
+    "scene.height=64",
+    "scene.supersample=1",
+    "warps.pano_height=32",
+    "warps.cache_dir=null",
+    "sampler.steps=3",
+    "sampler.progress=false",
+    "reference.spp=1",
+    "reference.true_spp=1",
+    "output_dir=/tmp/x",
+]
 
 
 @pytest.fixture(scope="module")
@@ -24,8 +34,16 @@ def test_prepare_inputs_equals_the_stages_called_by_hand(inputs):
 
     scene = ProceduralScene("room", 0)
     r = scene.render(width=128, height=64, supersample=1)
-    obj = place_object(GlassObject.sphere(ior="glass"), r.depth, r.camera, size=None, relative_size=0.25,
-                       yaw_deg=0.0, seed=0, up_hint=scene.up)
+    obj = place_object(
+        GlassObject.sphere(ior="glass"),
+        r.depth,
+        r.camera,
+        size=None,
+        relative_size=0.25,
+        yaw_deg=0.0,
+        seed=0,
+        up_hint=scene.up,
+    )
     ws = compute_warps(r.depth, r.camera, obj, pano_height=32, max_bounces=8, cache_dir=None)
     np.testing.assert_array_equal(inputs.scene.image, r.image)
     np.testing.assert_array_equal(inputs.obj.vertices, obj.vertices)
@@ -53,7 +71,9 @@ def test_generators_get_their_model_keys(inputs):
     from snell_bench.models.analytic import AnalyticGenerator
     from snell_bench.models.tiny_flux import TinyFluxGenerator
 
-    gen = pipeline.build_generator(compose(["model=tiny_flux", "model.guidance=2.0", "output_dir=/tmp/x"]).model, inputs)
+    gen = pipeline.build_generator(
+        compose(["model=tiny_flux", "model.guidance=2.0", "output_dir=/tmp/x"]).model, inputs
+    )
     assert isinstance(gen, TinyFluxGenerator) and gen.guidance == 2.0
     ana = pipeline.build_generator(compose(["model.prior_std=0.07", "output_dir=/tmp/x"]).model, inputs)
     assert isinstance(ana, AnalyticGenerator) and ana.prior_std == 0.07

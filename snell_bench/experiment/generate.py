@@ -54,7 +54,9 @@ def run_generate(cfg: DictConfig) -> dict:
         "refraction_psnr_db": psnr,
     }
     write_json(out / "summary.json", summary)
-    print(f"generated {out}/image.png  (object PSNR vs pi^R(I-): "
-          f"{'n/a' if psnr is None else f'{psnr:.2f} dB'}, model calls {res.stats.get('model_calls')}, "
-          f"sampling {res.timings.get('sampling', 0.0):.1f} s)")
+    print(
+        f"generated {out}/image.png  (object PSNR vs pi^R(I-): "
+        f"{'n/a' if psnr is None else f'{psnr:.2f} dB'}, model calls {res.stats.get('model_calls')}, "
+        f"sampling {res.timings.get('sampling', 0.0):.1f} s)"
+    )
     return summary

@@ -9,7 +9,7 @@ schema is kept, and later overrides win. The method's switches are then applied
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 from omegaconf import DictConfig, OmegaConf
 

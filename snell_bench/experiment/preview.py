@@ -70,21 +70,32 @@ def run_preview(cfg: DictConfig) -> dict:
         H, W = ws.camera.shape
         mask = np.where(ws.object_mask, np.where(ws.refraction_valid, 1.0, 0.5), 0.0)
         warp_rgb = warp_to_rgb(ws.refraction, W, H)
-        for name, img in (("I_minus", image), ("mask", mask), ("warp", warp_rgb), ("panorama", panorama),
-                          ("composite", composite)):
+        for name, img in (
+            ("I_minus", image),
+            ("mask", mask),
+            ("warp", warp_rgb),
+            ("panorama", panorama),
+            ("composite", composite),
+        ):
             save_png(out / f"{name}.png", img)
         top = np.concatenate([image, composite], axis=1)
         bottom = np.concatenate([np.repeat(mask[..., None], 3, -1), warp_rgb], axis=1)
         save_png(out / "preview.png", np.concatenate([top, bottom], axis=0)[::2, ::2])
     summary = {
         "scene": OmegaConf.to_container(cfg.scene),
-        "object": {"name": obj.name, "ior": obj.ior, "center": obj.center.round(4).tolist(),
-                   "size": float(np.ptp(obj.vertices @ obj.up))},
+        "object": {
+            "name": obj.name,
+            "ior": obj.ior,
+            "center": obj.center.round(4).tolist(),
+            "size": float(np.ptp(obj.vertices @ obj.up)),
+        },
         "warps": ws.summary(),
         "warp_stats": ws.stats,
         "timings_s": {k: round(v, 3) for k, v in {**inputs.timings, **t.seconds}.items()},
     }
     write_json(out / "summary.json", summary)
     log.info("preview written to %s", out)
-    print(f"refraction preview: {out}  ({summary['warps']['object_pixels']} object pixels, timings {summary['timings_s']})")
+    print(
+        f"refraction preview: {out}  ({summary['warps']['object_pixels']} object pixels, timings {summary['timings_s']})"
+    )
     return summary

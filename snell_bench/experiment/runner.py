@@ -69,12 +69,25 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
             raw = compose_cell(cfg, cell_overrides(scene, variation, obj_spec, m), method=False)
             c = apply_method(raw)
             record = {
-                "experiment": str(cfg.experiment_name), "scene": str(scene), "variation": int(variation),
-                "object": object_dir_name(obj_spec), "method": str(m), "method_label": str(c.method.label),
-                "model": str(c.model.name), "scene_source": str(c.scene.source),
+                "experiment": str(cfg.experiment_name),
+                "scene": str(scene),
+                "variation": int(variation),
+                "object": object_dir_name(obj_spec),
+                "method": str(m),
+                "method_label": str(c.method.label),
+                "model": str(c.model.name),
+                "scene_source": str(c.scene.source),
             }
-            cells.append(Cell(name=f"{scene}-{variation}/{object_dir_name(obj_spec)}/{m}", folder=group / m, config=c,
-                              record=record, shares=group, extra={"inputs_config": raw}))
+            cells.append(
+                Cell(
+                    name=f"{scene}-{variation}/{object_dir_name(obj_spec)}/{m}",
+                    folder=group / m,
+                    config=c,
+                    record=record,
+                    shares=group,
+                    extra={"inputs_config": raw},
+                )
+            )
     return cells
 
 
@@ -117,8 +130,10 @@ def run_grid(cfg: DictConfig) -> dict:
     summary = run_cells(cells, lambda c, s: run_cell(c, s, scorers), root=root, recompute=bool(g.recompute), desc=exp)
     summary = {"experiment": exp, **summary}
     write_json(root / "summary.json", summary)
-    print(f"{exp}: {summary['ok']} ok, {summary['cached']} already done, {summary['skipped']} skipped, "
-          f"{summary['failed']} failed")
+    print(
+        f"{exp}: {summary['ok']} ok, {summary['cached']} already done, {summary['skipped']} skipped, "
+        f"{summary['failed']} failed"
+    )
     for cdir, reason in summary["failures"]:
         print(f"  FAILED {cdir}: {reason}")
     if g.report:

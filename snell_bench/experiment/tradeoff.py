@@ -111,8 +111,17 @@ from snell_bench.utils.io import save_npy, write_json
 
 log = logging.getLogger(__name__)
 
-__all__ = ["KNOBS", "SHARED_SUBTREES", "Setting", "build_settings", "inputs_key", "converged_key",
-           "resolved_knobs", "run_tradeoff", "plan_tradeoff"]
+__all__ = [
+    "KNOBS",
+    "SHARED_SUBTREES",
+    "Setting",
+    "build_settings",
+    "inputs_key",
+    "converged_key",
+    "resolved_knobs",
+    "run_tradeoff",
+    "plan_tradeoff",
+]
 
 #: Knob name -> config key, recorded resolved in every ``result.json`` (``knobs``).
 KNOBS: dict[str, str] = {
@@ -134,8 +143,16 @@ SHARED_SUBTREES = ("scene", "object", "warps", "reference", "seed")
 BASELINE = "baseline"
 _SLUG_RE = re.compile(r"[^A-Za-z0-9._=+-]")
 #: Tiny sizes of the warm-up cell.
-_WARM_UP = ["scene.width=64", "scene.height=32", "scene.supersample=1", "warps.pano_height=32", "reference.spp=1",
-            "reference.true_spp=1", "sampler.steps=2", "sampler.levels=2"]
+_WARM_UP = [
+    "scene.width=64",
+    "scene.height=32",
+    "scene.supersample=1",
+    "warps.pano_height=32",
+    "reference.spp=1",
+    "reference.true_spp=1",
+    "sampler.steps=2",
+    "sampler.levels=2",
+]
 
 
 # ---------------------------------------------------------------------------- settings
@@ -180,12 +197,21 @@ def _axis_settings(name: str, spec: Any) -> list[Setting]:
         try:
             ov = OverridesParser.create().parse_override(spec)
         except OverrideParseException as e:
-            raise ValueError(f"{where}: {spec!r} is not a Hydra override ({e}); write e.g. sampler.steps=4,8,12") from None
+            raise ValueError(
+                f"{where}: {spec!r} is not a Hydra override ({e}); write e.g. sampler.steps=4,8,12"
+            ) from None
         values = list(ov.sweep_string_iterator()) if ov.is_sweep_override() else [ov.get_value_element_as_str()]
         if not values:
             raise ValueError(f"{where}: {spec!r} has no values; write e.g. sampler.steps=4,8,12 (non-empty)")
-        return [Setting(f"{name}={v}", name, ov.value() if not ov.is_sweep_override() else _typed(v),
-                        (f"{ov.key_or_group}={v}",)) for v in values]
+        return [
+            Setting(
+                f"{name}={v}",
+                name,
+                ov.value() if not ov.is_sweep_override() else _typed(v),
+                (f"{ov.key_or_group}={v}",),
+            )
+            for v in values
+        ]
     if isinstance(spec, dict) and spec and all(isinstance(v, list) for v in spec.values()):
         return [Setting(f"{name}={label}", name, str(label), tuple(str(o) for o in ovs)) for label, ovs in spec.items()]
     raise ValueError(
@@ -232,9 +258,17 @@ def converged_key(c: DictConfig, spp: int) -> str:
     """What a converged reference depends on: the scene, the object, the background mesh's cut, the
     reference settings with ``spp`` replaced, and the seed."""
     ref = dict(_plain(c.reference), spp=int(spp))
-    blob = json.dumps({"scene": _plain(c.scene), "object": _plain(c.object),
-                       "edge_threshold": float(c.warps.edge_threshold), "reference": ref, "seed": int(c.seed)},
-                      sort_keys=True, default=str)
+    blob = json.dumps(
+        {
+            "scene": _plain(c.scene),
+            "object": _plain(c.object),
+            "edge_threshold": float(c.warps.edge_threshold),
+            "reference": ref,
+            "seed": int(c.seed),
+        },
+        sort_keys=True,
+        default=str,
+    )
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
@@ -266,21 +300,39 @@ def plan_tradeoff(cfg: DictConfig) -> list[Cell]:
     cells = []
     for scene in scenes:
         sdir = root / f"{scene}-{int(t.variation)}"
-        chosen = [f"scene={scene}", f"scene.variation={int(t.variation)}", *object_overrides(str(t.object)),
-                  f"method={t.method}"]
+        chosen = [
+            f"scene={scene}",
+            f"scene.variation={int(t.variation)}",
+            *object_overrides(str(t.object)),
+            f"method={t.method}",
+        ]
         for order, st in enumerate(settings):
             c = _compose_setting(cfg, st, chosen)
             key = inputs_key(c)
             record = {
-                "experiment": str(cfg.experiment_name), "scene": scene, "variation": int(t.variation),
-                "object": object_dir_name(str(t.object)), "method": str(t.method), "model": str(c.model.name),
-                "scene_source": str(c.scene.source), "seed": int(c.seed), "setting": st.label, "slug": st.slug,
-                "order": order, "axis": st.axis, "value": st.value, "overrides": st.override_values(),
-                "knobs": resolved_knobs(c), "inputs_key": key, "inputs_dir": f"_shared/{key}/_inputs",
-                "inputs_reused_from": None, "timings_note": TOTAL_NOTE,
+                "experiment": str(cfg.experiment_name),
+                "scene": scene,
+                "variation": int(t.variation),
+                "object": object_dir_name(str(t.object)),
+                "method": str(t.method),
+                "model": str(c.model.name),
+                "scene_source": str(c.scene.source),
+                "seed": int(c.seed),
+                "setting": st.label,
+                "slug": st.slug,
+                "order": order,
+                "axis": st.axis,
+                "value": st.value,
+                "overrides": st.override_values(),
+                "knobs": resolved_knobs(c),
+                "inputs_key": key,
+                "inputs_dir": f"_shared/{key}/_inputs",
+                "inputs_reused_from": None,
+                "timings_note": TOTAL_NOTE,
             }
-            cells.append(Cell(name=f"{scene}/{st.label}", folder=sdir / st.slug, config=c, record=record,
-                              shares=(scene, key)))
+            cells.append(
+                Cell(name=f"{scene}/{st.label}", folder=sdir / st.slug, config=c, record=record, shares=(scene, key))
+            )
     return cells
 
 
@@ -383,11 +435,12 @@ def _run_setting(cell: Cell, shared: SharedCache, sweep: _Sweep) -> dict:
 def _warm_up(cfg: DictConfig, cell: Cell) -> None:
     """Run one tiny cell (imports, Mitsuba's variant probe, first-call costs) and discard it."""
     try:
-        c = compose_cell(cfg, [*cell.config.overrides[len(cfg.overrides):], *_WARM_UP])
+        c = compose_cell(cfg, [*cell.config.overrides[len(cfg.overrides) :], *_WARM_UP])
         pipeline.run_method(c, pipeline.prepare_inputs(c))  # nothing is written: warps.cache_dir=null
     except Exception as e:  # noqa: BLE001 - the sweep itself reports real failures
-        log.info("warm-up cell failed (%s: %s); timings of the first setting include first-call costs",
-                 type(e).__name__, e)
+        log.info(
+            "warm-up cell failed (%s: %s); timings of the first setting include first-call costs", type(e).__name__, e
+        )
 
 
 def run_tradeoff(cfg: DictConfig) -> dict:
@@ -410,14 +463,23 @@ def run_tradeoff(cfg: DictConfig) -> dict:
         if last_of_scene[cell.record["scene"]] is cell:
             update_spp_records(cell.folder.parent)
 
-    summary = run_cells(cells, lambda c, s: _run_setting(c, s, sweep), root=root, record_name="result.json",
-                        recompute=bool(t.recompute), desc=f"tradeoff {exp}", after=after)
+    summary = run_cells(
+        cells,
+        lambda c, s: _run_setting(c, s, sweep),
+        root=root,
+        record_name="result.json",
+        recompute=bool(t.recompute),
+        desc=f"tradeoff {exp}",
+        after=after,
+    )
     for scene in last_of_scene:  # scenes whose last settings were already done
         update_spp_records(root / f"{scene}-{int(t.variation)}")
     summary = {"experiment": exp, "runs": summary.pop("cells"), **summary}
     write_json(root / "summary.json", summary)
-    print(f"{exp}: {summary['ok']} ok, {summary['cached']} already done, {summary['skipped']} skipped, "
-          f"{summary['failed']} failed")
+    print(
+        f"{exp}: {summary['ok']} ok, {summary['cached']} already done, {summary['skipped']} skipped, "
+        f"{summary['failed']} failed"
+    )
     for where, reason in summary["failures"]:
         print(f"  FAILED {where}: {reason}")
     out = Path(cfg.reports_dir) / exp

@@ -5,7 +5,7 @@ Convention:
     - Images: float tensors ``(B, C, H, W)`` (any value range; Laplacian bands are signed). Colours
       for :func:`fresnel_combine` are sRGB-encoded in ``[0, 1]``.
     - Masks: bool ``(B, 1, H, W)`` or ``(H, W)`` (broadcast over batch and channels,
-      :func:`~snell_bench.imaging.pyramid.as_mask`); ``None`` means valid everywhere. Returned
+      :func:`~snell_bench.utils.tensors.as_mask`); ``None`` means valid everywhere. Returned
       masks are ``(B, 1, H, W)``.
     - Values of an input where its mask is False are never read (they may be NaN or inf).
     - Pyramids: lists of levels, finest first, the last entry the low-pass residual
@@ -19,8 +19,8 @@ from collections.abc import Sequence
 import torch
 
 from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear
-from snell_bench.imaging.pyramid import as_mask, collapse
-from snell_bench.utils.tensors import as_tensor
+from snell_bench.imaging.pyramid import collapse
+from snell_bench.utils.tensors import as_mask, as_tensor
 
 __all__ = ["detail_preserving_average", "blend_pyramids", "fresnel_combine"]
 
@@ -32,8 +32,12 @@ def _mask_like(mask, x: torch.Tensor) -> torch.Tensor:
     return as_mask(mask, x).expand(x.shape[0], 1, *x.shape[-2:])
 
 
-def detail_preserving_average(inputs: Sequence[torch.Tensor], masks: Sequence | None = None, lam: float = 0.5,
-                              fallback: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+def detail_preserving_average(
+    inputs: Sequence[torch.Tensor],
+    masks: Sequence | None = None,
+    lam: float = 0.5,
+    fallback: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Detail-preserving average of the valid inputs of each pixel.
 
     With masks ``M_i``: ``avg = sum M_i x_i / sum M_i``, ``vavg = sum M_i |x_i| x_i / sum M_i |x_i|``
@@ -91,9 +95,14 @@ def detail_preserving_average(inputs: Sequence[torch.Tensor], masks: Sequence | 
     return torch.where(any_valid, phi, fallback), any_valid
 
 
-def blend_pyramids(level_lists: Sequence[Sequence[torch.Tensor]], mask_lists: Sequence | None = None,
-                   lam: float = 0.5, fallback_levels: Sequence[torch.Tensor] | None = None, *,
-                   wrap_x: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+def blend_pyramids(
+    level_lists: Sequence[Sequence[torch.Tensor]],
+    mask_lists: Sequence | None = None,
+    lam: float = 0.5,
+    fallback_levels: Sequence[torch.Tensor] | None = None,
+    *,
+    wrap_x: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Detail-preserving average of several pyramids, level by level, then collapsed.
 
     Args:

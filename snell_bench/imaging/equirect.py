@@ -158,7 +158,7 @@ class PanoramaCamera:
         return (self.height, self.width)
 
     @classmethod
-    def level(cls, center, up, forward, height: int) -> "PanoramaCamera":
+    def level(cls, center, up, forward, height: int) -> PanoramaCamera:
         """A gravity-aligned panorama: its top row looks along ``up``, its centre along ``forward``
         projected onto the horizontal plane (both in camera coordinates).
 
@@ -202,6 +202,6 @@ class PanoramaCamera:
         return {"center": self.center.tolist(), "rotation": self.rotation.tolist(), "height": self.height}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "PanoramaCamera":
+    def from_dict(cls, d: dict) -> PanoramaCamera:
         """The panorama of a :meth:`to_dict` result."""
         return cls(center=np.asarray(d["center"]), rotation=np.asarray(d["rotation"]), height=int(d["height"]))

@@ -53,7 +53,7 @@ import torch.nn.functional as F
 from kornia.geometry.transform import pyrdown, pyrup
 
 from snell_bench.imaging.remap import remap
-from snell_bench.utils.tensors import as_tensor
+from snell_bench.utils.tensors import as_mask, as_tensor
 
 __all__ = [
     "gaussian_pyramid",
@@ -62,7 +62,6 @@ __all__ = [
     "collapse",
     "pyramid_warp",
     "lod_warp",
-    "as_mask",
 ]
 
 Size = tuple[int, int]
@@ -181,37 +180,6 @@ def laplacian_from_gaussian(g: Sequence[torch.Tensor], *, wrap_x: bool = False) 
 def _bands(g: Sequence[torch.Tensor], wrap_x: bool) -> list[torch.Tensor]:
     """The band-pass levels ``G_k - up(G_{k+1})`` of a Gaussian pyramid."""
     return [g[k] - _up(g[k + 1], g[k].shape[-2:], wrap_x) for k in range(len(g) - 1)]
-
-
-def as_mask(mask, like: torch.Tensor) -> torch.Tensor:
-    """A mask in the layout of the imaging functions: ``(B or 1, 1, H, W)`` bool.
-
-    Args:
-        mask: ``(H, W)``, ``(B, H, W)`` or ``(B, 1, H, W)`` array or tensor (any dtype; nonzero is
-            true).
-        like: a tensor on the device the mask is wanted on.
-
-    Returns:
-        The mask as a bool ``(B or 1, 1, H, W)`` tensor on ``like``'s device.
-
-    Raises:
-        ValueError: ``mask`` has another shape.
-
-    Examples:
-        >>> import numpy as np
-        >>> m = as_mask(np.eye(3), torch.zeros(1, 3, 3, 3))
-        >>> tuple(m.shape), m.dtype, int(m.sum())
-        ((1, 1, 3, 3), torch.bool, 3)
-    """
-    m = as_tensor(mask, device=like.device)
-    m = m.bool()
-    if m.ndim == 2:
-        m = m[None, None]
-    elif m.ndim == 3:
-        m = m[:, None]
-    if m.ndim != 4 or m.shape[1] != 1:
-        raise ValueError(f"mask must be (H, W) or (B, 1, H, W), got shape {tuple(m.shape)}")
-    return m
 
 
 def collapse(pyr: Sequence[torch.Tensor], masks: Sequence | None = None, *, wrap_x: bool = False) -> torch.Tensor:
@@ -353,8 +321,9 @@ def _to_level(c: torch.Tensor, size0: Size, size: Size, wrap_x: bool) -> torch.T
     return torch.stack([x, y], -1)
 
 
-def _sample(images: Sequence[torch.Tensor], c: torch.Tensor, level: torch.Tensor, *, size0: Size,
-            wrap_x: bool) -> torch.Tensor:
+def _sample(
+    images: Sequence[torch.Tensor], c: torch.Tensor, level: torch.Tensor, *, size0: Size, wrap_x: bool
+) -> torch.Tensor:
     """Sample ``images[j]`` at the fractional per-pixel ``level`` ``(Bc, H', W')`` in
     ``[0, len(images) - 1]``, blending the two nearest levels linearly (bilinear within a level). Each
     level is only sampled at the pixels that use it."""
@@ -387,17 +356,25 @@ def _valid(c: torch.Tensor, B: int) -> torch.Tensor:
 
 
 # ------------------------------------------------------------------------------------ warps
-def _source_levels(maps: Sequence[torch.Tensor], levels: int, *, match_scale: bool, period: float | None,
-                   dest_wrap_x: bool) -> list[torch.Tensor]:
+def _source_levels(
+    maps: Sequence[torch.Tensor], levels: int, *, match_scale: bool, period: float | None, dest_wrap_x: bool
+) -> list[torch.Tensor]:
     """The fractional source level sampled at each pixel of each destination level ``maps[k]``."""
     if not match_scale:
         return [torch.full_like(c[..., 0], float(k)) for k, c in enumerate(maps)]
     return [_match_level(c, k, period, dest_wrap_x).clamp(0, levels - 1) for k, c in enumerate(maps)]
 
 
-def _warp_levels(src: torch.Tensor, maps: Sequence[torch.Tensor], levels: int, *, wrap_x: bool,
-                 match_scale: bool, dest_wrap_x: bool,
-                 src_pyramid: Sequence[torch.Tensor] | None = None) -> list[torch.Tensor]:
+def _warp_levels(
+    src: torch.Tensor,
+    maps: Sequence[torch.Tensor],
+    levels: int,
+    *,
+    wrap_x: bool,
+    match_scale: bool,
+    dest_wrap_x: bool,
+    src_pyramid: Sequence[torch.Tensor] | None = None,
+) -> list[torch.Tensor]:
     """Each destination level ``maps[k]`` sampled from ``src``'s Gaussian pyramid, which is only built
     as deep as the sampled levels reach (or taken from ``src_pyramid``)."""
     period = float(src.shape[-1]) if wrap_x else None
@@ -459,9 +436,20 @@ def _paste(part: torch.Tensor, size: Size, ys: slice, xs: slice, k: int, fill) -
     return out
 
 
-def pyramid_warp(src: torch.Tensor, coords, *, levels: int = 5, wrap_x: bool = False, collapse: bool = True,
-                 mask=None, match_scale: bool = True, dest_wrap_x: bool = False, roi: bool = False,
-                 roi_margin: int = 4, src_pyramid: Sequence[torch.Tensor] | None = None):
+def pyramid_warp(
+    src: torch.Tensor,
+    coords,
+    *,
+    levels: int = 5,
+    wrap_x: bool = False,
+    collapse: bool = True,
+    mask=None,
+    match_scale: bool = True,
+    dest_wrap_x: bool = False,
+    roi: bool = False,
+    roi_margin: int = 4,
+    src_pyramid: Sequence[torch.Tensor] | None = None,
+):
     """Laplacian pyramid warp of ``src`` through the backward map ``coords`` (module docstring).
 
     Args:
@@ -518,14 +506,23 @@ def pyramid_warp(src: torch.Tensor, coords, *, levels: int = 5, wrap_x: bool = F
     win = _roi_window(c, levels, dest_wrap_x, roi_margin) if roi else None
     if win is not None:
         ys, xs, full_width = win
-        part = pyramid_warp(src, c[:, ys, xs], levels=levels, wrap_x=wrap_x, collapse=collapse,
-                            match_scale=match_scale, dest_wrap_x=dest_wrap_x and full_width,
-                            src_pyramid=src_pyramid)
+        part = pyramid_warp(
+            src,
+            c[:, ys, xs],
+            levels=levels,
+            wrap_x=wrap_x,
+            collapse=collapse,
+            match_scale=match_scale,
+            dest_wrap_x=dest_wrap_x and full_width,
+            src_pyramid=src_pyramid,
+        )
         sizes = _level_sizes(tuple(c.shape[1:3]), levels)
         if collapse:
             return _paste(part[0], sizes[0], ys, xs, 0, 0.0), _paste(part[1], sizes[0], ys, xs, 0, False)
-        return ([_paste(b, sizes[k], ys, xs, k, 0.0) for k, b in enumerate(part[0])],
-                [_paste(m, sizes[k], ys, xs, k, False) for k, m in enumerate(part[1])])
+        return (
+            [_paste(b, sizes[k], ys, xs, k, 0.0) for k, b in enumerate(part[0])],
+            [_paste(m, sizes[k], ys, xs, k, False) for k, m in enumerate(part[1])],
+        )
     opts = dict(wrap_x=wrap_x, match_scale=match_scale, dest_wrap_x=dest_wrap_x, src_pyramid=src_pyramid)
     if collapse:  # the destination pyramid collapses exactly to its finest level
         return _warp_levels(src, [c], levels, **opts)[0], _valid(c, B)
@@ -541,8 +538,9 @@ def pyramid_warp(src: torch.Tensor, coords, *, levels: int = 5, wrap_x: bool = F
     return bands + [warped[-1]], masks
 
 
-def lod_warp(src: torch.Tensor, coords, *, levels: int = 5, wrap_x: bool = False, mask=None,
-             dest_wrap_x: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+def lod_warp(
+    src: torch.Tensor, coords, *, levels: int = 5, wrap_x: bool = False, mask=None, dest_wrap_x: bool = False
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-pixel level-of-detail warp: sample ``src``'s Gaussian pyramid at level ``log2`` of the map's
     local stretch (clamped to ``[0, levels - 1]``), blending the two nearest levels.
 

@@ -1,18 +1,17 @@
 """Text-image alignment scores (CLIP score, ImageReward) and :func:`score_all`.
 
-Convention
-----------
-- Images: torch float tensors ``(1, 3, H, W)`` / ``(3, H, W)`` or numpy ``(H, W, 3)``, sRGB in
-  [0, 1] (``uint8`` read as ``value / 255``), a ``PIL.Image`` or an image file path. Both scores see
-  the FULL image and the FULL prompt (no mask).
-- CLIP score ``= 100 * max(cos(image embedding, text embedding), 0)`` with open_clip ViT-B/16 and
-  the model's own evaluation preprocessing (resize the short side to 224, centre crop, normalise);
-  prompts longer than the 77-token context are truncated by the tokenizer.
-- ImageReward runs in a separate interpreter (config key ``metrics.image_reward_python``) over a
-  JSON protocol on stdin/stdout (see :data:`IMAGE_REWARD_WORKER`).
-- Weights are never downloaded. A scorer whose weights or program are missing raises
-  :class:`~snell_bench.metrics.fidelity.MetricUnavailable` naming the config key to set;
-  :func:`score_all` reports it as ``None`` with the reason.
+Convention:
+    - Images: torch float tensors ``(1, 3, H, W)`` / ``(3, H, W)`` or numpy ``(H, W, 3)``, sRGB in
+      [0, 1] (``uint8`` read as ``value / 255``), a ``PIL.Image`` or an image file path. Both scores see
+      the FULL image and the FULL prompt (no mask).
+    - CLIP score ``= 100 * max(cos(image embedding, text embedding), 0)`` with open_clip ViT-B/16 and
+      the model's own evaluation preprocessing (resize the short side to 224, centre crop, normalise);
+      prompts longer than the 77-token context are truncated by the tokenizer.
+    - ImageReward runs in a separate interpreter (config key ``metrics.image_reward_python``) over a
+      JSON protocol on stdin/stdout (see :data:`IMAGE_REWARD_WORKER`).
+    - Weights are never downloaded. A scorer whose weights or program are missing raises
+      :class:`~snell_bench.metrics.fidelity.MetricUnavailable` naming the config key to set;
+      :func:`score_all` reports it as ``None`` with the reason.
 """
 
 from __future__ import annotations
@@ -98,17 +97,14 @@ def resolve_clip_checkpoint(
 ) -> str:
     """The local open_clip checkpoint file to load, without any network access.
 
-    Convention
-    ----------
-    ``weights_path``: a checkpoint file, or a folder holding one (``open_clip_model.safetensors``,
-    ``open_clip_pytorch_model.bin``, ...). ``None``: the Hugging Face cache entry of the
-    ``(model_name, pretrained_tag)`` pair (``cache_dir`` overrides the cache folder), then the
-    URL-download cache of open_clip (``~/.cache/clip``). Nothing found: :class:`MetricUnavailable`
-    naming ``metrics.clip_weights``.
+    Convention:
+        ``weights_path``: a checkpoint file, or a folder holding one (``open_clip_model.safetensors``,
+        ``open_clip_pytorch_model.bin``, ...). ``None``: the Hugging Face cache entry of the
+        ``(model_name, pretrained_tag)`` pair (``cache_dir`` overrides the cache folder), then the
+        URL-download cache of open_clip (``~/.cache/clip``). Nothing found: :class:`MetricUnavailable`
+        naming ``metrics.clip_weights``.
     """
-    hint = (
-        f"set {CLIPScore.CONFIG_KEY} to an open_clip {model_name} checkpoint file or folder"
-    )
+    hint = f"set {CLIPScore.CONFIG_KEY} to an open_clip {model_name} checkpoint file or folder"
     if weights_path is not None:
         p = Path(weights_path).expanduser()
         if p.is_file():
@@ -149,14 +145,13 @@ def resolve_clip_checkpoint(
 class CLIPScore:
     """CLIP score of a full image against a full prompt (open_clip, local weights only).
 
-    Convention
-    ----------
-    - Weights: ``weights_path`` (config key ``metrics.clip_weights``) or a cache hit, see
-      :func:`resolve_clip_checkpoint`. A checkpoint loaded from a file gets the activation of
-      ``pretrained_tag`` (QuickGELU for OpenAI's ViT-B/16).
-    - ``allow_random_weights=True`` (with ``weights_path=None``) builds a seeded random model
-      without looking for weights: for plumbing tests only, its scores are meaningless.
-    - ``score(image, prompt)`` / ``__call__``: ``100 * max(cos, 0)`` as a float in [0, 100].
+    Convention:
+        - Weights: ``weights_path`` (config key ``metrics.clip_weights``) or a cache hit, see
+          :func:`resolve_clip_checkpoint`. A checkpoint loaded from a file gets the activation of
+          ``pretrained_tag`` (QuickGELU for OpenAI's ViT-B/16).
+        - ``allow_random_weights=True`` (with ``weights_path=None``) builds a seeded random model
+          without looking for weights: for plumbing tests only, its scores are meaningless.
+        - ``score(image, prompt)`` / ``__call__``: ``100 * max(cos, 0)`` as a float in [0, 100].
     """
 
     CONFIG_KEY = "metrics.clip_weights"
@@ -216,7 +211,7 @@ class CLIPScore:
 #: "download_root": path or null, "device": "cpu", "items": [{"image": path, "prompt": str}, ...]}``.
 #: Answer (the last non-empty stdout line, one JSON object): ``{"scores": [float, ...]}`` (one per
 #: item, in order) or ``{"error": "message"}``. Library output goes to stderr.
-IMAGE_REWARD_WORKER = r'''
+IMAGE_REWARD_WORKER = r"""
 import contextlib, inspect, json, sys
 
 def _main():
@@ -249,21 +244,20 @@ def _main():
     answer_to.flush()
 
 _main()
-'''
+"""
 
 
 class ImageRewardScorer:
     """ImageReward scores computed by another Python environment through a subprocess.
 
-    Convention
-    ----------
-    - ``python`` (config key ``metrics.image_reward_python``): the interpreter of an environment
-      with ``image-reward`` installed. ``None`` or not executable: :class:`MetricUnavailable`.
-    - ``model``: ``"ImageReward-v1.0"`` (found in ``download_root``, default
-      ``~/.cache/ImageReward``) or a checkpoint path; ``med_config``: a local ``med_config.json``.
-    - The child gets ``HF_HUB_OFFLINE=1`` (unless set) and no ``PYTHONPATH`` / ``PYTHONHOME``;
-      ``env`` entries are added last. One call loads the model once and scores every item.
-    - A failed, timed-out or malformed run raises :class:`MetricUnavailable` with the reason.
+    Convention:
+        - ``python`` (config key ``metrics.image_reward_python``): the interpreter of an environment
+          with ``image-reward`` installed. ``None`` or not executable: :class:`MetricUnavailable`.
+        - ``model``: ``"ImageReward-v1.0"`` (found in ``download_root``, default
+          ``~/.cache/ImageReward``) or a checkpoint path; ``med_config``: a local ``med_config.json``.
+        - The child gets ``HF_HUB_OFFLINE=1`` (unless set) and no ``PYTHONPATH`` / ``PYTHONHOME``;
+          ``env`` entries are added last. One call loads the model once and scores every item.
+        - A failed, timed-out or malformed run raises :class:`MetricUnavailable` with the reason.
     """
 
     CONFIG_KEY = "metrics.image_reward_python"
@@ -388,15 +382,14 @@ def score_all(
 ) -> ScoreResult:
     """All metrics of one generated image: ``{"metrics": {...}, "missing": {...}}``.
 
-    Convention
-    ----------
-    - PSNR, MAE, LPIPS: masked, grayscale, histogram-matched (the protocol); CLIP and ImageReward:
-      full image against ``prompt`` (the full prompt, object phrase included).
-    - A scorer given as ``None`` is missing with reason ``"not configured (set <config key>)"``;
-      one given as a :class:`MetricUnavailable` (what its constructor raised) is missing with that
-      reason. An empty mask makes PSNR, MAE and LPIPS missing. Other errors propagate.
-    - ``generated_path``: the generated image's file, handed to ImageReward as is (else a
-      temporary PNG of ``generated`` is written).
+    Convention:
+        - PSNR, MAE, LPIPS: masked, grayscale, histogram-matched (the protocol); CLIP and ImageReward:
+          full image against ``prompt`` (the full prompt, object phrase included).
+        - A scorer given as ``None`` is missing with reason ``"not configured (set <config key>)"``;
+          one given as a :class:`MetricUnavailable` (what its constructor raised) is missing with that
+          reason. An empty mask makes PSNR, MAE and LPIPS missing. Other errors propagate.
+        - ``generated_path``: the generated image's file, handed to ImageReward as is (else a
+          temporary PNG of ``generated`` is written).
     """
     metrics: dict[str, float | None] = {name: None for name in METRIC_NAMES}
     missing: dict[str, str] = {}
@@ -418,12 +411,16 @@ def score_all(
     run("psnr", lambda: masked_psnr(generated, reference, mask, histogram_match=histogram_match))
     run("mae", lambda: masked_mae(generated, reference, mask, histogram_match=histogram_match))
     run_scorer(
-        "lpips", lpips, MaskedLPIPS.CONFIG_KEY,
+        "lpips",
+        lpips,
+        MaskedLPIPS.CONFIG_KEY,
         lambda s: s(generated, reference, mask, histogram_match=histogram_match),
     )
     run_scorer("clip", clip, CLIPScore.CONFIG_KEY, lambda s: s(generated, prompt))
     run_scorer(
-        "image_reward", image_reward, ImageRewardScorer.CONFIG_KEY,
+        "image_reward",
+        image_reward,
+        ImageRewardScorer.CONFIG_KEY,
         lambda s: s(generated_path if generated_path is not None else generated, prompt),
     )
     return {"metrics": metrics, "missing": missing}

@@ -1,30 +1,29 @@
 """Masked fidelity metrics: histogram-matched grayscale PSNR and MAE, and masked LPIPS.
 
-Convention
-----------
-- Images: torch float tensors ``(B, 3, H, W)`` or ``(3, H, W)``, or numpy arrays ``(H, W, 3)``;
-  sRGB-encoded values in [0, 1] (data range 1; values are not clamped). ``uint8`` inputs are read
-  as ``value / 255``. One-channel images (``(B, 1, H, W)``, ``(H, W)``) are taken as already gray.
-  The functional metrics score ONE image pair (``B == 1``); :class:`MaskedPSNR` and
-  :class:`MaskedMAE` accumulate batches.
-- Masks: bool ``(H, W)``, ``(1, H, W)``, ``(B, 1, H, W)`` or ``(H, W, 1)``; True marks a scored
-  pixel (an object pixel whose refracted ray reaches a surface observed in the object-free image).
-  Non-bool masks are read as ``mask > 0.5``.
-- Grayscale: ``Y = 0.299 R + 0.587 G + 0.114 B`` on the sRGB-encoded values.
-- Histogram matching: the GENERATED image's masked values are remapped so that their empirical
-  distribution matches the REFERENCE's masked values. ``method="cdf"`` (default) is
-  :func:`skimage.exposure.match_histograms` applied to the masked values (the cumulative-CDF
-  mapping; deterministic under ties: equal values map to equal values). ``method="rank"`` is exact
-  histogram specification: the k-th smallest generated value (stable order) receives the k-th
-  smallest reference value, so the matched values are a permutation of the reference's. Pixels
-  outside the mask are never read by PSNR / MAE.
-- PSNR ``= 10 log10(1 / MSE)`` over the masked pixels (``inf`` for identical pixels);
-  MAE ``= mean |generated - reference|`` over the masked pixels.
-- LPIPS: the spatial LPIPS map (``spatial=True``) of the preprocessed full images, averaged over
-  the mask. Its value at a masked pixel also depends on the pixels of its receptive field.
-- Results: a Python ``float``, or :class:`MetricUnavailable` with a ``reason`` (empty mask, weights
-  not on this machine). A metric is never replaced by a placeholder number.
-- PSNR / MAE compute in float64 numpy on the CPU; no gradients anywhere.
+Convention:
+    - Images: torch float tensors ``(B, 3, H, W)`` or ``(3, H, W)``, or numpy arrays ``(H, W, 3)``;
+      sRGB-encoded values in [0, 1] (data range 1; values are not clamped). ``uint8`` inputs are read
+      as ``value / 255``. One-channel images (``(B, 1, H, W)``, ``(H, W)``) are taken as already gray.
+      The functional metrics score ONE image pair (``B == 1``); :class:`MaskedPSNR` and
+      :class:`MaskedMAE` accumulate batches.
+    - Masks: bool ``(H, W)``, ``(1, H, W)``, ``(B, 1, H, W)`` or ``(H, W, 1)``; True marks a scored
+      pixel (an object pixel whose refracted ray reaches a surface observed in the object-free image).
+      Non-bool masks are read as ``mask > 0.5``.
+    - Grayscale: ``Y = 0.299 R + 0.587 G + 0.114 B`` on the sRGB-encoded values.
+    - Histogram matching: the GENERATED image's masked values are remapped so that their empirical
+      distribution matches the REFERENCE's masked values. ``method="cdf"`` (default) is
+      :func:`skimage.exposure.match_histograms` applied to the masked values (the cumulative-CDF
+      mapping; deterministic under ties: equal values map to equal values). ``method="rank"`` is exact
+      histogram specification: the k-th smallest generated value (stable order) receives the k-th
+      smallest reference value, so the matched values are a permutation of the reference's. Pixels
+      outside the mask are never read by PSNR / MAE.
+    - PSNR ``= 10 log10(1 / MSE)`` over the masked pixels (``inf`` for identical pixels);
+      MAE ``= mean |generated - reference|`` over the masked pixels.
+    - LPIPS: the spatial LPIPS map (``spatial=True``) of the preprocessed full images, averaged over
+      the mask. Its value at a masked pixel also depends on the pixels of its receptive field.
+    - Results: a Python ``float``, or :class:`MetricUnavailable` with a ``reason`` (empty mask, weights
+      not on this machine). A metric is never replaced by a placeholder number.
+    - PSNR / MAE compute in float64 numpy on the CPU; no gradients anywhere.
 """
 
 from __future__ import annotations
@@ -129,11 +128,10 @@ def _gray_hwc(arr: np.ndarray) -> np.ndarray:
 def to_gray(image):
     """Grayscale ``0.299 R + 0.587 G + 0.114 B``.
 
-    Convention
-    ----------
-    torch ``(..., 3, H, W)`` -> ``(..., 1, H, W)`` (same float dtype); numpy ``(H, W, 3)`` ->
-    ``(H, W)`` (float64). ``uint8`` inputs are read as ``value / 255``. One-channel inputs keep
-    their values (numpy ``(H, W, 1)`` -> ``(H, W)``).
+    Convention:
+        torch ``(..., 3, H, W)`` -> ``(..., 1, H, W)`` (same float dtype); numpy ``(H, W, 3)`` ->
+        ``(H, W)`` (float64). ``uint8`` inputs are read as ``value / 255``. One-channel inputs keep
+        their values (numpy ``(H, W, 1)`` -> ``(H, W)``).
     """
     if isinstance(image, torch.Tensor):
         if image.ndim < 3 or image.shape[-3] not in (1, 3):
@@ -188,13 +186,12 @@ def _squeeze_hw(x: Any, name: str) -> np.ndarray:
 def match_histogram_masked(gen_gray, ref_gray, mask, *, method: str = "cdf"):
     """Match the histogram of ``gen_gray`` to that of ``ref_gray`` inside ``mask``.
 
-    Convention
-    ----------
-    ``gen_gray`` / ``ref_gray``: one-channel images, ``(H, W)`` or with singleton leading dims
-    (``(1, 1, H, W)``), numpy or torch. Returns ``gen_gray``'s type and shape (torch: same dtype and
-    device; numpy: float64) with the masked pixels remapped and the others unchanged. ``method``:
-    ``"cdf"`` (skimage's cumulative-CDF mapping) or ``"rank"`` (exact specification). An empty mask
-    returns an unchanged copy.
+    Convention:
+        ``gen_gray`` / ``ref_gray``: one-channel images, ``(H, W)`` or with singleton leading dims
+        (``(1, 1, H, W)``), numpy or torch. Returns ``gen_gray``'s type and shape (torch: same dtype and
+        device; numpy: float64) with the masked pixels remapped and the others unchanged. ``method``:
+        ``"cdf"`` (skimage's cumulative-CDF mapping) or ``"rank"`` (exact specification). An empty mask
+        returns an unchanged copy.
     """
     g = _squeeze_hw(gen_gray, "gen_gray")
     r = _squeeze_hw(ref_gray, "ref_gray")
@@ -242,12 +239,11 @@ def masked_psnr(
 ) -> float:
     """PSNR ``10 log10(1 / MSE)`` over the masked pixels (data range 1).
 
-    Convention
-    ----------
-    Defaults follow the protocol: grayscale, then the generated image's masked histogram is matched
-    to the reference's. ``grayscale=False`` scores the RGB channels (matched per channel) and
-    averages the squared error over pixels and channels. Returns ``inf`` when the (matched) masked
-    pixels are identical. Raises :class:`MetricUnavailable` for an empty mask.
+    Convention:
+        Defaults follow the protocol: grayscale, then the generated image's masked histogram is matched
+        to the reference's. ``grayscale=False`` scores the RGB channels (matched per channel) and
+        averages the squared error over pixels and channels. Returns ``inf`` when the (matched) masked
+        pixels are identical. Raises :class:`MetricUnavailable` for an empty mask.
     """
     gv, rv = _masked_values(generated, reference, mask, histogram_match, grayscale, method)
     mse = float(np.mean((gv - rv) ** 2))
@@ -334,19 +330,18 @@ _BACKBONE_FILES = {
 class MaskedLPIPS(torch.nn.Module):
     """LPIPS averaged over a mask of its spatial map.
 
-    Convention
-    ----------
-    - Backbone weights (never downloaded): ``weights_path`` (config key ``metrics.lpips_weights``),
-      a torchvision state_dict file of the backbone (``vgg16-397923af.pth`` for ``net="vgg"``),
-      else the same file name in the torch hub cache (``<torch.hub.get_dir()>/checkpoints``).
-      Neither present: :class:`MetricUnavailable` naming ``metrics.lpips_weights``. The calibrated
-      linear layers ship with the ``lpips`` package.
-    - ``allow_random_backbone=True`` (with ``weights_path=None``) builds a randomly initialised
-      backbone (seeded, no cache lookup) for plumbing tests only: its values are meaningless.
-    - Inputs follow the module's image/mask convention; by default they are converted to grayscale
-      and the generated image's masked histogram is matched to the reference's (as for PSNR), the
-      gray image is repeated to 3 channels, and both are scaled to [-1, 1].
-    - ``forward`` returns a float: the mean of the ``(H, W)`` LPIPS map over the mask.
+    Convention:
+        - Backbone weights (never downloaded): ``weights_path`` (config key ``metrics.lpips_weights``),
+          a torchvision state_dict file of the backbone (``vgg16-397923af.pth`` for ``net="vgg"``),
+          else the same file name in the torch hub cache (``<torch.hub.get_dir()>/checkpoints``).
+          Neither present: :class:`MetricUnavailable` naming ``metrics.lpips_weights``. The calibrated
+          linear layers ship with the ``lpips`` package.
+        - ``allow_random_backbone=True`` (with ``weights_path=None``) builds a randomly initialised
+          backbone (seeded, no cache lookup) for plumbing tests only: its values are meaningless.
+        - Inputs follow the module's image/mask convention; by default they are converted to grayscale
+          and the generated image's masked histogram is matched to the reference's (as for PSNR), the
+          gray image is repeated to 3 channels, and both are scaled to [-1, 1].
+        - ``forward`` returns a float: the mean of the ``(H, W)`` LPIPS map over the mask.
     """
 
     CONFIG_KEY = "metrics.lpips_weights"
@@ -370,9 +365,7 @@ class MaskedLPIPS(torch.nn.Module):
         with warnings.catch_warnings(), torch.random.fork_rng(devices=[]):
             warnings.simplefilter("ignore")  # torchvision's deprecated `pretrained=` argument
             torch.manual_seed(0)
-            self.model = lpips.LPIPS(
-                net=net, pretrained=True, pnet_rand=True, spatial=True, verbose=False
-            )
+            self.model = lpips.LPIPS(net=net, pretrained=True, pnet_rand=True, spatial=True, verbose=False)
         self._tv_name = tv_name
         if path is not None:
             self._load_backbone(path)

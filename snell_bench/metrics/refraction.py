@@ -25,7 +25,12 @@ def refraction_psnr(image: torch.Tensor, i_minus: torch.Tensor, warps) -> float 
     """
     target, _ = remap(i_minus, warps.refraction)
     try:
-        return masked_psnr(bchw_to_hwc(image), bchw_to_hwc(target), warps.object_mask & warps.refraction_valid,
-                           histogram_match=False, grayscale=False)
+        return masked_psnr(
+            bchw_to_hwc(image),
+            bchw_to_hwc(target),
+            warps.object_mask & warps.refraction_valid,
+            histogram_match=False,
+            grayscale=False,
+        )
     except MetricUnavailable:
         return None

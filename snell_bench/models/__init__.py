@@ -15,7 +15,8 @@ Convention:
 from __future__ import annotations
 
 import importlib
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from .base import SCHEDULES, Condition, Generator, LatentGeometry
 from .devices import parse_dtype

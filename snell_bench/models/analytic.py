@@ -157,7 +157,7 @@ class AnalyticGenerator:
             self.set_prior("pano", pano_prior)
 
     @classmethod
-    def from_scene(cls, i_minus, object_mask, panorama=None, **kwargs) -> "AnalyticGenerator":
+    def from_scene(cls, i_minus, object_mask, panorama=None, **kwargs) -> AnalyticGenerator:
         """Main prior: I⁻ with a wrong glass blob in the object mask, uncertain (``glass_std``) there;
         panorama prior: the true panorama."""
         return cls(glass_blob_prior(i_minus, object_mask), panorama, glass_mask=object_mask, **kwargs)

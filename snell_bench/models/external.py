@@ -128,6 +128,13 @@ def inpaint_external(
     H, W = i_minus.shape[-2:]
     img = Image.fromarray((bchw_to_hwc(i_minus) * 255).round().astype(np.uint8))
     m = Image.fromarray((np.asarray(mask) * 255).astype(np.uint8))
-    out = pipe(prompt=prompt, image=img, mask_image=m, height=H, width=W, num_inference_steps=steps,
-               generator=_generator(pipe, seed)).images[0]
+    out = pipe(
+        prompt=prompt,
+        image=img,
+        mask_image=m,
+        height=H,
+        width=W,
+        num_inference_steps=steps,
+        generator=_generator(pipe, seed),
+    ).images[0]
     return _to_tensor(out)

@@ -27,8 +27,9 @@ from __future__ import annotations
 import logging
 import os
 import re
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import torch
 
@@ -74,7 +75,9 @@ def _weights_help(what: str) -> str:
     )
 
 
-def resolve_weights_folder(model_id_or_path: str | os.PathLike, *, local_files_only: bool = True, revision: str | None = None) -> str:
+def resolve_weights_folder(
+    model_id_or_path: str | os.PathLike, *, local_files_only: bool = True, revision: str | None = None
+) -> str:
     """The local folder of a diffusers FLUX pipeline, from a folder path or a Hugging Face id.
 
     Convention:
@@ -112,7 +115,9 @@ def resolve_weights_folder(model_id_or_path: str | os.PathLike, *, local_files_o
     try:
         folder = snapshot_download(repo_id=text, revision=revision, local_files_only=True)
     except Exception as err:  # LocalEntryNotFoundError, HFValidationError, OSError, ...
-        raise WeightsNotFoundError(_weights_help(f"{text!r} is not in the Hugging Face cache ({type(err).__name__})")) from err
+        raise WeightsNotFoundError(
+            _weights_help(f"{text!r} is not in the Hugging Face cache ({type(err).__name__})")
+        ) from err
     if not (Path(folder) / "model_index.json").is_file():
         raise WeightsNotFoundError(_weights_help(f"the cached snapshot {folder!r} has no model_index.json"))
     return folder
@@ -226,7 +231,7 @@ class FluxGenerator:
     # ------------------------------------------------------------------ construction
 
     @classmethod
-    def from_pipeline(cls, pipe: Any, **kwargs) -> "FluxGenerator":
+    def from_pipeline(cls, pipe: Any, **kwargs) -> FluxGenerator:
         """Wrap an already-built ``FluxPipeline`` (keyword arguments as in the constructor)."""
         return cls(pipe, **kwargs)
 
@@ -243,7 +248,7 @@ class FluxGenerator:
         guidance: float = 3.5,
         max_sequence_length: int = 512,
         revision: str | None = None,
-    ) -> "FluxGenerator":
+    ) -> FluxGenerator:
         """Load FLUX.1-dev (or another FLUX checkpoint in diffusers layout) without downloading.
 
         Args:
@@ -330,7 +335,9 @@ class FluxGenerator:
     # ------------------------------------------------------------------ text
 
     @torch.no_grad()
-    def condition(self, prompts: Sequence[str], views: Sequence[str] | None = None, *, guidance: float | None = None) -> Condition:
+    def condition(
+        self, prompts: Sequence[str], views: Sequence[str] | None = None, *, guidance: float | None = None
+    ) -> Condition:
         """Encode ``prompts`` with CLIP (pooled) and T5 (tokens).
 
         ``data``: ``prompt_embeds`` ``(B, L, D)``, ``pooled_prompt_embeds`` ``(B, P)``,
@@ -381,7 +388,9 @@ class FluxGenerator:
         img_ids = pipe._prepare_latent_image_ids(B, h // 2, w // 2, self.device, dtype)
         # as FluxPipeline: t = 1000 sigma in the model dtype, passed as t / 1000
         timestep = (sig * 1000).to(dtype) / 1000
-        guidance = cond.data["guidance"].to(self.device, torch.float32) if pipe.transformer.config.guidance_embeds else None
+        guidance = (
+            cond.data["guidance"].to(self.device, torch.float32) if pipe.transformer.config.guidance_embeds else None
+        )
         out = pipe.transformer(
             hidden_states=packed,
             timestep=timestep,
@@ -439,10 +448,14 @@ class FluxGenerator:
             cfg.get("base_shift", 0.5),
             cfg.get("max_shift", 1.15),
         )
-        if cfg.get("use_dynamic_shifting") and hasattr(scheduler, "time_shift") and not any(
-            cfg.get(k) for k in _SCHEDULER_OPTIONS_VIA_SET_TIMESTEPS
+        if (
+            cfg.get("use_dynamic_shifting")
+            and hasattr(scheduler, "time_shift")
+            and not any(cfg.get(k) for k in _SCHEDULER_OPTIONS_VIA_SET_TIMESTEPS)
         ):
-            shifted = scheduler.time_shift(mu, 1.0, torch.linspace(1.0, 1.0 / num_steps, num_steps, dtype=torch.float64))
+            shifted = scheduler.time_shift(
+                mu, 1.0, torch.linspace(1.0, 1.0 / num_steps, num_steps, dtype=torch.float64)
+            )
         else:  # exactly as FluxPipeline
             scheduler.set_timesteps(sigmas=np.linspace(1.0, 1 / num_steps, num_steps), mu=mu, device="cpu")
             shifted = scheduler.sigmas[:-1].to(torch.float64)
@@ -455,7 +468,9 @@ class FluxGenerator:
         if z.ndim != 4 or z.shape[1] != C:
             raise ValueError(f"latents must be (B, {C}, h, w), got {tuple(z.shape)}")
         if z.shape[-2] % 2 or z.shape[-1] % 2:
-            raise ValueError(f"latent size {z.shape[-2]}x{z.shape[-1]} must be even (images a multiple of {self.geometry.multiple})")
+            raise ValueError(
+                f"latent size {z.shape[-2]}x{z.shape[-1]} must be even (images a multiple of {self.geometry.multiple})"
+            )
 
     @staticmethod
     def _match_batch(cond: Condition, B: int) -> Condition:
@@ -465,7 +480,11 @@ class FluxGenerator:
         if n != 1:
             raise ValueError(f"condition has {n} prompts for a batch of {B} latents (give {B} or 1)")
         data = {
-            k: (v.expand(B, *v.shape[1:]) if isinstance(v, torch.Tensor) else (list(v) * B if isinstance(v, list) else v))
+            k: (
+                v.expand(B, *v.shape[1:])
+                if isinstance(v, torch.Tensor)
+                else (list(v) * B if isinstance(v, list) else v)
+            )
             for k, v in cond.data.items()
         }
         return Condition(prompts=list(cond.prompts) * B, data=data)

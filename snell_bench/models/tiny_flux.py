@@ -98,7 +98,10 @@ def _write_clip_tokenizer_files(folder: Path) -> None:
 
 def _clip_tokenizer_folder() -> Path:
     """The folder holding the CLIP tokenizer files, written on first use."""
-    candidates = [_cache_root() / _TOKENIZER_FOLDER_NAME, Path(tempfile.gettempdir()) / f"snell_bench_{_TOKENIZER_FOLDER_NAME}"]
+    candidates = [
+        _cache_root() / _TOKENIZER_FOLDER_NAME,
+        Path(tempfile.gettempdir()) / f"snell_bench_{_TOKENIZER_FOLDER_NAME}",
+    ]
     for folder in candidates:
         if (folder / "vocab.json").is_file() and (folder / "merges.txt").is_file():
             return folder

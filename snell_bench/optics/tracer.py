@@ -416,4 +416,3 @@ class SceneTracer:
             ``(N,)`` distances in units of ``|direction|`` (inf where the object is missed).
         """
         return self.cast_object(np.zeros_like(directions), directions)["t"]
-

@@ -13,8 +13,18 @@ from snell_bench.optics.tracer import BackgroundHit, HitKind, RefractionTrace, S
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.depth_mesh import BackgroundMesh
 
-__all__ = ["RayScene", "PrimaryRays", "trace_refraction", "refraction_warps", "trace_reflection", "reflection_warps",
-           "panorama_warps", "pano_coords", "pano_to_persp_warp", "self_warp"]
+__all__ = [
+    "RayScene",
+    "PrimaryRays",
+    "trace_refraction",
+    "refraction_warps",
+    "trace_reflection",
+    "reflection_warps",
+    "panorama_warps",
+    "pano_coords",
+    "pano_to_persp_warp",
+    "self_warp",
+]
 
 
 @dataclass
@@ -27,7 +37,6 @@ class RayScene:
     far_stats: dict  #: the ``far_background`` statistics (empty without a tolerance)
 
 
-
 @dataclass
 class PrimaryRays:
     """The pixels that see the object (indices into the flattened ``(H * W)`` image)."""
@@ -36,7 +45,6 @@ class PrimaryRays:
     pixels: np.ndarray  #: (N,) int flat indices of the object pixels, row-major
     rays: np.ndarray  #: (N, 3) unit camera rays of those pixels
     mask: np.ndarray  #: (H * W,) bool object mask
-
 
 
 # ---------------------------------------------------------------------------------------------
@@ -263,5 +271,3 @@ def self_warp(
         idx = np.flatnonzero(ok & finite)
         ok[idx] = tracer.visible_from_camera(points[idx])
     return pix.astype(np.float32), ok
-
-

@@ -77,6 +77,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["WarpSet", "compute_warps", "warp_inputs_hash", "far_background_mask", "object_pixel_box", "WARPS_VERSION"]
 
+
 def object_pixel_box(obj: GlassObject, camera: Camera) -> tuple[int, int, int, int]:
     """The pixels whose camera rays can hit the object: the bounding box of its projection.
 
@@ -161,8 +162,17 @@ def compute_warps(
     # 1. inputs, options, cache
     depth = np.asarray(depth)
     up_vec, options = _warp_options(
-        depth, camera, obj, pano_height, max_bounces=max_bounces, normals=normals, edge_threshold=edge_threshold,
-        up=up, eps=eps, verify_visibility=verify_visibility, infinity_tolerance_px=infinity_tolerance_px,
+        depth,
+        camera,
+        obj,
+        pano_height,
+        max_bounces=max_bounces,
+        normals=normals,
+        edge_threshold=edge_threshold,
+        up=up,
+        eps=eps,
+        verify_visibility=verify_visibility,
+        infinity_tolerance_px=infinity_tolerance_px,
     )
     pano_height = options["pano_height"]
     key = warp_inputs_hash(depth, camera, obj, options)
@@ -174,8 +184,17 @@ def compute_warps(
 
     # 2. the ray-casting scene
     with timer("build"):
-        scene = _build_scene(depth, camera, obj, infinity_tolerance_px, pano_height, edge_threshold=edge_threshold,
-                             max_bounces=max_bounces, normals=normals, eps=eps)
+        scene = _build_scene(
+            depth,
+            camera,
+            obj,
+            infinity_tolerance_px,
+            pano_height,
+            edge_threshold=edge_threshold,
+            max_bounces=max_bounces,
+            normals=normals,
+            eps=eps,
+        )
     # 3. primary rays: which pixels see the object
     with timer("primary"):
         primary = _trace_primary(camera, obj, scene.tracer, roi)
@@ -430,5 +449,3 @@ def _warp_stats(timer: Timer, scene: RayScene, primary: PrimaryRays, roi: bool) 
         "background_triangles": int(len(scene.background.faces)),
         "eps": scene.tracer.eps,
     }
-
-

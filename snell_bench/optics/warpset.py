@@ -231,11 +231,7 @@ def warp_inputs_hash(depth: np.ndarray, camera: Camera, obj: GlassObject, option
     return h.hexdigest()
 
 
-
-
-def assemble(
-    camera: Camera, pano: PanoramaCamera, ior: float, arrays: dict[str, np.ndarray], **meta
-) -> WarpSet:
+def assemble(camera: Camera, pano: PanoramaCamera, ior: float, arrays: dict[str, np.ndarray], **meta) -> WarpSet:
     """A :class:`WarpSet` from flat per-pixel arrays.
 
     Args:

@@ -4,22 +4,21 @@ assembles.
 
 Importing this module does not import Mitsuba; :func:`import_mitsuba` and :func:`set_variant` do.
 
-Convention
-----------
-- Frames: everything is in the camera frame of :mod:`snell_bench.scene.camera` (OpenCV: x right,
-  y down, z forward, camera at the origin). Mitsuba's perspective camera looks along its local +z
-  with +x to the *left* and +y *up* of the image, so its ``to_world`` is the rotation
-  ``diag(-1, -1, 1)`` (180° about z). The field of view is ``2 atan(W / (2 fx))`` along x; the
-  principal point offset is ``((W - 1) / 2 - cx) / W`` and ``((H - 1) / 2 - cy) / H`` (Mitsuba's
-  offsets are fractions of the film, measured from its centre, and shift the ray, not the image).
-  Pixels must be square (``fx == fy``): Mitsuba's pinhole camera has one focal length.
-- Pixels: Mitsuba's film pixel ``i`` covers ``[i, i + 1)``; ours (centres at integers) covers
-  ``[x - 0.5, x + 0.5)``; a ``box`` pixel filter makes each pixel the average over its own footprint.
-- Emitters and BSDFs: surfaces that emit are ``area`` emitters, textured texel-exact
-  (``filter_type = nearest``, ``raw``) or of one RGB colour; their BSDF is black (a zero conductor:
-  delta, so no light sampling, and the path ends there).
-- Randomness: Mitsuba's ``independent`` sampler seeded with ``seed``; the same inputs, ``spp``,
-  ``seed`` and variant give the same images.
+Convention:
+    - Frames: everything is in the camera frame of :mod:`snell_bench.scene.camera` (OpenCV: x right,
+      y down, z forward, camera at the origin). Mitsuba's perspective camera looks along its local +z
+      with +x to the *left* and +y *up* of the image, so its ``to_world`` is the rotation
+      ``diag(-1, -1, 1)`` (180° about z). The field of view is ``2 atan(W / (2 fx))`` along x; the
+      principal point offset is ``((W - 1) / 2 - cx) / W`` and ``((H - 1) / 2 - cy) / H`` (Mitsuba's
+      offsets are fractions of the film, measured from its centre, and shift the ray, not the image).
+      Pixels must be square (``fx == fy``): Mitsuba's pinhole camera has one focal length.
+    - Pixels: Mitsuba's film pixel ``i`` covers ``[i, i + 1)``; ours (centres at integers) covers
+      ``[x - 0.5, x + 0.5)``; a ``box`` pixel filter makes each pixel the average over its own footprint.
+    - Emitters and BSDFs: surfaces that emit are ``area`` emitters, textured texel-exact
+      (``filter_type = nearest``, ``raw``) or of one RGB colour; their BSDF is black (a zero conductor:
+      delta, so no light sampling, and the path ends there).
+    - Randomness: Mitsuba's ``independent`` sampler seeded with ``seed``; the same inputs, ``spp``,
+      ``seed`` and variant give the same images.
 """
 
 from __future__ import annotations
@@ -237,8 +236,12 @@ def mesh(mi, name: str, vertices, faces, *, uv=None, normals=None, bsdf=None, em
     if emitter is not None:
         props["emitter"] = emitter
     m = mi.Mesh(
-        name, len(vertices), len(faces), props=props,
-        has_vertex_normals=normals is not None, has_vertex_texcoords=uv is not None,
+        name,
+        len(vertices),
+        len(faces),
+        props=props,
+        has_vertex_normals=normals is not None,
+        has_vertex_texcoords=uv is not None,
     )
     p = mi.traverse(m)
 
@@ -314,7 +317,11 @@ def texture_emitter(mi, bitmap):
         {
             "type": "area",
             "radiance": {
-                "type": "bitmap", "bitmap": bitmap, "filter_type": "nearest", "wrap_mode": "clamp", "raw": True,
+                "type": "bitmap",
+                "bitmap": bitmap,
+                "filter_type": "nearest",
+                "wrap_mode": "clamp",
+                "raw": True,
             },
         }
     )

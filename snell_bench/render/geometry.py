@@ -3,26 +3,25 @@
 Nothing here imports Mitsuba: the functions return numpy arrays that
 :mod:`snell_bench.render.reference` hands to :mod:`snell_bench.render.backend`.
 
-Convention
-----------
-- Frames and pixels: the camera frame and pixel centres of :mod:`snell_bench.scene.camera`; pixel
-  ``(x, y)`` covers ``[x - 0.5, x + 0.5) x [y - 0.5, y + 0.5)``.
-- Background: the depth mesh of :func:`~snell_bench.scene.depth_mesh.build_background` (vertex
-  ``y * W + x`` at the unprojected centre of pixel ``(x, y)``, the geometry our tracer uses),
-  extended by half a pixel at the image border (border depth repeated): extended vertex
-  ``(y + 1) * (W + 2) + x + 1``. UV = image position ``((x + 0.5) / W, (y + 0.5) / H)`` (Mitsuba's
-  ``v = 0`` is the *top* row of a bitmap). For the image pass every triangle is split at the image
-  midpoints of its sides (:func:`subdivide`), so that each piece lies in one pixel's footprint and
-  shows exactly that texel.
-- Depth edges: where ``depth_to_mesh`` cuts a triangle (or depth is invalid), each valid pixel's
-  remaining footprint is a *flap* (:func:`flaps`): a fronto-parallel piece at the pixel's own depth
-  (half a pixel wide). So the camera sees I⁻ exactly wherever it sees the background directly,
-  while a depth edge stays open for other rays, as in our tracer.
-- Object normals: each face corner gets its own vertex (vertices split at every corner) with the
-  creased shading normal of :meth:`GlassObject.corner_normals`, so smooth parts interpolate and
-  sharp edges stay sharp, as in our tracer.
-- ``object_mask``: pixel-centre rays that hit the object before the background (the background is
-  hit at the pixel's own depth-mesh vertex), as in :func:`~snell_bench.optics.warps.compute_warps`.
+Convention:
+    - Frames and pixels: the camera frame and pixel centres of :mod:`snell_bench.scene.camera`; pixel
+      ``(x, y)`` covers ``[x - 0.5, x + 0.5) x [y - 0.5, y + 0.5)``.
+    - Background: the depth mesh of :func:`~snell_bench.scene.depth_mesh.build_background` (vertex
+      ``y * W + x`` at the unprojected centre of pixel ``(x, y)``, the geometry our tracer uses),
+      extended by half a pixel at the image border (border depth repeated): extended vertex
+      ``(y + 1) * (W + 2) + x + 1``. UV = image position ``((x + 0.5) / W, (y + 0.5) / H)`` (Mitsuba's
+      ``v = 0`` is the *top* row of a bitmap). For the image pass every triangle is split at the image
+      midpoints of its sides (:func:`subdivide`), so that each piece lies in one pixel's footprint and
+      shows exactly that texel.
+    - Depth edges: where ``depth_to_mesh`` cuts a triangle (or depth is invalid), each valid pixel's
+      remaining footprint is a *flap* (:func:`flaps`): a fronto-parallel piece at the pixel's own depth
+      (half a pixel wide). So the camera sees I⁻ exactly wherever it sees the background directly,
+      while a depth edge stays open for other rays, as in our tracer.
+    - Object normals: each face corner gets its own vertex (vertices split at every corner) with the
+      creased shading normal of :meth:`GlassObject.corner_normals`, so smooth parts interpolate and
+      sharp edges stay sharp, as in our tracer.
+    - ``object_mask``: pixel-centre rays that hit the object before the background (the background is
+      hit at the pixel's own depth-mesh vertex), as in :func:`~snell_bench.optics.warps.compute_warps`.
 """
 
 from __future__ import annotations

@@ -4,27 +4,26 @@
 what a generated scene provides (I⁻, its z-depth, K) and an independent renderer (Mitsuba 3), so it
 cross-checks our own tracer (:mod:`snell_bench.optics`).
 
-Convention
-----------
-- Frames, pixels, sensor and randomness: see :mod:`snell_bench.render.backend`; the background,
-  its flaps at depth edges, the object's normals and ``object_mask``: see
-  :mod:`snell_bench.render.geometry`.
-- Background: its front side is an ``area`` emitter textured with I⁻ decoded to linear RGB,
-  texel-exact; its BSDF is black.
-- Unobserved: the back sides of the background (a copy with flipped faces just behind it) and the
-  bounding box (faces pointing inwards), as in :class:`~snell_bench.optics.tracer.HitKind`.
-- Passes (both linear; Mitsuba is linear in emission):
-  (a) ``image``: observed surfaces emit I⁻, the unobserved box and back sides are black; the object
-  is Mitsuba's ``dielectric`` (``int_ior = obj.ior``, ``ext_ior = 1``), so reflection, refraction,
-  Fresnel and internal bounces are all sampled by Mitsuba. Encoded to sRGB.
-  (b) ``unobserved``: observed surfaces emit (0, 1, 0), unobserved ones (1, 0, 0), and the object
-  follows the *refraction path* (refract at every interface; reflect only under total internal
-  reflection), the path that the metric mask is defined on. ``unobserved = R / (R + G)``: the share
-  of the pixel's refracted light that comes from surfaces I⁻ does not show (1 where no path ends on
-  a surface, e.g. trapped; samples that end on the front of a back-side copy, through a crack of
-  the ray tracer, count for neither). Outer-surface reflections do not count: they mostly see the
-  space behind the camera and would otherwise exclude every pixel whose Fresnel reflectance
-  exceeds the threshold.
+Convention:
+    - Frames, pixels, sensor and randomness: see :mod:`snell_bench.render.backend`; the background,
+      its flaps at depth edges, the object's normals and ``object_mask``: see
+      :mod:`snell_bench.render.geometry`.
+    - Background: its front side is an ``area`` emitter textured with I⁻ decoded to linear RGB,
+      texel-exact; its BSDF is black.
+    - Unobserved: the back sides of the background (a copy with flipped faces just behind it) and the
+      bounding box (faces pointing inwards), as in :class:`~snell_bench.optics.tracer.HitKind`.
+    - Passes (both linear; Mitsuba is linear in emission):
+      (a) ``image``: observed surfaces emit I⁻, the unobserved box and back sides are black; the object
+      is Mitsuba's ``dielectric`` (``int_ior = obj.ior``, ``ext_ior = 1``), so reflection, refraction,
+      Fresnel and internal bounces are all sampled by Mitsuba. Encoded to sRGB.
+      (b) ``unobserved``: observed surfaces emit (0, 1, 0), unobserved ones (1, 0, 0), and the object
+      follows the *refraction path* (refract at every interface; reflect only under total internal
+      reflection), the path that the metric mask is defined on. ``unobserved = R / (R + G)``: the share
+      of the pixel's refracted light that comes from surfaces I⁻ does not show (1 where no path ends on
+      a surface, e.g. trapped; samples that end on the front of a back-side copy, through a crack of
+      the ray tracer, count for neither). Outer-surface reflections do not count: they mostly see the
+      space behind the camera and would otherwise exclude every pixel whose Fresnel reflectance
+      exceeds the threshold.
 """
 
 from __future__ import annotations
@@ -205,8 +204,9 @@ def render_reference(
     # ---- (a) observed surfaces emit I⁻, the rest is black; Mitsuba's dielectric
     t0 = time.perf_counter()
     shapes = {
-        "background": mesh(mi, "background", tex_v, tex_f, uv=tex_uv, bsdf=black_bsdf(mi),
-                           emitter=texture_emitter(mi, texture)),
+        "background": mesh(
+            mi, "background", tex_v, tex_f, uv=tex_uv, bsdf=black_bsdf(mi), emitter=texture_emitter(mi, texture)
+        ),
         "object": object_shape(dielectric("dielectric" if fresnel else "snell_refraction_path")),
     }
     linear = render_linear(mi, shapes, camera, spp, seed, max_depth, clip, None if fresnel else rect)
@@ -234,7 +234,11 @@ def render_reference(
     image = linear_to_srgb(np.clip(linear, 0.0, 1.0)).astype(np.float32)
     log.info(
         "reference (%s, %d spp): %d object pixels, %d in the mask; %s",
-        variant, spp, int(obj_mask.sum()), int(mask.sum()), {k: round(v, 2) for k, v in timings.items()},
+        variant,
+        spp,
+        int(obj_mask.sum()),
+        int(mask.sum()),
+        {k: round(v, 2) for k, v in timings.items()},
     )
     return ReferenceRender(
         image=image,

@@ -4,13 +4,12 @@
 from its exact 3-D geometry (no depth map): it shows what the object really refracts, including
 surfaces that I⁻ does not show. It uses our own tracer (:mod:`snell_bench.optics`), not Mitsuba.
 
-Convention
-----------
-- Frames and pixels: the camera frame and pixel centres of :mod:`snell_bench.scene.camera`.
-- Colour: radiance is linear RGB (:meth:`ProceduralScene.radiance`); samples are averaged in linear
-  RGB, clipped to [0, 1] and encoded to sRGB.
-- Randomness: sub-pixel offsets from ``numpy.random.default_rng(seed)``; the same inputs, ``spp``
-  and ``seed`` give the same image.
+Convention:
+    - Frames and pixels: the camera frame and pixel centres of :mod:`snell_bench.scene.camera`.
+    - Colour: radiance is linear RGB (:meth:`ProceduralScene.radiance`); samples are averaged in linear
+      RGB, clipped to [0, 1] and encoded to sRGB.
+    - Randomness: sub-pixel offsets from ``numpy.random.default_rng(seed)``; the same inputs, ``spp``
+      and ``seed`` give the same image.
 """
 
 from __future__ import annotations

@@ -41,7 +41,10 @@ def decide(warps: WarpSet, settings: SamplerSettings) -> tuple[SamplerSettings, 
             keep = m & (warps.fresnel >= thr)
             k = int(keep.sum())
             decisions["reflection"] = {
-                "kept": k > 0, "pixels_kept": k, "share_kept": k / n if n else 0.0, "min_fresnel": thr,
+                "kept": k > 0,
+                "pixels_kept": k,
+                "share_kept": k / n if n else 0.0,
+                "min_fresnel": thr,
                 "max_fresnel": float(f.max()) if n else 0.0,
             }
             if k == 0:

@@ -92,5 +92,3 @@ class SamplerSettings:
     @property
     def uses_panorama(self) -> bool:
         return self.sync == "snellcaster" and self.panorama
-
-

@@ -41,6 +41,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["SampleResult", "sample"]
 
+
 @dataclass
 class SampleResult:
     image: torch.Tensor  # (1, 3, H, W)
@@ -69,8 +70,9 @@ def _nan_where(coords: np.ndarray, invalid: np.ndarray) -> np.ndarray:
 class _Views:
     """Warp maps as tensors and the constant warps of I⁻, prepared once per run."""
 
-    def __init__(self, ws: WarpSet, i_minus: torch.Tensor, s: SamplerSettings,
-                 reflection_mask: np.ndarray | None = None) -> None:
+    def __init__(
+        self, ws: WarpSet, i_minus: torch.Tensor, s: SamplerSettings, reflection_mask: np.ndarray | None = None
+    ) -> None:
         L = s.effective_levels
         self.levels = L
         self.roi = bool(s.roi)
@@ -111,36 +113,62 @@ class _Views:
             self._gauss_last[wrap_x] = last
         return last[1]
 
-    def blend_main(self, x0: torch.Tensor, x0_pano: torch.Tensor | None, s: SamplerSettings,
-                   g_main: list[torch.Tensor] | None = None, g_pano: list[torch.Tensor] | None = None) -> torch.Tensor:
+    def blend_main(
+        self,
+        x0: torch.Tensor,
+        x0_pano: torch.Tensor | None,
+        s: SamplerSettings,
+        g_main: list[torch.Tensor] | None = None,
+        g_pano: list[torch.Tensor] | None = None,
+    ) -> torch.Tensor:
         g_main = g_main if g_main is not None else self.gauss(x0)
         g_pano = g_pano if g_pano is not None else self.gauss(x0_pano, wrap_x=True)
         own, own_m = self._own(g_main)
         lv, ms = [own, self.imin_main], [own_m, self.imin_main_m]
         if x0_pano is not None:
-            p, pm = pyramid_warp(x0_pano, self.main_from_pano, levels=self.levels, wrap_x=True, collapse=False,
-                                 roi=self.roi, src_pyramid=g_pano)
+            p, pm = pyramid_warp(
+                x0_pano,
+                self.main_from_pano,
+                levels=self.levels,
+                wrap_x=True,
+                collapse=False,
+                roi=self.roi,
+                src_pyramid=g_pano,
+            )
             lv.insert(1, p)
             ms.insert(1, pm)
         refr, _ = blend_pyramids(lv, ms, lam=self.lam, fallback_levels=own)
         if not s.reflection:
             return refr
         if x0_pano is not None:
-            refl, ok = pyramid_warp(x0_pano, self.main_refl_from_pano, levels=self.levels, wrap_x=True, roi=self.roi,
-                                    src_pyramid=g_pano)
+            refl, ok = pyramid_warp(
+                x0_pano, self.main_refl_from_pano, levels=self.levels, wrap_x=True, roi=self.roi, src_pyramid=g_pano
+            )
         elif self.refl_iminus is not None:  # no panorama: mirror rays that reach surfaces I⁻ shows
             refl, ok = self.refl_iminus
         else:
             return refr
         return fresnel_combine(refl, refr, self.fresnel, mask=self.object_mask & ok)
 
-    def blend_pano(self, x0_pano: torch.Tensor, x0: torch.Tensor, g_pano: list[torch.Tensor] | None = None,
-                   g_main: list[torch.Tensor] | None = None) -> torch.Tensor:
+    def blend_pano(
+        self,
+        x0_pano: torch.Tensor,
+        x0: torch.Tensor,
+        g_pano: list[torch.Tensor] | None = None,
+        g_main: list[torch.Tensor] | None = None,
+    ) -> torch.Tensor:
         g_pano = g_pano if g_pano is not None else self.gauss(x0_pano, wrap_x=True)
         g_main = g_main if g_main is not None else self.gauss(x0)
         own, own_m = self._own(g_pano, wrap_x=True)
-        m, mm = pyramid_warp(x0, self.pano_from_main, levels=self.levels, collapse=False, dest_wrap_x=True,
-                             roi=self.roi, src_pyramid=g_main)
+        m, mm = pyramid_warp(
+            x0,
+            self.pano_from_main,
+            levels=self.levels,
+            collapse=False,
+            dest_wrap_x=True,
+            roi=self.roi,
+            src_pyramid=g_main,
+        )
         out, _ = blend_pyramids(
             [own, m, self.imin_pano], [own_m, mm, self.imin_pano_m], lam=self.lam, fallback_levels=own, wrap_x=True
         )
@@ -192,7 +220,10 @@ def sample(
         raise ValueError("i_minus holds NaN or inf")
     s, decisions, reflection_mask = decide(warps, settings)
     if decisions.get("panorama", {}).get("used") is False and "observed_share" in decisions["panorama"]:
-        log.info("panorama branch skipped: %.1f %% of object pixels observed in I⁻", 100 * decisions["panorama"]["observed_share"])
+        log.info(
+            "panorama branch skipped: %.1f %% of object pixels observed in I⁻",
+            100 * decisions["panorama"]["observed_share"],
+        )
     g = torch.Generator().manual_seed(int(seed))
     clock = _Clock()
     use_pano = s.uses_panorama
@@ -271,8 +302,16 @@ def sample(
                         sm, sp = xm, xp
                     clock.add("warp_blend", t0)
                     t0 = time.perf_counter()
-                    lat_m = gen.encode(sm) if run_m and views is not None else (euler_estimate(z_m, vm, sigma) if run_m else None)
-                    lat_p = gen.encode(sp) if run_p and views is not None else (euler_estimate(z_p, vp, sigma) if run_p else None)
+                    lat_m = (
+                        gen.encode(sm)
+                        if run_m and views is not None
+                        else (euler_estimate(z_m, vm, sigma) if run_m else None)
+                    )
+                    lat_p = (
+                        gen.encode(sp)
+                        if run_p and views is not None
+                        else (euler_estimate(z_p, vp, sigma) if run_p else None)
+                    )
                     clock.add("codec", t0)
                     t0 = time.perf_counter()
                     if run_m:
@@ -281,8 +320,16 @@ def sample(
                         z_p = step(z_p, lat_p, sigma, sigma_next)
                     clock.add("step", t0)
                     if s.dump_every and (i + j) % s.dump_every == 0 and r == max(Rm, Rp) - 1:
-                        dumps.append({"step": i + j, "sigma": sigma, "main_x0": xm_use, "main_sync": sm if run_m else None,
-                                      "pano_x0": xp_use, "pano_sync": sp if run_p else None})
+                        dumps.append(
+                            {
+                                "step": i + j,
+                                "sigma": sigma,
+                                "main_x0": xm_use,
+                                "main_sync": sm if run_m else None,
+                                "pano_x0": xp_use,
+                                "pano_sync": sp if run_p else None,
+                            }
+                        )
                 # travel back for the next repeat of each branch that repeats again
                 if r + 1 < Rm:
                     z_m = renoise(z_m, float(sig[i + L]), float(sig[i]), g)
@@ -295,5 +342,6 @@ def sample(
         image = gen.decode(z_m)
         pano = gen.decode(z_p) if use_pano else None
         clock.add("codec", t0)
-    return SampleResult(image=image, panorama=pano, model_calls=calls, timings=dict(clock.t), dumps=dumps,
-                        decisions=decisions)
+    return SampleResult(
+        image=image, panorama=pano, model_calls=calls, timings=dict(clock.t), dumps=dumps, decisions=decisions
+    )

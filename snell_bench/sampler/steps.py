@@ -1,10 +1,9 @@
 """Pure rectified-flow steps.
 
-Convention
-----------
-``z_sigma = (1 - sigma) x0 + sigma eps`` (``sigma`` = 1 is pure noise), velocity ``v = eps - x0``.
-Tensors of any shape; ``sigma`` floats (python or 0-d tensors). Random draws come only from the
-``torch.Generator`` passed in.
+Convention:
+    ``z_sigma = (1 - sigma) x0 + sigma eps`` (``sigma`` = 1 is pure noise), velocity ``v = eps - x0``.
+    Tensors of any shape; ``sigma`` floats (python or 0-d tensors). Random draws come only from the
+    ``torch.Generator`` passed in.
 """
 
 from __future__ import annotations

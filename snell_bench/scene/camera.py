@@ -1,12 +1,11 @@
 """Pinhole camera.
 
-Convention
-----------
-- Frame: OpenCV. The camera sits at the origin, x points right, y down, z forward.
-- Pixel coordinates: x right, y down; *integer values are pixel centres* (the convention of
-  OpenCV's and kornia's ``remap``). The image covers ``[-0.5, W - 0.5] x [-0.5, H - 0.5]``.
-- Depth: the z coordinate of a point (distance along the optical axis), not the ray length.
-- Arrays are numpy, float64 unless stated; directions are unit vectors.
+Convention:
+    - Frame: OpenCV. The camera sits at the origin, x points right, y down, z forward.
+    - Pixel coordinates: x right, y down; *integer values are pixel centres* (the convention of
+      OpenCV's and kornia's ``remap``). The image covers ``[-0.5, W - 0.5] x [-0.5, H - 0.5]``.
+    - Depth: the z coordinate of a point (distance along the optical axis), not the ray length.
+    - Arrays are numpy, float64 unless stated; directions are unit vectors.
 """
 
 from __future__ import annotations
@@ -23,11 +22,10 @@ __all__ = ["Camera"]
 class Camera:
     """A pinhole camera with intrinsics ``K`` (pixels) and an image of ``height x width`` pixels.
 
-    Example
-    -------
-    >>> cam = Camera.from_fov(1280, 720, fov_x_deg=60.0)
-    >>> cam.K[0, 2], cam.K[1, 2]          # the principal point is the image centre
-    (639.5, 359.5)
+    Example:
+        >>> cam = Camera.from_fov(1280, 720, fov_x_deg=60.0)
+        >>> cam.K[0, 2], cam.K[1, 2]          # the principal point is the image centre
+        (639.5, 359.5)
     """
 
     K: np.ndarray
@@ -55,7 +53,7 @@ class Camera:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_fov(cls, width: int, height: int, fov_x_deg: float) -> "Camera":
+    def from_fov(cls, width: int, height: int, fov_x_deg: float) -> Camera:
         """Square pixels, principal point at the image centre, horizontal field of view in degrees.
 
         The field of view spans the full image width (pixel edges at -0.5 and W - 0.5).
@@ -75,7 +73,7 @@ class Camera:
     def fov_x_deg(self) -> float:
         return math.degrees(2.0 * math.atan(0.5 * self.width / self.K[0, 0]))
 
-    def scaled(self, factor: float) -> "Camera":
+    def scaled(self, factor: float) -> Camera:
         """The same camera at ``factor`` times the resolution (pixel-centre convention kept)."""
         w, h = max(1, round(self.width * factor)), max(1, round(self.height * factor))
         sx, sy = w / self.width, h / self.height
@@ -140,7 +138,7 @@ class Camera:
         return {"K": self.K.tolist(), "width": self.width, "height": self.height}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Camera":
+    def from_dict(cls, d: dict) -> Camera:
         return cls(K=np.asarray(d["K"], dtype=np.float64), width=int(d["width"]), height=int(d["height"]))
 
     def __eq__(self, other: object) -> bool:

@@ -1,18 +1,17 @@
 """Depth map to background geometry.
 
-Convention
-----------
-- Input: a z-depth map ``(H, W)`` (see :mod:`snell_bench.scene.camera`) and its camera.
-- Vertex ``y * W + x`` is the unprojected centre of pixel ``(x, y)``; each 2x2 block of valid
-  pixels gives two triangles wound so that their normals face the camera.
-- A triangle is *cut* (dropped) when its depths differ by more than ``edge_threshold`` relative
-  to the nearest one (``max z / min z - 1 > edge_threshold``): it would bridge a depth
-  discontinuity (an occlusion boundary) with a surface that nobody observed.
-- Invalid depth (NaN, inf, <= 0) drops every triangle touching the pixel; the count is logged.
-- Pixels passed as ``exclude`` (e.g. background far enough to be treated as at infinity) drop
-  their triangles the same way, without a warning.
-- A closed axis-aligned *bounding box* around the scene, the camera and any extra points stands
-  for unobserved space: a ray that hits it sees something I⁻ does not show.
+Convention:
+    - Input: a z-depth map ``(H, W)`` (see :mod:`snell_bench.scene.camera`) and its camera.
+    - Vertex ``y * W + x`` is the unprojected centre of pixel ``(x, y)``; each 2x2 block of valid
+      pixels gives two triangles wound so that their normals face the camera.
+    - A triangle is *cut* (dropped) when its depths differ by more than ``edge_threshold`` relative
+      to the nearest one (``max z / min z - 1 > edge_threshold``): it would bridge a depth
+      discontinuity (an occlusion boundary) with a surface that nobody observed.
+    - Invalid depth (NaN, inf, <= 0) drops every triangle touching the pixel; the count is logged.
+    - Pixels passed as ``exclude`` (e.g. background far enough to be treated as at infinity) drop
+      their triangles the same way, without a warning.
+    - A closed axis-aligned *bounding box* around the scene, the camera and any extra points stands
+      for unobserved space: a ray that hits it sees something I⁻ does not show.
 """
 
 from __future__ import annotations

@@ -1,16 +1,15 @@
 """Glass objects: procedural primitives, mesh files, materials.
 
-Convention
-----------
-- A *canonical* object (``sphere``, ``cylinder``, ``pyramid``, ``from_file``) lives in its own
-  local frame: y up, its bottom centre at the origin, its largest bounding-box side 1 (unit size).
-  :func:`snell_bench.scene.placement.place_object` moves it into the camera frame.
-- A *placed* object is in camera coordinates (OpenCV frame, metres or the depth map's unit);
-  :meth:`GlassObject.from_mesh` takes a mesh that is already there.
-- Faces wind counter-clockwise seen from outside, so face normals point out of the object.
-- Shading normals are per face corner (``corner_normals``): vertex normals averaged only over the
-  faces whose normal is within ``crease_angle_deg`` of the corner's face, so smooth parts
-  interpolate while sharp edges (a cylinder's rim, a pyramid's edges) keep their face normals.
+Convention:
+    - A *canonical* object (``sphere``, ``cylinder``, ``pyramid``, ``from_file``) lives in its own
+      local frame: y up, its bottom centre at the origin, its largest bounding-box side 1 (unit size).
+      :func:`snell_bench.scene.placement.place_object` moves it into the camera frame.
+    - A *placed* object is in camera coordinates (OpenCV frame, metres or the depth map's unit);
+      :meth:`GlassObject.from_mesh` takes a mesh that is already there.
+    - Faces wind counter-clockwise seen from outside, so face normals point out of the object.
+    - Shading normals are per face corner (``corner_normals``): vertex normals averaged only over the
+      faces whose normal is within ``crease_angle_deg`` of the corner's face, so smooth parts
+      interpolate while sharp edges (a cylinder's rim, a pyramid's edges) keep their face normals.
 """
 
 from __future__ import annotations
@@ -131,14 +130,13 @@ _Z_TO_Y_UP = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]],
 class GlassObject:
     """A closed triangle mesh of a transparent material.
 
-    Attributes
-    ----------
-    mesh: the surface (see the module's conventions for its frame).
-    ior: index of refraction of the material (the surroundings are air, IOR 1).
-    name: a short label (``sphere``, a file stem, ...).
-    placed: whether ``mesh`` is in camera coordinates.
-    up: the scene's up direction in camera coordinates, set by placement (``None`` if unknown).
-    crease_angle_deg: faces meeting at a sharper angle than this do not share shading normals.
+    Attributes:
+        mesh: the surface (see the module's conventions for its frame).
+        ior: index of refraction of the material (the surroundings are air, IOR 1).
+        name: a short label (``sphere``, a file stem, ...).
+        placed: whether ``mesh`` is in camera coordinates.
+        up: the scene's up direction in camera coordinates, set by placement (``None`` if unknown).
+        crease_angle_deg: faces meeting at a sharper angle than this do not share shading normals.
     """
 
     mesh: trimesh.Trimesh
@@ -159,20 +157,20 @@ class GlassObject:
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def sphere(cls, ior: str | float = "glass", subdivisions: int = 5) -> "GlassObject":
+    def sphere(cls, ior: str | float = "glass", subdivisions: int = 5) -> GlassObject:
         """Unit-diameter icosphere (``subdivisions=5``: 20,480 faces)."""
         m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=0.5)
         return cls(mesh=_canonicalize(m), ior=ior, name="sphere")
 
     @classmethod
-    def cylinder(cls, ior: str | float = "glass", radius: float = 0.35, sections: int = 128) -> "GlassObject":
+    def cylinder(cls, ior: str | float = "glass", radius: float = 0.35, sections: int = 128) -> GlassObject:
         """Upright cylinder of height 1 before normalisation (``radius`` relative to the height)."""
         m = trimesh.creation.cylinder(radius=radius, height=1.0, sections=sections)
         m.apply_transform(_Z_TO_Y_UP)
         return cls(mesh=_canonicalize(m), ior=ior, name="cylinder")
 
     @classmethod
-    def pyramid(cls, ior: str | float = "glass", base: float = 1.0, height: float = 1.0) -> "GlassObject":
+    def pyramid(cls, ior: str | float = "glass", base: float = 1.0, height: float = 1.0) -> GlassObject:
         """Square pyramid (a 4-sided cone, the edges of its base along the diagonals)."""
         m = trimesh.creation.cone(radius=base / math.sqrt(2.0), height=height, sections=4)
         m.apply_transform(_Z_TO_Y_UP)
@@ -187,7 +185,7 @@ class GlassObject:
         up_axis: str = "y",
         allow_open: bool = False,
         repair: bool = False,
-    ) -> "GlassObject":
+    ) -> GlassObject:
         """Any mesh trimesh reads (.ply, .obj, .glb, .stl, ...), normalised to the canonical frame.
 
         ``up_axis`` names the file's up axis (``y``, ``z``, ``-y``, ...).
@@ -216,14 +214,16 @@ class GlassObject:
         up=None,
         allow_open: bool = False,
         repair: bool = False,
-    ) -> "GlassObject":
+    ) -> GlassObject:
         """A mesh already in camera coordinates (placed as given)."""
         vertices = np.asarray(vertices, dtype=np.float64)
         faces = np.asarray(faces)
         if vertices.ndim != 2 or vertices.shape[1:] != (3,) or faces.ndim != 2 or faces.shape[1:] != (3,):
             if vertices.size == 0 or faces.size == 0:
                 raise ValueError("from_mesh: the mesh is empty (0 faces); a glass object needs a closed surface")
-            raise ValueError(f"from_mesh: expected vertices (V, 3) and faces (F, 3), got {vertices.shape} and {faces.shape}")
+            raise ValueError(
+                f"from_mesh: expected vertices (V, 3) and faces (F, 3), got {vertices.shape} and {faces.shape}"
+            )
         if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
             raise ValueError(f"from_mesh: face indices out of range [0, {len(vertices)})")
         mesh = trimesh.Trimesh(vertices=vertices, faces=faces.astype(np.int64), process=False)
@@ -231,10 +231,10 @@ class GlassObject:
         return cls(mesh=mesh, ior=ior, name=name, placed=True, up=up)
 
     # ------------------------------------------------------------------ derived objects
-    def with_ior(self, ior: str | float) -> "GlassObject":
+    def with_ior(self, ior: str | float) -> GlassObject:
         return replace(self, ior=ior, _cache={})
 
-    def transformed(self, matrix: np.ndarray, *, up=None) -> "GlassObject":
+    def transformed(self, matrix: np.ndarray, *, up=None) -> GlassObject:
         """Apply a 4x4 rigid or similarity transform; the result is a placed object."""
         m = self.mesh.copy()
         m.apply_transform(np.asarray(matrix, dtype=np.float64))

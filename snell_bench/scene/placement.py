@@ -1,11 +1,10 @@
 """Placing a glass object on a horizontal supporting surface found in the depth map.
 
-Convention
-----------
-Camera frame (OpenCV). ``up_hint`` is the approximate up direction in camera coordinates; for a
-camera held level it is ``(0, -1, 0)`` (y points down). A plane counts as *horizontal* when its
-normal is within ``max_tilt_deg`` of ``up_hint``; the fitted normal then replaces the hint as the
-scene's up direction (``GlassObject.up`` of the placed object).
+Convention:
+    Camera frame (OpenCV). ``up_hint`` is the approximate up direction in camera coordinates; for a
+    camera held level it is ``(0, -1, 0)`` (y points down). A plane counts as *horizontal* when its
+    normal is within ``max_tilt_deg`` of ``up_hint``; the fitted normal then replaces the hint as the
+    scene's up direction (``GlassObject.up`` of the placed object).
 """
 
 from __future__ import annotations
@@ -185,5 +184,11 @@ def place_object(
     point = plane.point + lift * size * plane.normal
     T = placement_transform(size, point, plane.normal, yaw_deg)
     placed = obj.transformed(T, up=plane.normal)
-    log.info("placed %s (size %.3g) at %s on a plane with normal %s", obj.name, size, np.round(point, 3), np.round(plane.normal, 3))
+    log.info(
+        "placed %s (size %.3g) at %s on a plane with normal %s",
+        obj.name,
+        size,
+        np.round(point, 3),
+        np.round(plane.normal, 3),
+    )
     return placed

@@ -19,12 +19,12 @@ Examples:
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import torch
 
-__all__ = ["as_tensor", "hwc_to_bchw", "bchw_to_hwc", "check_shape"]
+__all__ = ["as_tensor", "as_mask", "hwc_to_bchw", "bchw_to_hwc", "check_shape"]
 
 
 def as_tensor(x, *, dtype: torch.dtype | None = None, device: torch.device | str | None = None) -> torch.Tensor:
@@ -60,9 +60,39 @@ def check_shape(x, shape: Sequence[str], name: str = "tensor") -> None:
     want = list(shape)
     if want and want[0] == "*":
         want = want[1:]
-        dims_tail = dims[len(dims) - len(want):] if len(dims) >= len(want) else None
+        dims_tail = dims[len(dims) - len(want) :] if len(dims) >= len(want) else None
     else:
         dims_tail = dims if len(dims) == len(want) else None
     ok = dims_tail is not None and all(not w.isdigit() or int(w) == d for w, d in zip(want, dims_tail))
     if not ok:
         raise ValueError(f"{name}: expected shape {list(shape)}, got {dims}")
+
+
+def as_mask(mask, like: torch.Tensor) -> torch.Tensor:
+    """A mask in the layout of the imaging functions: ``(B or 1, 1, H, W)`` bool.
+
+    Args:
+        mask: ``(H, W)``, ``(B, H, W)`` or ``(B, 1, H, W)`` array or tensor (any dtype; nonzero is
+            true).
+        like: a tensor on the device the mask is wanted on.
+
+    Returns:
+        The mask as a bool ``(B or 1, 1, H, W)`` tensor on ``like``'s device.
+
+    Raises:
+        ValueError: ``mask`` has another shape.
+
+    Examples:
+        >>> m = as_mask(np.eye(3), torch.zeros(1, 3, 3, 3))
+        >>> tuple(m.shape), m.dtype, int(m.sum())
+        ((1, 1, 3, 3), torch.bool, 3)
+    """
+    m = as_tensor(mask, device=like.device)
+    m = m.bool()
+    if m.ndim == 2:
+        m = m[None, None]
+    elif m.ndim == 3:
+        m = m[:, None]
+    if m.ndim != 4 or m.shape[1] != 1:
+        raise ValueError(f"mask must be (H, W) or (B, 1, H, W), got shape {tuple(m.shape)}")
+    return m

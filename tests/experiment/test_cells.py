@@ -27,7 +27,11 @@ def test_ok_skipped_failed_recorded_and_the_loop_goes_on(tmp_path):
     rec = {n: json.loads((tmp_path / n / "metrics.json").read_text()) for n in ("a", "skip", "bad", "bb")}
     assert rec["a"] == {"name": "a", "status": "ok", "reason": None, "value": 1}
     assert rec["skip"]["status"] == "skipped" and rec["skip"]["reason"] == "needs a GPU"
-    assert rec["bad"]["status"] == "failed" and rec["bad"]["reason"] == "RuntimeError: boom" and "Traceback" in rec["bad"]["traceback"]
+    assert (
+        rec["bad"]["status"] == "failed"
+        and rec["bad"]["reason"] == "RuntimeError: boom"
+        and "Traceback" in rec["bad"]["traceback"]
+    )
     assert summary["failures"] == [(str(tmp_path / "bad"), "RuntimeError: boom")]
     assert OmegaConf.load(tmp_path / "a" / "config.yaml").output_dir == str(tmp_path / "a")
     assert json.loads((tmp_path / "summary.json").read_text())["ok"] == 2

@@ -9,8 +9,16 @@ from PIL import Image
 
 from snell_bench.config import compose
 
-TINY = ["job=generate", "scene.width=128", "scene.height=64", "scene.supersample=1", "warps.pano_height=64",
-        "warps.cache_dir=null", "sampler.steps=4", "sampler.progress=false"]
+TINY = [
+    "job=generate",
+    "scene.width=128",
+    "scene.height=64",
+    "scene.supersample=1",
+    "warps.pano_height=64",
+    "warps.cache_dir=null",
+    "sampler.steps=4",
+    "sampler.progress=false",
+]
 
 
 @pytest.mark.parametrize("model", ["analytic", "tiny_flux"])
@@ -53,9 +61,22 @@ def test_refraction_psnr_against_numpy():
 def test_generate_job_applies_the_methods_switches(tmp_path):
     from snell_bench.experiment.generate import run_generate
 
-    cfg = compose(["job=generate", "method=adaptive", "object.ior=1.05", "scene.width=128", "scene.height=64",
-                   "scene.supersample=1", "warps.pano_height=64", "warps.cache_dir=null", "sampler.steps=3",
-                   "sampler.progress=false", "method.sampler.skip_panorama_above=0.0", f"output_dir={tmp_path}"])
+    cfg = compose(
+        [
+            "job=generate",
+            "method=adaptive",
+            "object.ior=1.05",
+            "scene.width=128",
+            "scene.height=64",
+            "scene.supersample=1",
+            "warps.pano_height=64",
+            "warps.cache_dir=null",
+            "sampler.steps=3",
+            "sampler.progress=false",
+            "method.sampler.skip_panorama_above=0.0",
+            f"output_dir={tmp_path}",
+        ]
+    )
     summary = run_generate(cfg)
     saved = json.loads((tmp_path / "summary.json").read_text())
     assert saved["decisions"]["panorama"]["used"] is False and saved["decisions"]["panorama"]["skip_above"] == 0.0

@@ -1,7 +1,6 @@
 """The default job through Hydra: config composition and the refraction preview."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -73,16 +72,27 @@ def test_preview_writes_a_glass_composite(tmp_path, scene, obj):
         return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.clip(c, 0, None) ** (1 / 2.4) - 0.055)
 
     def sample(img, xy, wrap=False):
-        return np.stack([map_coordinates(img[..., c], [xy[:, 1], xy[:, 0]], order=1,
-                                         mode="grid-wrap" if wrap else "nearest") for c in range(3)], -1)
+        return np.stack(
+            [
+                map_coordinates(img[..., c], [xy[:, 1], xy[:, 0]], order=1, mode="grid-wrap" if wrap else "nearest")
+                for c in range(3)
+            ],
+            -1,
+        )
 
     ws = prepare_inputs(cfg, references=False).warps
     pano = np.asarray(Image.open(tmp_path / "panorama.png"), np.float64) / 255
-    sel = ws.object_mask & np.isfinite(ws.pano_reflection).all(-1) & (
-        ws.refraction_valid | np.isfinite(ws.pano_refraction).all(-1))
+    sel = (
+        ws.object_mask
+        & np.isfinite(ws.pano_reflection).all(-1)
+        & (ws.refraction_valid | np.isfinite(ws.pano_refraction).all(-1))
+    )
     valid = ws.refraction_valid[sel][:, None]
-    refr = np.where(valid, sample(i_minus / 255.0, np.nan_to_num(ws.refraction[sel])),
-                    sample(pano, np.nan_to_num(ws.pano_refraction[sel]), wrap=True))
+    refr = np.where(
+        valid,
+        sample(i_minus / 255.0, np.nan_to_num(ws.refraction[sel])),
+        sample(pano, np.nan_to_num(ws.pano_refraction[sel]), wrap=True),
+    )
     refl = sample(pano, ws.pano_reflection[sel], wrap=True)
     R = ws.fresnel[sel][:, None]
     expect = lin_to_srgb(R * srgb_to_lin(refl) + (1 - R) * srgb_to_lin(refr)) * 255

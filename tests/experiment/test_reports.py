@@ -30,15 +30,64 @@ SKIP = "panorama branch disabled for this scene"
 
 # (scene, method, label, status, reason, metrics); every cell has variation 0 and object sphere
 CELLS = [
-    ("kitchen", "snellcaster", "Snellcaster", "ok", None, dict(psnr=18.0, mae=0.12, lpips=0.30, clip=28.0, image_reward=0.3)),
-    ("living_room", "snellcaster", "Snellcaster", "ok", None, dict(psnr=20.0, mae=0.10, lpips=0.20, clip=30.0, image_reward=0.5)),
+    (
+        "kitchen",
+        "snellcaster",
+        "Snellcaster",
+        "ok",
+        None,
+        dict(psnr=18.0, mae=0.12, lpips=0.30, clip=28.0, image_reward=0.3),
+    ),
+    (
+        "living_room",
+        "snellcaster",
+        "Snellcaster",
+        "ok",
+        None,
+        dict(psnr=20.0, mae=0.10, lpips=0.20, clip=30.0, image_reward=0.5),
+    ),
     ("kitchen", "flux", "FLUX-dev", "ok", None, dict(psnr=14.0, mae=0.3, lpips=None, clip=27.0, image_reward=0.2)),
     ("living_room", "flux", "FLUX-dev", "ok", None, dict(psnr=12.0, mae=0.2, lpips=None, clip=31.0, image_reward=0.1)),
-    ("kitchen", "inpaint", "FLUX Fill", "failed", OOM_RAW, dict(psnr=None, mae=None, lpips=None, clip=None, image_reward=None)),
-    ("living_room", "inpaint", "FLUX Fill", "ok", None, dict(psnr=16.0, mae=0.2, lpips=0.4, clip=25.0, image_reward=-0.1)),
-    ("living_room", "no_tt", "Snellcaster w/o TT", "ok", None, dict(psnr=17.0, mae=0.15, lpips=0.28, clip=29.5, image_reward=0.45)),
-    ("living_room", "no_dpa", "Snellcaster w/o DPA", "ok", None, dict(psnr=18.5, mae=0.11, lpips=0.26, clip=29.0, image_reward=0.4)),
-    ("living_room", "no_pano", "Snellcaster w/o panorama", "skipped", SKIP, dict(psnr=None, mae=None, lpips=None, clip=None, image_reward=None)),
+    (
+        "kitchen",
+        "inpaint",
+        "FLUX Fill",
+        "failed",
+        OOM_RAW,
+        dict(psnr=None, mae=None, lpips=None, clip=None, image_reward=None),
+    ),
+    (
+        "living_room",
+        "inpaint",
+        "FLUX Fill",
+        "ok",
+        None,
+        dict(psnr=16.0, mae=0.2, lpips=0.4, clip=25.0, image_reward=-0.1),
+    ),
+    (
+        "living_room",
+        "no_tt",
+        "Snellcaster w/o TT",
+        "ok",
+        None,
+        dict(psnr=17.0, mae=0.15, lpips=0.28, clip=29.5, image_reward=0.45),
+    ),
+    (
+        "living_room",
+        "no_dpa",
+        "Snellcaster w/o DPA",
+        "ok",
+        None,
+        dict(psnr=18.5, mae=0.11, lpips=0.26, clip=29.0, image_reward=0.4),
+    ),
+    (
+        "living_room",
+        "no_pano",
+        "Snellcaster w/o panorama",
+        "skipped",
+        SKIP,
+        dict(psnr=None, mae=None, lpips=None, clip=None, image_reward=None),
+    ),
 ]
 PROVENANCE = "model: analytic (CPU stand-in for FLUX) · scenes: procedural · 9 cells (7 ok, 1 failed, 1 skipped)"
 
@@ -57,9 +106,18 @@ def make_runs(root):
         if metrics["lpips"] is None:
             missing["lpips"] = LPIPS_REASON if status == "ok" else reason
         rec = {
-            "experiment": "ablation", "scene": scene, "variation": 0, "object": "sphere", "method": method,
-            "method_label": label, "status": status, "reason": reason, "model": "analytic",
-            "scene_source": "procedural", "metrics": {**metrics, "psnr_true": None}, "missing": missing,
+            "experiment": "ablation",
+            "scene": scene,
+            "variation": 0,
+            "object": "sphere",
+            "method": method,
+            "method_label": label,
+            "status": status,
+            "reason": reason,
+            "model": "analytic",
+            "scene_source": "procedural",
+            "metrics": {**metrics, "psnr_true": None},
+            "missing": missing,
             "timings_s": {"warps": 2.0, "sampling": 60.0, "reference": 5.0, "metrics": 0.5},
         }
         (d / "metrics.json").write_text(json.dumps(rec))
@@ -101,9 +159,26 @@ def _latex_header(tex):
 
 def test_collect_one_row_per_cell_with_flat_columns(df):
     assert len(df) == len(CELLS)
-    for col in ("status", "reason", "method", "method_label", "scene", "variation", "object", "model",
-                "scene_source", "psnr", "mae", "lpips", "clip", "image_reward", "psnr_true",
-                "missing.lpips", "timings_s.sampling", "cell_dir"):
+    for col in (
+        "status",
+        "reason",
+        "method",
+        "method_label",
+        "scene",
+        "variation",
+        "object",
+        "model",
+        "scene_source",
+        "psnr",
+        "mae",
+        "lpips",
+        "clip",
+        "image_reward",
+        "psnr_true",
+        "missing.lpips",
+        "timings_s.sampling",
+        "cell_dir",
+    ):
         assert col in df.columns, col
     assert list(df["scene"]) == sorted(df["scene"])  # sorted rows
     r = df[(df.scene == "kitchen") & (df.method == "inpaint")].iloc[0]
@@ -133,11 +208,18 @@ def test_collect_keeps_broken_cells_as_failed(runs):
 
 def test_method_table_means_and_counts(df):
     t = method_table(df, metrics=("clip", "image_reward", "psnr", "lpips", "mae"))
-    assert list(t.index) == ["FLUX-dev", "FLUX Fill", "Snellcaster w/o DPA", "Snellcaster w/o panorama",
-                             "Snellcaster w/o TT", "Snellcaster"]  # sorted by method name
+    assert list(t.index) == [
+        "FLUX-dev",
+        "FLUX Fill",
+        "Snellcaster w/o DPA",
+        "Snellcaster w/o panorama",
+        "Snellcaster w/o TT",
+        "Snellcaster",
+    ]  # sorted by method name
     assert list(t.columns) == ["clip", "image_reward", "psnr", "lpips", "mae", "n"]
     assert t.loc["Snellcaster"].to_dict() == pytest.approx(
-        dict(clip=29.0, image_reward=0.4, psnr=19.0, lpips=0.25, mae=0.11, n=2))
+        dict(clip=29.0, image_reward=0.4, psnr=19.0, lpips=0.25, mae=0.11, n=2)
+    )
     flux = t.loc["FLUX-dev"]
     assert flux["psnr"] == pytest.approx(13.0) and flux["clip"] == pytest.approx(29.0) and flux["n"] == 2
     assert math.isnan(flux["lpips"])
@@ -154,8 +236,15 @@ def test_method_table_means_and_counts(df):
 def test_latex_marks_best_and_second_best_with_ties(df):
     t = method_table(df, metrics=("clip", "image_reward", "psnr", "lpips", "mae"))
     tex = to_latex(t, "Methods")
-    assert _latex_header(tex) == ["Method", r"CLIP $\uparrow$", r"ImageReward $\uparrow$", r"PSNR $\uparrow$",
-                                  r"LPIPS $\downarrow$", r"MAE $\downarrow$", "$n$"]
+    assert _latex_header(tex) == [
+        "Method",
+        r"CLIP $\uparrow$",
+        r"ImageReward $\uparrow$",
+        r"PSNR $\uparrow$",
+        r"LPIPS $\downarrow$",
+        r"MAE $\downarrow$",
+        "$n$",
+    ]
     rows = _latex_rows(tex)
     snell, flux, fill = rows["Snellcaster"], rows["FLUX-dev"], rows["FLUX Fill"]
     tt, dpa, pano = rows["Snellcaster w/o TT"], rows["Snellcaster w/o DPA"], rows["Snellcaster w/o panorama"]
@@ -179,8 +268,10 @@ def test_latex_marks_best_and_second_best_with_ties(df):
 
 
 def test_ranking_ties_all_equal_and_single_value():
-    t = pd.DataFrame({"psnr": [10.0, 10.0, 10.004], "lpips": [0.5, float("nan"), float("nan")], "n": [1, 1, 1]},
-                     index=pd.Index(["a", "b", "c"], name="Method"))
+    t = pd.DataFrame(
+        {"psnr": [10.0, 10.0, 10.004], "lpips": [0.5, float("nan"), float("nan")], "n": [1, 1, 1]},
+        index=pd.Index(["a", "b", "c"], name="Method"),
+    )
     rows = _latex_rows(to_latex(t, "T", provenance=""))
     # 10.004 prints as 10.00: all tie for best, nothing second; one LPIPS value: no mark
     assert [rows[k][0] for k in "abc"] == [r"\textbf{10.00}"] * 3
@@ -257,7 +348,9 @@ def test_build_reports_writes_everything_deterministically(runs, tmp_path):
     out = tmp_path / "reports"
     paths = build_reports(runs, out, "ablation")
     names = sorted(p.name for p in paths)
-    expected = sorted(f"{s}.{e}" for s in ("method_table", "scene_table", "ablation_table") for e in ("md", "tex", "csv"))
+    expected = sorted(
+        f"{s}.{e}" for s in ("method_table", "scene_table", "ablation_table") for e in ("md", "tex", "csv")
+    )
     assert names == sorted(expected + ["qualitative.png", "README.md"])
     assert all(p.is_file() and p.parent == out for p in paths)
     readme = (out / "README.md").read_text()
@@ -277,8 +370,10 @@ RECORDED_METRICS = METRIC_NAMES + ("psnr_true",)  # what a cell's metrics.json h
 def _marks(tex, rows):
     """The mark ("best", "second" or None) of the first value cell of each row."""
     cells = _latex_rows(tex)
-    return [("best" if c[0].startswith(r"\textbf{") else "second" if c[0].startswith(r"\underline{") else None)
-            for c in (cells[r] for r in rows)]
+    return [
+        ("best" if c[0].startswith(r"\textbf{") else "second" if c[0].startswith(r"\underline{") else None)
+        for c in (cells[r] for r in rows)
+    ]
 
 
 @pytest.mark.parametrize("name", RECORDED_METRICS)
@@ -301,7 +396,7 @@ def test_every_recorded_metric_is_ranked_in_its_direction(name):
 def test_values_equal_as_printed_share_the_mark(name):
     spec = METRICS[name]
     decimals = len(spec.fmt(1.0).split(".")[1])
-    tiny = 0.4 * 10.0 ** -decimals  # below the printed precision
+    tiny = 0.4 * 10.0**-decimals  # below the printed precision
     t = pd.DataFrame({name: [5.0, 5.0 + tiny, 9.0, 1.0]}, index=pd.Index(["a", "b", "c", "d"], name="Method"))
     assert spec.fmt(5.0) == spec.fmt(5.0 + tiny)
     marks = _marks(to_latex(t, "T", provenance=""), ["a", "b", "c", "d"])
@@ -321,8 +416,10 @@ def test_the_better_image_is_marked_best():
     noise = rng.standard_normal(ref.shape)
     images = {f"s{k}": np.clip(ref + sigma * noise, 0, 1) for k, sigma in enumerate((0.02, 0.08, 0.3))}
     t = pd.DataFrame(
-        {"psnr": [masked_psnr(im, ref, mask) for im in images.values()],
-         "mae": [masked_mae(im, ref, mask) for im in images.values()]},
+        {
+            "psnr": [masked_psnr(im, ref, mask) for im in images.values()],
+            "mae": [masked_mae(im, ref, mask) for im in images.values()],
+        },
         index=pd.Index(list(images), name="Method"),
     )
     rows = _latex_rows(to_latex(t, "T", provenance=""))

@@ -25,8 +25,16 @@ TINY = [
 
 
 def make_cfg(tmp_path, overrides):
-    return compose(["+experiment=smoke", *TINY, f"runs_dir={tmp_path / 'runs'}", f"reports_dir={tmp_path / 'reports'}",
-                    f"output_dir={tmp_path}", *overrides])
+    return compose(
+        [
+            "+experiment=smoke",
+            *TINY,
+            f"runs_dir={tmp_path / 'runs'}",
+            f"reports_dir={tmp_path / 'reports'}",
+            f"output_dir={tmp_path}",
+            *overrides,
+        ]
+    )
 
 
 def metrics_of(root: Path) -> dict:
@@ -56,8 +64,17 @@ def test_smoke_runs_and_snellcaster_beats_t2i(smoke):
 def test_cells_hold_everything_to_rescore(smoke):
     tmp, _ = smoke
     cell = tmp / "runs" / "smoke" / "living_room-0" / "sphere" / "snellcaster"
-    for name in ("image.png", "reference.png", "mask.png", "metrics.json", "config.yaml", "I_minus.png",
-                 "depth.npy", "camera.json", "object.ply"):
+    for name in (
+        "image.png",
+        "reference.png",
+        "mask.png",
+        "metrics.json",
+        "config.yaml",
+        "I_minus.png",
+        "depth.npy",
+        "camera.json",
+        "object.ply",
+    ):
         assert (cell / name).is_file(), name
     from omegaconf import OmegaConf
 
@@ -107,8 +124,16 @@ def test_rerun_skips_finished_cells_and_recompute_is_deterministic(smoke):
 def test_failures_and_skips_are_recorded_and_the_sweep_goes_on(tmp_path):
     from snell_bench.experiment.runner import run_grid
 
-    cfg = make_cfg(tmp_path, ["grid.scenes=[living_room]", "grid.objects=[sphere,fox]",
-                              "grid.methods=[t2i,flux2_dev]", "reference.enabled=false", "reference.true_render=false"])
+    cfg = make_cfg(
+        tmp_path,
+        [
+            "grid.scenes=[living_room]",
+            "grid.objects=[sphere,fox]",
+            "grid.methods=[t2i,flux2_dev]",
+            "reference.enabled=false",
+            "reference.true_render=false",
+        ],
+    )
     summary = run_grid(cfg)
     m = metrics_of(tmp_path / "runs" / "smoke")
     assert m["living_room-0/sphere/t2i"]["status"] == "ok"
@@ -133,8 +158,13 @@ def test_ior_spec_and_cell_config():
     from snell_bench.experiment.runner import cell_overrides
     from snell_bench.sampler.settings import SamplerSettings
 
-    assert parse_object_spec("sphere:1.333") == ("sphere", 1.333) and object_dir_name("sphere:1.333") == "sphere-ior1.333"
-    assert parse_object_spec("sphere:water") == ("sphere", "water") and object_dir_name("sphere:water") == "sphere-iorwater"
+    assert (
+        parse_object_spec("sphere:1.333") == ("sphere", 1.333) and object_dir_name("sphere:1.333") == "sphere-ior1.333"
+    )
+    assert (
+        parse_object_spec("sphere:water") == ("sphere", "water")
+        and object_dir_name("sphere:water") == "sphere-iorwater"
+    )
     cfg = compose(["+experiment=ablation", "sampler.lam=0.3", "output_dir=/tmp/x"])
     c = compose_cell(cfg, cell_overrides("office", 2, "cylinder:1.333", "no_dpa"))
     assert c.scene.name == "office" and c.scene.variation == 2 and c.scene.width == 640  # the preset's size
@@ -162,10 +192,22 @@ def test_a_config_changed_after_composition_is_refused(tmp_path):
 def test_parallel_launchers(tmp_path, launcher):
     """Two scene subsets in two processes through Hydra's submitit_local (the Slurm launcher's local
     twin) and joblib launchers: each process writes its own, disjoint cells."""
-    cmd = [sys.executable, "-m", "snell_bench", "-m", "+experiment=smoke", *TINY, "grid.methods=[t2i]",
-           "reference.enabled=false", "reference.true_render=false", "grid.report=false",
-           f"runs_dir={tmp_path / 'runs'}", "grid.scenes=[living_room],[kitchen]", f"hydra/launcher={launcher}",
-           f"hydra.sweep.dir={tmp_path / 'multirun'}"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "snell_bench",
+        "-m",
+        "+experiment=smoke",
+        *TINY,
+        "grid.methods=[t2i]",
+        "reference.enabled=false",
+        "reference.true_render=false",
+        "grid.report=false",
+        f"runs_dir={tmp_path / 'runs'}",
+        "grid.scenes=[living_room],[kitchen]",
+        f"hydra/launcher={launcher}",
+        f"hydra.sweep.dir={tmp_path / 'multirun'}",
+    ]
     subprocess.run(cmd, cwd=REPO, check=True, timeout=600, env={**os.environ, "HF_HUB_OFFLINE": "1"})
     m = metrics_of(tmp_path / "runs" / "smoke")
     assert sorted(m) == ["kitchen-0/sphere/t2i", "living_room-0/sphere/t2i"]
@@ -180,8 +222,10 @@ def test_adaptive_methods_log_decisions_and_savings(tmp_path):
 
     from snell_bench.experiment.runner import run_grid
 
-    cfg = make_cfg(tmp_path, ["grid.scenes=[living_room]", "grid.objects=[sphere:1.05]",
-                              "grid.methods=[snellcaster,full_frame,adaptive]"])
+    cfg = make_cfg(
+        tmp_path,
+        ["grid.scenes=[living_room]", "grid.objects=[sphere:1.05]", "grid.methods=[snellcaster,full_frame,adaptive]"],
+    )
     run_grid(cfg)
     cells = metrics_of(tmp_path / "runs" / "smoke")
     snell = cells["living_room-0/sphere-ior1.05/snellcaster"]

@@ -21,24 +21,38 @@ TINY_BASE = {
     "sampler": {"steps": 5, "levels": 2, "tt_repeats_main": 3, "tt_repeats_pano": 1},
     "reference": {"spp": 1, "true_spp": 1},
 }
-TINY_PRESET = OmegaConf.to_container(OmegaConf.merge(TINY_BASE, {"sampler": {"steps": 4, "tt_repeats_main": 1,
-                                                                             "levels": 1},
-                                                                 "warps": {"max_bounces": 4}}))
+TINY_PRESET = OmegaConf.to_container(
+    OmegaConf.merge(
+        TINY_BASE, {"sampler": {"steps": 4, "tt_repeats_main": 1, "levels": 1}, "warps": {"max_bounces": 4}}
+    )
+)
 for _name, _node in (("tiny_base", TINY_BASE), ("tiny", TINY_PRESET)):
     ConfigStore.instance().store(group="preset", name=_name, node=_node, package="_global_")
 
 TINY = ["preset=tiny_base", "tradeoff.converged_spp=3"]
 SCENES = ["living_room", "kitchen"]
-AXES = ["tradeoff.axes.steps='sampler.steps=3,5'",  # 5 is the base value
-        "tradeoff.axes.spp='reference.spp=1,2'",  # 1 is the base value
-        "tradeoff.only=[steps,spp]"]
+AXES = [
+    "tradeoff.axes.steps='sampler.steps=3,5'",  # 5 is the base value
+    "tradeoff.axes.spp='reference.spp=1,2'",  # 1 is the base value
+    "tradeoff.only=[steps,spp]",
+]
 SETTINGS = ["baseline", "steps=3", "steps=5", "spp=1", "spp=2", "preset:tiny"]
 
 
 def make_cfg(tmp_path, overrides=(), axes=AXES, presets=("tiny",), scenes=SCENES):
-    return compose(["+experiment=tradeoff", *TINY, f"runs_dir={tmp_path / 'runs'}", f"reports_dir={tmp_path / 'reports'}",
-                    f"output_dir={tmp_path}", *axes, f"tradeoff.presets=[{','.join(presets)}]",
-                    f"tradeoff.scenes=[{','.join(scenes)}]", *overrides])
+    return compose(
+        [
+            "+experiment=tradeoff",
+            *TINY,
+            f"runs_dir={tmp_path / 'runs'}",
+            f"reports_dir={tmp_path / 'reports'}",
+            f"output_dir={tmp_path}",
+            *axes,
+            f"tradeoff.presets=[{','.join(presets)}]",
+            f"tradeoff.scenes=[{','.join(scenes)}]",
+            *overrides,
+        ]
+    )
 
 
 def results(root: Path) -> dict:
@@ -99,9 +113,15 @@ def test_pareto_front_matches_brute_force_with_ties_and_nan():
 def test_axes_formats_labels_and_presets(tmp_path):
     from snell_bench.experiment.tradeoff import build_settings
 
-    cfg = make_cfg(tmp_path, axes=["+tradeoff.axes.pano='warps.pano_height=256'",
-                                   "+tradeoff.axes.res={320x180:['scene.width=320','scene.height=180']}",
-                                   "tradeoff.only=[res,pano]"], presets=("fast",))
+    cfg = make_cfg(
+        tmp_path,
+        axes=[
+            "+tradeoff.axes.pano='warps.pano_height=256'",
+            "+tradeoff.axes.res={320x180:['scene.width=320','scene.height=180']}",
+            "tradeoff.only=[res,pano]",
+        ],
+        presets=("fast",),
+    )
     s = build_settings(cfg)
     assert [x.label for x in s] == ["baseline", "res=320x180", "pano=256", "preset:fast"]
     assert s[1].overrides == ("scene.width=320", "scene.height=180") and s[1].value == "320x180"
@@ -145,8 +165,15 @@ def test_unknown_preset_fails_before_work(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
-def expected_model_calls(steps: int, tt_window: Sequence[float], tt_length: int, tt_repeats_main: int,
-                         tt_repeats_pano: int, panorama: bool = True, time_travel: bool = True) -> dict:
+def expected_model_calls(
+    steps: int,
+    tt_window: Sequence[float],
+    tt_length: int,
+    tt_repeats_main: int,
+    tt_repeats_pano: int,
+    panorama: bool = True,
+    time_travel: bool = True,
+) -> dict:
     """Model calls per branch of the synchronized sampler: each block of ``tt_length`` steps that
     starts inside the window ``[w0 T, w1 T)`` runs ``tt_repeats_*`` times, every other step once."""
     T = int(steps)
@@ -176,13 +203,33 @@ def test_every_run_recorded_with_its_knobs(sweep):
     assert summary["ok"] == len(SCENES) * len(SETTINGS) and summary["failed"] == 0, summary
     res = results(tmp / "runs" / "tradeoff")
     assert sorted(res) == sorted(f"{s}-0/{x.replace(':', '-')}" for s in SCENES for x in SETTINGS)
-    base_knobs = {"steps": 5, "tt_repeats_main": 3, "tt_repeats_pano": 1, "levels": 2, "max_bounces": 8,
-                  "width": 112, "height": 64, "supersample": 1, "pano_height": 32, "spp": 1}
+    base_knobs = {
+        "steps": 5,
+        "tt_repeats_main": 3,
+        "tt_repeats_pano": 1,
+        "levels": 2,
+        "max_bounces": 8,
+        "width": 112,
+        "height": 64,
+        "supersample": 1,
+        "pano_height": 32,
+        "spp": 1,
+    }
     from snell_bench.experiment.tradeoff import KNOBS
 
     by_key = {v: k for k, v in KNOBS.items()}
-    tiny_knobs = {"steps": 4, "tt_repeats_main": 1, "tt_repeats_pano": 1, "levels": 1, "max_bounces": 4,
-                  "width": 112, "height": 64, "supersample": 1, "pano_height": 32, "spp": 1}
+    tiny_knobs = {
+        "steps": 4,
+        "tt_repeats_main": 1,
+        "tt_repeats_pano": 1,
+        "levels": 1,
+        "max_bounces": 4,
+        "width": 112,
+        "height": 64,
+        "supersample": 1,
+        "pano_height": 32,
+        "spp": 1,
+    }
     for where, r in res.items():
         assert r["status"] == "ok" and r["scene"] == where.split("/")[0].rsplit("-", 1)[0]
         if r["axis"] == "preset":
@@ -238,8 +285,15 @@ def test_lpips_missing_with_reason_and_reference_convergence(sweep):
     res = results(tmp / "runs" / "tradeoff")
     for where, r in res.items():
         assert r["metrics"]["lpips"] is None and "lpips_weights" in r["missing"]["lpips"], where
-        assert set(r["metrics"]) == {"psnr", "mae", "lpips", "psnr_true", "psnr_converged", "mae_converged",
-                                     "lpips_converged"}
+        assert set(r["metrics"]) == {
+            "psnr",
+            "mae",
+            "lpips",
+            "psnr_true",
+            "psnr_converged",
+            "mae_converged",
+            "lpips_converged",
+        }
         assert math.isfinite(r["metrics"]["psnr_converged"]) and r["converged_reference"]["spp"] == 3
         assert math.isfinite(r["metrics"]["psnr"]) and math.isfinite(r["metrics"]["psnr_true"])
     for scene in SCENES:
@@ -308,9 +362,13 @@ def test_resume_skips_and_recompute_redoes(sweep):
 def test_a_failing_setting_does_not_stop_the_sweep(tmp_path):
     from snell_bench.experiment.tradeoff import run_tradeoff
 
-    cfg = make_cfg(tmp_path, ["reference.true_render=false"],
-                   axes=["tradeoff.axes.levels='sampler.levels=0'", "tradeoff.only=[levels]"], presets=(),
-                   scenes=["living_room"])
+    cfg = make_cfg(
+        tmp_path,
+        ["reference.true_render=false"],
+        axes=["tradeoff.axes.levels='sampler.levels=0'", "tradeoff.only=[levels]"],
+        presets=(),
+        scenes=["living_room"],
+    )
     summary = run_tradeoff(cfg)
     res = results(tmp_path / "runs" / "tradeoff")
     assert summary["ok"] == 1 and summary["failed"] == 1

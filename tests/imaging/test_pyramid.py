@@ -411,10 +411,10 @@ class TestPyramidWarpROI:
         assert not ok.any() and torch.count_nonzero(w) == 0
         c = self.disk_map(120, 200, 100, 60, 30)
         g = gaussian_pyramid(src, 5, wrap_x=True)
-        for collapse in (True, False):
-            a = pyramid_warp(src, c, levels=5, wrap_x=True, collapse=collapse)
-            b = pyramid_warp(src, c, levels=5, wrap_x=True, collapse=collapse, roi=True, src_pyramid=g)
-            self.assert_same(a, b, collapse)
+        for do_collapse in (True, False):
+            a = pyramid_warp(src, c, levels=5, wrap_x=True, collapse=do_collapse)
+            b = pyramid_warp(src, c, levels=5, wrap_x=True, collapse=do_collapse, roi=True, src_pyramid=g)
+            self.assert_same(a, b, do_collapse)
 
     def test_laplacian_from_gaussian(self):
         img = smooth_noise(1, 3, 90, 161, seed=4)

@@ -13,10 +13,10 @@ import pytest
 import torch
 
 from snell_bench.metrics import (
+    METRIC_NAMES,
     CLIPScore,
     ImageRewardScorer,
     MaskedLPIPS,
-    METRIC_NAMES,
     MetricUnavailable,
     load_scorers,
     masked_mae,
@@ -201,7 +201,7 @@ class TestImageReward:
         "body, match",
         [
             ("import sys; sys.stderr.write('boom'); sys.exit(3)", "exit code 3.*boom"),
-            ("print('{\"error\": \"weights missing\"}')", "weights missing"),
+            ('print(\'{"error": "weights missing"}\')', "weights missing"),
             ("print('{\"scores\": [1.0, 2.0]}')", "answered"),
             ("print('not json')", "exit code 0"),
         ],
@@ -306,8 +306,14 @@ class TestScoreAll:
         )
         png = tmp_path / "generated.png"
         result = score_all(
-            gen, ref, mask, PROMPT,
-            lpips=lp, clip=random_clip, image_reward=ImageRewardScorer(fake), generated_path=png,
+            gen,
+            ref,
+            mask,
+            PROMPT,
+            lpips=lp,
+            clip=random_clip,
+            image_reward=ImageRewardScorer(fake),
+            generated_path=png,
         )
         assert result["missing"] == {}
         assert result["metrics"]["lpips"] == pytest.approx(lp(gen, ref, mask))

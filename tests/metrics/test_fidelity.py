@@ -172,7 +172,8 @@ class TestHistogramMatching:
         out = match_histogram_masked(g, r, torch.from_numpy(mask)[None, None])
         assert isinstance(out, torch.Tensor) and out.shape == g.shape and out.dtype == g.dtype
         np.testing.assert_allclose(
-            out[0, 0].numpy(), match_histogram_masked(g[0, 0].double().numpy(), r[0, 0].double().numpy(), mask),
+            out[0, 0].numpy(),
+            match_histogram_masked(g[0, 0].double().numpy(), r[0, 0].double().numpy(), mask),
             atol=1e-6,
         )
 

@@ -49,7 +49,7 @@ def test_default_dtype():
 
 
 def test_dtype_kwarg():
-    (key, value), = dtype_kwarg(torch.float16).items()
+    ((key, value),) = dtype_kwarg(torch.float16).items()
     assert key in ("dtype", "torch_dtype") and value is torch.float16  # loading with it: test_external.py
 
 

@@ -248,7 +248,9 @@ class TestVelocity:
         v = gen.velocity(z, sig, cond2)
         for b in range(2):
             single = gen.condition([PROMPTS[b]], ["main"])
-            torch.testing.assert_close(v[b : b + 1], gen.velocity(z[b : b + 1], float(sig[b]), single), atol=1e-5, rtol=1e-5)
+            torch.testing.assert_close(
+                v[b : b + 1], gen.velocity(z[b : b + 1], float(sig[b]), single), atol=1e-5, rtol=1e-5
+            )
 
     def test_one_prompt_expands(self, gen):
         z = rand_latents(3, 8, 8)

@@ -29,8 +29,10 @@ def plane(cam):
 
 @pytest.fixture(scope="module")
 def ior_sweep(cam, plane):
-    return {ior: compute_warps(plane, cam, sphere_at(CENTER, RADIUS, ior=ior, subdivisions=4), pano_height=16)
-            for ior in IORS}
+    return {
+        ior: compute_warps(plane, cam, sphere_at(CENTER, RADIUS, ior=ior, subdivisions=4), pano_height=16)
+        for ior in IORS
+    }
 
 
 def assert_finite_where_valid(ws):
@@ -162,8 +164,13 @@ class TestBorder:
         f, cx, cy = cam.K[0, 0], cam.K[0, 2], cam.K[1, 2]
         z, r = 3.0, 0.4
         # the sphere's centre projects onto (or just past) the image border
-        px = {"left": (-0.5, cy), "right": (W - 0.5 + 3, cy), "top": (cx, -0.5), "bottom": (cx, H + 2.0),
-              "corner": (W - 0.5, H - 0.5)}[where]
+        px = {
+            "left": (-0.5, cy),
+            "right": (W - 0.5 + 3, cy),
+            "top": (cx, -0.5),
+            "bottom": (cx, H + 2.0),
+            "corner": (W - 0.5, H - 0.5),
+        }[where]
         c = np.array([(px[0] - cx) / f * z, (px[1] - cy) / f * z, z])
         ws = compute_warps(plane, cam, sphere_at(c, r, subdivisions=4), pano_height=16)
         assert_finite_where_valid(ws)
@@ -275,8 +282,9 @@ class TestIntersectingBackground:
     def test_half_buried_sphere_on_a_table(self):
         scene = ProceduralScene("room", seed=0)
         rend = scene.render(W, H)
-        obj = place_object(GlassObject.sphere(subdivisions=4), rend.depth, rend.camera, up_hint=scene.up,
-                           relative_size=0.35, lift=-0.5)
+        obj = place_object(
+            GlassObject.sphere(subdivisions=4), rend.depth, rend.camera, up_hint=scene.up, relative_size=0.35, lift=-0.5
+        )
         ws = compute_warps(rend.depth, rend.camera, obj, pano_height=16)
         assert_finite_where_valid(ws)
         m = ws.object_mask
@@ -316,13 +324,20 @@ class TestBadDepth:
         m = ws.object_mask
         assert not np.any(ws.refraction_kind[m] == HitKind.LOST)
         # a valid warp lands inside a triangle of valid pixels: its nearest pixel has valid depth
-        for warp, ok in [(ws.refraction, ws.refraction_valid & m), (ws.reflection, ws.reflection_valid),
-                         (ws.pano_to_persp, ws.pano_to_persp_valid)]:
+        for warp, ok in [
+            (ws.refraction, ws.refraction_valid & m),
+            (ws.reflection, ws.reflection_valid),
+            (ws.pano_to_persp, ws.pano_to_persp_valid),
+        ]:
             ix = np.rint(warp[ok]).astype(int)
             assert valid[ix[:, 1], ix[:, 0]].all()
         assert 0.3 < ws.refraction_valid[m].mean() < 1.0
-        clean = compute_warps(np.full(cam.shape, PLANE_Z, np.float32), cam,
-                              sphere_at(CENTER, RADIUS, ior=ior, subdivisions=4), pano_height=32)
+        clean = compute_warps(
+            np.full(cam.shape, PLANE_Z, np.float32),
+            cam,
+            sphere_at(CENTER, RADIUS, ior=ior, subdivisions=4),
+            pano_height=32,
+        )
         assert ws.pano_to_persp_valid.mean() > 0.5 * clean.pano_to_persp_valid.mean()
         assert not (ws.pano_to_persp_valid & ~clean.pano_to_persp_valid).any()
 

@@ -3,8 +3,8 @@ pixel bound); the far-field module itself is tested in test_far_field.py."""
 
 import numpy as np
 import pytest
-
 from conftest import sphere_at
+
 from snell_bench.optics import HitKind, compute_warps
 from snell_bench.optics.warps import far_background_mask, object_pixel_box
 from snell_bench.scene.camera import Camera

@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 
-from snell_bench.optics import HitKind
-from snell_bench.optics import far_field, warps
+from snell_bench.optics import HitKind, far_field, warps
 from snell_bench.optics.far_field import POINT_AT_INFINITY, AtInfinity, far_background_mask
 from snell_bench.scene.camera import Camera
 
@@ -110,15 +109,15 @@ class TestAtInfinity:
         at_inf = AtInfinity(small, far)
         right, left, behind = [0.2, 0.0, 1.0], [-0.2, 0.0, 1.0], [0.0, 0.0, -1.0]
         direction = np.array([right, right, left, behind, right])
-        kind = np.array([HitKind.ESCAPED, HitKind.UNOBSERVED, HitKind.ESCAPED, HitKind.ESCAPED, HitKind.OBSERVED],
-                        np.int8)
+        kind = np.array(
+            [HitKind.ESCAPED, HitKind.UNOBSERVED, HitKind.ESCAPED, HitKind.ESCAPED, HitKind.OBSERVED], np.int8
+        )
         on_box = np.array([False, True, False, False, False])
         point = np.full((5, 3), np.nan)
         point[1] = [1.0, 0.0, 5.0]
         point[4] = [1.0, 0.0, 5.0]
         at_inf.resolve(kind, point, direction, on_box)
-        assert kind.tolist() == [HitKind.OBSERVED, HitKind.OBSERVED, HitKind.ESCAPED, HitKind.ESCAPED,
-                                 HitKind.OBSERVED]
+        assert kind.tolist() == [HitKind.OBSERVED, HitKind.OBSERVED, HitKind.ESCAPED, HitKind.ESCAPED, HitKind.OBSERVED]
         unit = np.array(right) / np.linalg.norm(right)
         np.testing.assert_array_equal(point[0], unit * POINT_AT_INFINITY)
         np.testing.assert_array_equal(point[1], unit * POINT_AT_INFINITY)

@@ -43,7 +43,9 @@ class TestFresnel:
         tb = math.atan(n2 / n1)
         tt = math.asin(n1 / n2 * math.sin(tb))
         rs = (math.sin(tb - tt) / math.sin(tb + tt)) ** 2
-        assert float(fresnel_cos(torch.tensor(math.cos(tb), dtype=torch.float64), n1, n2)) == pytest.approx(rs / 2, rel=1e-10)
+        assert float(fresnel_cos(torch.tensor(math.cos(tb), dtype=torch.float64), n1, n2)) == pytest.approx(
+            rs / 2, rel=1e-10
+        )
 
     def test_total_internal_reflection_is_one(self):
         crit = math.asin(1 / 1.5)

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 import trimesh
-
 from conftest import sphere_at
+
 from snell_bench.optics import HitKind, compute_warps
 from snell_bench.optics.tracer import SceneTracer
 from snell_bench.scene.camera import Camera
@@ -25,7 +25,9 @@ def test_cube_face_on_is_a_slab(cam):
     t, ior, zf, zp = 0.6, 1.5, 2.7, 6.0
     box = trimesh.creation.box(extents=(4.0, 4.0, t))  # wider than the view: every ray crosses both faces
     box.apply_translation([0, 0, zf + t / 2])
-    ws = compute_warps(np.full(cam.shape, zp, np.float32), cam, GlassObject.from_mesh(box.vertices, box.faces, ior=ior), pano_height=16)
+    ws = compute_warps(
+        np.full(cam.shape, zp, np.float32), cam, GlassObject.from_mesh(box.vertices, box.faces, ior=ior), pano_height=16
+    )
     m = ws.object_mask & ws.refraction_valid
     ys, xs = np.nonzero(m)
     d = cam.pixel_rays(np.stack([xs, ys], -1).astype(float))
@@ -48,7 +50,9 @@ def test_torus_rays_reenter(cam):
     tor = trimesh.creation.torus(major_radius=0.5, minor_radius=0.18, major_sections=96, minor_sections=48)
     tor.apply_transform(trimesh.transformations.rotation_matrix(math.radians(80), [1, 0, 0]))  # nearly edge-on
     tor.apply_translation([0, 0, 3.0])
-    ws = compute_warps(np.full(cam.shape, 6.0, np.float32), cam, GlassObject.from_mesh(tor.vertices, tor.faces), pano_height=16)
+    ws = compute_warps(
+        np.full(cam.shape, 6.0, np.float32), cam, GlassObject.from_mesh(tor.vertices, tor.faces), pano_height=16
+    )
     b = ws.bounces[ws.object_mask]
     assert (b >= 4).sum() > 50, np.bincount(b)
     assert not np.any(ws.refraction_kind[ws.object_mask] == HitKind.LOST)
@@ -86,7 +90,9 @@ def test_back_side_of_background_is_unobserved(cam):
     depth = np.full(cam.shape, 4.0, np.float32)
     bg = build_background(depth, cam, extra_points=np.array([[0, 0, 8.0]]))
     tracer = SceneTracer(bg, sphere_at([0, 0, 2.0], 0.2, subdivisions=2))
-    hit = tracer.cast_background(np.array([[0.0, 0.0, 6.0], [0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]]))
+    hit = tracer.cast_background(
+        np.array([[0.0, 0.0, 6.0], [0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])
+    )
     assert hit.kind.tolist() == [HitKind.UNOBSERVED, HitKind.OBSERVED]
     np.testing.assert_allclose(hit.t, [2.0, 3.0], rtol=1e-6)
 

@@ -4,7 +4,6 @@ import logging
 
 import numpy as np
 import pytest
-
 import torch
 from conftest import analytic_sphere_plane, sphere_at
 

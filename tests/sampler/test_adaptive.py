@@ -25,8 +25,9 @@ def scene_setup():
     r = scene.render(W, H)
     out = {}
     for ior in (1.5, 1.02):
-        obj = place_object(GlassObject.sphere(ior=ior, subdivisions=4), r.depth, r.camera, up_hint=scene.up,
-                           relative_size=0.35)
+        obj = place_object(
+            GlassObject.sphere(ior=ior, subdivisions=4), r.depth, r.camera, up_hint=scene.up, relative_size=0.35
+        )
         out[ior] = compute_warps(r.depth, r.camera, obj, pano_height=HP)
     ws = out[1.5]
     p = ws.pano

@@ -1,6 +1,7 @@
 """The sampler at the ends of the noise schedule, one and many steps, and bf16 model outputs."""
 
 import math
+
 import pytest
 import torch
 import torch.nn.functional as F
@@ -192,8 +193,12 @@ class TestBF16Outputs:
     @staticmethod
     def fp32_runs(setup):
         ws, i_minus, gen = setup
-        return {st: sample(gen, ws, i_minus, "p", "p360", SamplerSettings(steps=8, progress=False, stochastic=st),
-                           seed=0).image for st in (False, True)}
+        return {
+            st: sample(
+                gen, ws, i_minus, "p", "p360", SamplerSettings(steps=8, progress=False, stochastic=st), seed=0
+            ).image
+            for st in (False, True)
+        }
 
     @pytest.mark.parametrize("cast_back", [True, False], ids=["cast_back", "bf16"])
     @pytest.mark.parametrize("stochastic", [False, True], ids=["det", "stoch"])

@@ -5,8 +5,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-
 from conftest import sphere_at
+
 from snell_bench.metrics.refraction import refraction_psnr
 from snell_bench.models.analytic import AnalyticGenerator
 from snell_bench.optics import compute_warps
@@ -60,8 +60,15 @@ def test_synchronisation_fixes_the_glass(setup, full):
 
 @pytest.mark.parametrize(
     "change",
-    [dict(reflection=False), dict(panorama=False), dict(dpa=False), dict(lpw=False), dict(time_travel=False),
-     dict(stochastic=True), dict(schedule="linear")],
+    [
+        dict(reflection=False),
+        dict(panorama=False),
+        dict(dpa=False),
+        dict(lpw=False),
+        dict(time_travel=False),
+        dict(stochastic=True),
+        dict(schedule="linear"),
+    ],
     ids=lambda d: next(iter(d)),
 )
 def test_every_switch_changes_the_output(setup, full, change):

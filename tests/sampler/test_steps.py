@@ -19,8 +19,9 @@ class TestSchedules:
         from diffusers import FlowMatchEulerDiscreteScheduler
         from diffusers.pipelines.flux.pipeline_flux import calculate_shift
 
-        sch = FlowMatchEulerDiscreteScheduler(use_dynamic_shifting=True, base_shift=0.5, max_shift=1.15,
-                                              base_image_seq_len=256, max_image_seq_len=4096)
+        sch = FlowMatchEulerDiscreteScheduler(
+            use_dynamic_shifting=True, base_shift=0.5, max_shift=1.15, base_image_seq_len=256, max_image_seq_len=4096
+        )
         sch.set_timesteps(sigmas=np.linspace(1.0, 1 / steps, steps), mu=calculate_shift(seq))
         torch.testing.assert_close(flux_sigmas(steps, seq), sch.sigmas.double(), atol=1e-6, rtol=0)
 

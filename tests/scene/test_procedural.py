@@ -77,7 +77,9 @@ def test_depth_matches_independent_mesh_cast(scene_and_render):
     m = sc.mesh()
     assert len(m.faces) > 1000
     rc = o3d.t.geometry.RaycastingScene()
-    rc.add_triangles(o3d.core.Tensor(np.asarray(m.vertices, np.float32)), o3d.core.Tensor(np.asarray(m.faces, np.uint32)))
+    rc.add_triangles(
+        o3d.core.Tensor(np.asarray(m.vertices, np.float32)), o3d.core.Tensor(np.asarray(m.faces, np.uint32))
+    )
     d = r.camera.pixel_rays(normalize=False).reshape(-1, 3)  # z = 1: t is the depth
     rays = np.concatenate([np.zeros_like(d), d], 1).astype(np.float32)
     t = rc.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().reshape(H, W)

@@ -90,7 +90,9 @@ class Builder:
         n = np.cross(V[1] - V[0], V[2] - V[0])
         self.add(V, [[0, 1, 2], [0, 2, 3]], np.tile(n, (4, 1)), mat, tint)
 
-    def grid(self, P: np.ndarray, mat: int, normals: np.ndarray | None = None, wrap: bool = False, tint=(1, 1, 1)) -> None:
+    def grid(
+        self, P: np.ndarray, mat: int, normals: np.ndarray | None = None, wrap: bool = False, tint=(1, 1, 1)
+    ) -> None:
         """A surface through a point grid.
 
         Args:
@@ -133,8 +135,17 @@ class Builder:
         m = trimesh.Trimesh(v, ico.faces, process=False)
         self.add(v, ico.faces, m.vertex_normals, mat, tint)
 
-    def cylinder(self, base, radius: float, height: float, mat: int, n: int = 32, caps: bool = True,
-                 tint=(1, 1, 1), top_radius: float | None = None) -> None:
+    def cylinder(
+        self,
+        base,
+        radius: float,
+        height: float,
+        mat: int,
+        n: int = 32,
+        caps: bool = True,
+        tint=(1, 1, 1),
+        top_radius: float | None = None,
+    ) -> None:
         """A vertical cylinder (a cone frustum if ``top_radius`` differs) standing on ``base``."""
         b = np.asarray(base, np.float64)
         rt = radius if top_radius is None else top_radius

@@ -52,8 +52,13 @@ def tabletop_items(b: Builder, nz: Noise, rng: np.random.Generator, room: Room) 
     y = 0.0
     for _ in range(int(rng.integers(2, 4))):
         bt = rng.uniform(0.025, 0.05)
-        b.box(corner + [0, y + bt / 2, 0], [rng.uniform(0.18, 0.26), bt, rng.uniform(0.13, 0.18)], m_cloth,
-              t_yaw + rng.uniform(-0.3, 0.3), tint=hsv(rng.random(), rng.uniform(0.4, 0.8), rng.uniform(0.3, 0.8)))
+        b.box(
+            corner + [0, y + bt / 2, 0],
+            [rng.uniform(0.18, 0.26), bt, rng.uniform(0.13, 0.18)],
+            m_cloth,
+            t_yaw + rng.uniform(-0.3, 0.3),
+            tint=hsv(rng.random(), rng.uniform(0.4, 0.8), rng.uniform(0.3, 0.8)),
+        )
         y += bt
     corner2 = top_c - side * (tlen / 2 - 0.16) * tx + (tdep / 2 - 0.16) * tz
     if room.kitchen:
@@ -61,12 +66,24 @@ def tabletop_items(b: Builder, nz: Noise, rng: np.random.Generator, room: Room) 
         b.cylinder(corner2, 0.11, 0.05, m_ceramic, top_radius=0.14, tint=hsv(rng.random(), 0.2, 0.85))
         for k in range(4):
             a = k * 1.7
-            b.sphere(corner2 + [0.06 * math.cos(a), 0.08 + 0.02 * (k == 3), 0.06 * math.sin(a)], 0.04, m_fruit, 10, 16,
-                     tint=[lin(0.8, 0.15, 0.1), lin(0.95, 0.6, 0.1), lin(0.5, 0.75, 0.2), lin(0.9, 0.8, 0.2)][k])
+            b.sphere(
+                corner2 + [0.06 * math.cos(a), 0.08 + 0.02 * (k == 3), 0.06 * math.sin(a)],
+                0.04,
+                m_fruit,
+                10,
+                16,
+                tint=[lin(0.8, 0.15, 0.1), lin(0.95, 0.6, 0.1), lin(0.5, 0.75, 0.2), lin(0.9, 0.8, 0.2)][k],
+            )
     else:
         vh = rng.uniform(0.18, 0.3)
-        b.cylinder(corner2, rng.uniform(0.05, 0.08), vh, m_ceramic, top_radius=rng.uniform(0.035, 0.06),
-                   tint=hsv(rng.random(), rng.uniform(0.3, 0.8), rng.uniform(0.4, 0.85)))
+        b.cylinder(
+            corner2,
+            rng.uniform(0.05, 0.08),
+            vh,
+            m_ceramic,
+            top_radius=rng.uniform(0.035, 0.06),
+            tint=hsv(rng.random(), rng.uniform(0.3, 0.8), rng.uniform(0.4, 0.85)),
+        )
     return m_cloth, m_ceramic
 
 
@@ -87,13 +104,16 @@ def chairs(b: Builder, rng: np.random.Generator, room: Room, m_fabric: int, m_da
                 b.box(pc + lx * Rc[:, 0] + lz * Rc[:, 2] + [0, 0.215, 0], [0.04, 0.43, 0.04], m_dark_wood, cyaw)
 
 
-def kitchen_counter(b: Builder, nz: Noise, rng: np.random.Generator, room: Room, m_cab: int, m_fabric: int,
-                    fabric_col) -> None:
+def kitchen_counter(
+    b: Builder, nz: Noise, rng: np.random.Generator, room: Room, m_cab: int, m_fabric: int, fabric_col
+) -> None:
     """Counter run along the far wall, upper cabinets, backsplash, fridge, and bar stools."""
     W, x0, x1, z1 = room.W, room.x0, room.x1, room.z1
     m_counter = b.material(Material("countertop", stone(lin(0.5, 0.5, 0.5), lin(0.12, 0.12, 0.13), nz, 6.0)))
     sp = hsv(rng.random(), rng.uniform(0.0, 0.3), rng.uniform(0.5, 0.9))
-    m_splash = b.material(Material("backsplash", tiles(sp, sp * 0.9, lin(0.85, 0.85, 0.85), nz, 0.12, False, axes=(0, 1))))
+    m_splash = b.material(
+        Material("backsplash", tiles(sp, sp * 0.9, lin(0.85, 0.85, 0.85), nz, 0.12, False, axes=(0, 1)))
+    )
     m_steel = b.material(Material("steel", solid(lin(0.62, 0.63, 0.65), nz, 0.04, 30.0)))
     b.box([0, 0.44, z1 - 0.31], [W - 0.02, 0.88, 0.6], m_cab)
     b.box([0, 0.9, z1 - 0.31], [W - 0.02, 0.04, 0.62], m_counter)
@@ -135,14 +155,27 @@ def bookshelf(b: Builder, rng: np.random.Generator, room: Room, m_dark_wood: int
             if xb + wb > bx + bw / 2 - 0.03:
                 break
             if rng.random() < 0.88:
-                b.box([xb + wb / 2, ys + 0.0125 + hb / 2, zc + 0.02], [wb, hb, rng.uniform(0.18, 0.24)], m_cloth,
-                      tint=hsv(rng.random(), rng.uniform(0.3, 0.8), rng.uniform(0.2, 0.8)))
+                b.box(
+                    [xb + wb / 2, ys + 0.0125 + hb / 2, zc + 0.02],
+                    [wb, hb, rng.uniform(0.18, 0.24)],
+                    m_cloth,
+                    tint=hsv(rng.random(), rng.uniform(0.3, 0.8), rng.uniform(0.2, 0.8)),
+                )
             xb += wb + 0.002
     return bs_side
 
 
-def sideboard(b: Builder, nz: Noise, rng: np.random.Generator, room: Room, bs_side: int, m_dark_wood: int,
-              m_ceramic: int, m_pot: int, m_leaf: int) -> None:
+def sideboard(
+    b: Builder,
+    nz: Noise,
+    rng: np.random.Generator,
+    room: Room,
+    bs_side: int,
+    m_dark_wood: int,
+    m_ceramic: int,
+    m_pot: int,
+    m_leaf: int,
+) -> None:
     """A sideboard against the far wall, opposite the bookshelf (``bs_side``), with a vase and a plant."""
     W, z1 = room.W, room.z1
     sw, sh = rng.uniform(1.0, 1.5), rng.uniform(0.7, 0.9)
@@ -152,8 +185,14 @@ def sideboard(b: Builder, nz: Noise, rng: np.random.Generator, room: Room, bs_si
     b.box([sx_, sh / 2 + 0.08, z1 - 0.25], [sw, sh, 0.45], m_cab)
     for lx in (-1, 1):
         b.box([sx_ + lx * (sw / 2 - 0.05), 0.04, z1 - 0.25], [0.04, 0.08, 0.4], m_dark_wood)
-    b.cylinder([sx_ + sw / 4, sh + 0.08, z1 - 0.25], 0.07, 0.32, m_ceramic, top_radius=0.045,
-               tint=hsv(rng.random(), rng.uniform(0.2, 0.7), rng.uniform(0.5, 0.9)))
+    b.cylinder(
+        [sx_ + sw / 4, sh + 0.08, z1 - 0.25],
+        0.07,
+        0.32,
+        m_ceramic,
+        top_radius=0.045,
+        tint=hsv(rng.random(), rng.uniform(0.2, 0.7), rng.uniform(0.5, 0.9)),
+    )
     b.cylinder([sx_ - sw / 4, sh + 0.08, z1 - 0.25], 0.08, 0.15, m_pot)
     b.rock([sx_ - sw / 4, sh + 0.08 + 0.3, z1 - 0.25], [0.2, 0.2, 0.2], m_leaf, rng, nz)
 
@@ -165,8 +204,13 @@ def corner_plant(b: Builder, nz: Noise, rng: np.random.Generator, room: Room, m_
     ph_ = rng.uniform(0.35, 0.5)
     b.cylinder([pcx, 0, pcz], 0.2, ph_, m_pot, top_radius=0.24)
     for k in range(3):
-        b.rock([pcx + rng.uniform(-0.1, 0.1), ph_ + 0.25 + 0.3 * k, pcz + rng.uniform(-0.1, 0.1)],
-               [0.32 - 0.06 * k] * 3, m_leaf, rng, nz)
+        b.rock(
+            [pcx + rng.uniform(-0.1, 0.1), ph_ + 0.25 + 0.3 * k, pcz + rng.uniform(-0.1, 0.1)],
+            [0.32 - 0.06 * k] * 3,
+            m_leaf,
+            rng,
+            nz,
+        )
 
 
 def floor_ball(b: Builder, rng: np.random.Generator, room: Room) -> None:
@@ -223,11 +267,18 @@ def window(b: Builder, rng: np.random.Generator, room: Room, wall: str, m_white:
         return c * 1.0
 
     m_win = b.material(Material("window", view, emissive=True, casts_shadow=False, origin=o, axes=A))
-    P = [o + A[:, 2] * 0.004 + A[:, 0] * a_ + A[:, 1] * c_ for a_, c_ in ((0, 0), (win_w, 0), (win_w, win_h), (0, win_h))]
+    P = [
+        o + A[:, 2] * 0.004 + A[:, 0] * a_ + A[:, 1] * c_ for a_, c_ in ((0, 0), (win_w, 0), (win_w, win_h), (0, win_h))
+    ]
     b.quad(*P, m_win)
-    for a_, c_, sa, sc in ((win_w / 2, 0, win_w + 0.1, 0.06), (win_w / 2, win_h, win_w + 0.1, 0.06),
-                           (0, win_h / 2, 0.06, win_h), (win_w, win_h / 2, 0.06, win_h),
-                           (win_w / 2, win_h / 2, 0.04, win_h), (win_w / 2, win_h * 0.6, win_w, 0.04)):
+    for a_, c_, sa, sc in (
+        (win_w / 2, 0, win_w + 0.1, 0.06),
+        (win_w / 2, win_h, win_w + 0.1, 0.06),
+        (0, win_h / 2, 0.06, win_h),
+        (win_w, win_h / 2, 0.06, win_h),
+        (win_w / 2, win_h / 2, 0.04, win_h),
+        (win_w / 2, win_h * 0.6, win_w, 0.04),
+    ):
         ctr = o + A[:, 0] * a_ + A[:, 1] * c_ + A[:, 2] * 0.03
         size = np.abs(A[:, 0]) * sa + np.abs(A[:, 1]) * sc + np.abs(A[:, 2]) * 0.05
         b.box(ctr, size, m_white)
@@ -238,8 +289,10 @@ def paintings(b: Builder, nz: Noise, rng: np.random.Generator, room: Room, other
     W, D, kitchen = room.W, room.D, room.kitchen
     hung = [("far", rng.uniform(-0.35, 0.35) * W)]
     if not kitchen:
-        hung += [("far", hung[0][1] + (1 if hung[0][1] < 0 else -1) * rng.uniform(1.0, 1.5)),
-                 (other, rng.uniform(2.0, D - 1.0))]
+        hung += [
+            ("far", hung[0][1] + (1 if hung[0][1] < 0 else -1) * rng.uniform(1.0, 1.5)),
+            (other, rng.uniform(2.0, D - 1.0)),
+        ]
     else:
         hung = [(other, rng.uniform(2.0, D - 1.0))]
     for k, (wall, u) in enumerate(hung):
@@ -264,13 +317,16 @@ def ceiling_lamp(b: Builder, nz: Noise, rng: np.random.Generator, room: Room, m_
     tc, Hc = room.tc, room.Hc
     lp = np.array([tc[0] + rng.uniform(-0.8, 0.8), Hc - rng.uniform(0.45, 0.7), tc[2] + rng.uniform(-0.3, 0.6)])
     warm = rng.uniform(0.0, 0.12)
-    m_lamp = b.material(Material("lamp", solid(lin(1.0, 0.95 - warm / 2, 0.85 - warm), nz, 0.0), emissive=True, casts_shadow=False))
+    m_lamp = b.material(
+        Material("lamp", solid(lin(1.0, 0.95 - warm / 2, 0.85 - warm), nz, 0.0), emissive=True, casts_shadow=False)
+    )
     b.sphere(lp, 0.09, m_lamp, 10, 20)
     b.cylinder(lp + [0, 0.09, 0], 0.004, Hc - lp[1] - 0.09, m_frame, 8, caps=False)
     d_top = np.linalg.norm(lp - room.top_c)
     inten = rng.uniform(0.65, 0.8) * (d_top**2 + 0.6)
     return Light(
-        kind="point", vector=lp,
+        kind="point",
+        vector=lp,
         color=inten * lin(1.0, 0.96 - warm / 2, 0.9 - warm),
         ambient_sky=lin(0.55, 0.55, 0.57) * rng.uniform(0.8, 0.95),
         ambient_ground=lin(0.45, 0.43, 0.41) * rng.uniform(0.75, 0.9),

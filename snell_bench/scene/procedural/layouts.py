@@ -77,8 +77,9 @@ class Layout:
     floor: float = 0.0
 
 
-def camera_pose(position, target, fov_x_deg: float, pitch_jitter: float, table_top: float, table_dist: float,
-                offset: float = 0.55) -> CameraPose:
+def camera_pose(
+    position, target, fov_x_deg: float, pitch_jitter: float, table_top: float, table_dist: float, offset: float = 0.55
+) -> CameraPose:
     """A camera at ``position`` heading (horizontally) towards ``target``.
 
     It is pitched so that the target appears ``offset`` of the half image height below the centre
@@ -203,7 +204,9 @@ def _room_frame(rng: np.random.Generator, fov_x_deg: float, kitchen: bool) -> Ro
     t_yaw = heading + rng.uniform(-0.18, 0.18)
     tlen = rng.uniform(1.3, 1.7) if kitchen else rng.uniform(1.2, 1.6)
     tdep = rng.uniform(0.85, 1.0) if kitchen else rng.uniform(0.75, 0.9)
-    target = tc + np.array([0, top_h, 0]) + rng.uniform(-0.06, 0.06) * np.array([math.cos(heading), 0, -math.sin(heading)])
+    target = (
+        tc + np.array([0, top_h, 0]) + rng.uniform(-0.06, 0.06) * np.array([math.cos(heading), 0, -math.sin(heading)])
+    )
     camera = camera_pose(cam, target, fov_x_deg, math.radians(rng.uniform(-1.5, 1.5)), top_h, tdist)
     return Room(W, D, Hc, kitchen, tc, top_h, t_yaw, tlen, tdep, camera)
 
@@ -219,7 +222,9 @@ def _shell(b: Builder, nz: Noise, rng: np.random.Generator, room: Room) -> tuple
     hue = rng.random()
     wall_base = hsv(hue, rng.uniform(0.08, 0.3), rng.uniform(0.7, 0.88))
     wall_stripe = hsv(hue + rng.uniform(-0.1, 0.1), rng.uniform(0.15, 0.4), rng.uniform(0.55, 0.75))
-    m_wall = b.material(Material("wallpaper", wallpaper(wall_base, wall_stripe, nz, rng.uniform(0.18, 0.35), rng.uniform(0.3, 0.6))))
+    m_wall = b.material(
+        Material("wallpaper", wallpaper(wall_base, wall_stripe, nz, rng.uniform(0.18, 0.35), rng.uniform(0.3, 0.6)))
+    )
     m_ceil = b.material(Material("ceiling", solid(lin(0.92, 0.91, 0.88), nz, 0.03)))
     wood_l = hsv(rng.uniform(0.06, 0.1), rng.uniform(0.4, 0.6), rng.uniform(0.55, 0.8))
     wood_d = wood_l * rng.uniform(0.35, 0.55)
@@ -227,10 +232,17 @@ def _shell(b: Builder, nz: Noise, rng: np.random.Generator, room: Room) -> tuple
     if kitchen:
         tc0 = lin(*([rng.uniform(0.75, 0.9)] * 3))
         tc1 = hsv(rng.random(), rng.uniform(0.1, 0.4), rng.uniform(0.25, 0.5))
-        m_floor = b.material(Material("floor_tiles", tiles(tc0, tc1, lin(0.4, 0.4, 0.38), nz, rng.uniform(0.3, 0.5), True)))
+        m_floor = b.material(
+            Material("floor_tiles", tiles(tc0, tc1, lin(0.4, 0.4, 0.38), nz, rng.uniform(0.3, 0.5), True))
+        )
     else:
-        m_floor = b.material(Material("floor_planks", planks(wood_l, wood_d, nz, rng.uniform(0.14, 0.22), rng.uniform(1.0, 1.6), wood_d * 0.4),
-                                      axes=plank_axis))
+        m_floor = b.material(
+            Material(
+                "floor_planks",
+                planks(wood_l, wood_d, nz, rng.uniform(0.14, 0.22), rng.uniform(1.0, 1.6), wood_d * 0.4),
+                axes=plank_axis,
+            )
+        )
     m_white = b.material(Material("white_paint", solid(lin(0.9, 0.9, 0.88), nz, 0.03)))
 
     fl = [[x0, 0, z0], [x1, 0, z0], [x1, 0, z1], [x0, 0, z1]]
@@ -256,7 +268,9 @@ def _shell(b: Builder, nz: Noise, rng: np.random.Generator, room: Room) -> tuple
 def _kitchen_island(b: Builder, nz: Noise, rng: np.random.Generator, room: Room) -> int:
     """The kitchen's support: a marble top on a cabinet block. Returns the cabinet material."""
     tc, top_c, top_h, t_yaw = room.tc, room.top_c, room.top_h, room.t_yaw
-    m_marble = b.material(Material("marble", marble(lin(0.93, 0.92, 0.9), lin(0.35, 0.36, 0.4), nz), origin=top_c, axes=room.Rt))
+    m_marble = b.material(
+        Material("marble", marble(lin(0.93, 0.92, 0.9), lin(0.35, 0.36, 0.4), nz), origin=top_c, axes=room.Rt)
+    )
     cab_col = hsv(rng.random(), rng.uniform(0.1, 0.5), rng.uniform(0.3, 0.8))
     m_cab = b.material(Material("cabinet", cabinet(cab_col, nz, 0.5, cab_col * 0.4)))
     th = 0.04
@@ -268,7 +282,9 @@ def _kitchen_island(b: Builder, nz: Noise, rng: np.random.Generator, room: Room)
 def _table(b: Builder, nz: Noise, rng: np.random.Generator, room: Room, wood_l, wood_d) -> None:
     """The living room's support: a wooden table on four legs, with a rug under it."""
     tc, top_c, top_h, t_yaw, tlen, tdep = room.tc, room.top_c, room.top_h, room.t_yaw, room.tlen, room.tdep
-    m_table = b.material(Material("table_wood", wood(wood_l * 1.05, wood_d * 0.8, nz, rng.uniform(14, 24)), origin=top_c, axes=room.Rt))
+    m_table = b.material(
+        Material("table_wood", wood(wood_l * 1.05, wood_d * 0.8, nz, rng.uniform(14, 24)), origin=top_c, axes=room.Rt)
+    )
     th = 0.035
     b.box(top_c - [0, th / 2, 0], [tlen, th, tdep], m_table, t_yaw)
     b.box(top_c - [0, th + 0.04, 0], [tlen - 0.1, 0.08, tdep - 0.1], m_table, t_yaw)

@@ -64,7 +64,8 @@ def build_outdoor(b: Builder, nz: Noise, rng: np.random.Generator, fov_x_deg: fl
     top_c = _stone_table(b, nz, rng, site)
     _scatter(b, nz, rng, site, grass)
     light = Light(
-        kind="directional", vector=sun,
+        kind="directional",
+        vector=sun,
         color=rng.uniform(0.8, 0.95) * sun_col,
         ambient_sky=(zen * 0.3 + hor * 0.2) * rng.uniform(0.9, 1.1),
         ambient_ground=sand * 0.25,
@@ -122,8 +123,11 @@ def _sky(b: Builder, nz: Noise, rng: np.random.Generator, site: _Site):
         return c.astype(np.float32)
 
     sky_R = 2000.0
-    m_sky = b.material(Material("sky", lambda p, n: sky_dir(p), emissive=True, casts_shadow=False,
-                                origin=np.array([cam[0], 0.0, cam[2]])))
+    m_sky = b.material(
+        Material(
+            "sky", lambda p, n: sky_dir(p), emissive=True, casts_shadow=False, origin=np.array([cam[0], 0.0, cam[2]])
+        )
+    )
     th = np.linspace(0, np.pi, 49)
     ph = np.linspace(0, 2 * np.pi, 96, endpoint=False)
     th, ph = np.meshgrid(th, ph, indexing="ij")
@@ -222,8 +226,9 @@ def _scatter_point(rng: np.random.Generator, site: _Site, rmin: float, rmax: flo
 def _scatter(b: Builder, nz: Noise, rng: np.random.Generator, site: _Site, grass: np.ndarray) -> None:
     """Rocks, wooden crates and trees scattered around the camera."""
     m_rock = b.material(Material("rock", stone(lin(0.7, 0.66, 0.6), lin(0.3, 0.28, 0.25), nz, 1.5)))
-    m_crate = b.material(Material("crate", planks(lin(0.62, 0.45, 0.28), lin(0.35, 0.22, 0.12), nz, 0.12, 0.6,
-                                                  lin(0.15, 0.1, 0.05))))
+    m_crate = b.material(
+        Material("crate", planks(lin(0.62, 0.45, 0.28), lin(0.35, 0.22, 0.12), nz, 0.12, 0.6, lin(0.15, 0.1, 0.05)))
+    )
     m_bark = b.material(Material("bark", stone(lin(0.35, 0.25, 0.18), lin(0.12, 0.08, 0.05), nz, 8.0)))
     m_leaf = b.material(Material("foliage", stone(grass * 1.2, grass * 0.45, nz, 3.0)))
     for _ in range(int(rng.integers(9, 16))):

@@ -120,8 +120,9 @@ class ProceduralScene:
         depth = (t.astype(np.float64) * d[..., 2].reshape(-1)).reshape(height, width).astype(np.float32)
         return SceneRender(image=srgb_encode(img), depth=depth, camera=cam)
 
-    def render_panorama(self, center=(0.0, 0.0, 0.0), height: int = 1024, up=None, forward=(0.0, 0.0, 1.0),
-                        supersample: int = 1) -> np.ndarray:
+    def render_panorama(
+        self, center=(0.0, 0.0, 0.0), height: int = 1024, up=None, forward=(0.0, 0.0, 1.0), supersample: int = 1
+    ) -> np.ndarray:
         """Renders an equirectangular panorama from a camera-frame point.
 
         It is oriented by ``PanoramaCamera.level(center, up or self.up, forward, height)``: its top
@@ -231,7 +232,14 @@ class ProceduralScene:
         self.support_point = self.world_to_camera(layout.support)
         L = layout.light
         vec = self.world_to_camera(L.vector) if L.kind == "point" else np.asarray(L.vector) @ R
-        light = Light(L.kind, vec, np.asarray(L.color, np.float32), np.asarray(L.ambient_sky, np.float32),
-                      np.asarray(L.ambient_ground, np.float32), float(L.falloff))
-        self._field = RadianceField((V - C) @ R, (N @ R).astype(np.float32), F, M, T, builder.materials, light,
-                                    R, C, layout.env)
+        light = Light(
+            L.kind,
+            vec,
+            np.asarray(L.color, np.float32),
+            np.asarray(L.ambient_sky, np.float32),
+            np.asarray(L.ambient_ground, np.float32),
+            float(L.falloff),
+        )
+        self._field = RadianceField(
+            (V - C) @ R, (N @ R).astype(np.float32), F, M, T, builder.materials, light, R, C, layout.env
+        )

@@ -81,9 +81,19 @@ class RadianceField:
             ``None`` for black.
     """
 
-    def __init__(self, vertices: np.ndarray, vertex_normals: np.ndarray, faces: np.ndarray, face_material: np.ndarray,
-                 face_tint: np.ndarray, materials: list[Material], light: Light, rotation: np.ndarray,
-                 origin: np.ndarray, env: Callable[[np.ndarray], np.ndarray] | None = None):
+    def __init__(
+        self,
+        vertices: np.ndarray,
+        vertex_normals: np.ndarray,
+        faces: np.ndarray,
+        face_material: np.ndarray,
+        face_tint: np.ndarray,
+        materials: list[Material],
+        light: Light,
+        rotation: np.ndarray,
+        origin: np.ndarray,
+        env: Callable[[np.ndarray], np.ndarray] | None = None,
+    ):
         self.vertices = vertices
         self.vertex_normals = vertex_normals
         self.faces = faces

@@ -107,7 +107,9 @@ def planks(light, dark, noise: Noise, width: float, length: float, seam) -> Albe
         col = np.floor(xs / length)
         tone = noise.cell(row.astype(np.int64), col.astype(np.int64), 3)
         q = np.stack([xs - col * length, p[:, 1], p[:, 2] - row * width - 0.5 * width + 0.4 * tone], 1)
-        r = np.sqrt(q[:, 1] ** 2 + (q[:, 2] + 0.6) ** 2) * 14.0 + 2.0 * noise.fbm(q * 1.0 + tone[:, None] * 9, (0.6, 3, 3), 2)
+        r = np.sqrt(q[:, 1] ** 2 + (q[:, 2] + 0.6) ** 2) * 14.0 + 2.0 * noise.fbm(
+            q * 1.0 + tone[:, None] * 9, (0.6, 3, 3), 2
+        )
         rings = fract(r)
         rings = smoothstep(0.0, 0.6, rings) * smoothstep(1.0, 0.75, rings)
         fine = noise.fbm(q + tone[:, None] * 17, (1.2, 25.0, 40.0), 2)
@@ -258,7 +260,9 @@ def painting(rng: np.random.Generator, noise: Noise, w: float, h: float) -> Albe
     """
     style = int(rng.integers(4))
     hue0 = rng.random()
-    pal = np.stack([hsv(hue0 + rng.uniform(-0.35, 0.35), rng.uniform(0.45, 0.95), rng.uniform(0.45, 0.95)) for _ in range(5)])
+    pal = np.stack(
+        [hsv(hue0 + rng.uniform(-0.35, 0.35), rng.uniform(0.45, 0.95), rng.uniform(0.45, 0.95)) for _ in range(5)]
+    )
     params = rng.random(64)
 
     def f(p, n):
