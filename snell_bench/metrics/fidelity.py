@@ -38,6 +38,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from snell_bench.utils.tensors import as_tensor, hwc_to_bchw
+
 __all__ = [
     "EMPTY_MASK_REASON",
     "GRAY_WEIGHTS",
@@ -264,7 +266,7 @@ def _iter_batch(generated, reference, mask):
         b = generated.shape[0]
         if not isinstance(reference, torch.Tensor) or reference.shape[0] != b:
             raise ValueError("generated and reference batches differ in size")
-        m = mask if isinstance(mask, torch.Tensor) else torch.as_tensor(np.asarray(mask))
+        m = as_tensor(mask)
         for i in range(b):
             mi = m[i] if (m.ndim == 4 or (m.ndim == 3 and m.shape[0] == b and b > 1)) else m
             yield generated[i], reference[i], mi
@@ -423,7 +425,7 @@ class MaskedLPIPS(torch.nn.Module):
         device = next(self.model.parameters()).device
 
         def to_tensor(a: np.ndarray) -> torch.Tensor:
-            t = torch.from_numpy(a).permute(2, 0, 1)[None].to(torch.float32)
+            t = hwc_to_bchw(a)
             if t.shape[1] == 1:
                 t = t.expand(-1, 3, -1, -1)
             return (t * 2.0 - 1.0).to(device)

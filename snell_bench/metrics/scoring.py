@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from snell_bench.utils.tensors import bchw_to_hwc
+
 from .alignment import METRIC_NAMES, CLIPScore, ImageRewardScorer, ScoreResult, score_all
 from .fidelity import MaskedLPIPS, MetricUnavailable, masked_psnr
 
@@ -116,8 +118,7 @@ def _finite(x):
 def _hwc(image: Any) -> Any:
     """A torch image ``(1, 3, H, W)`` or ``(3, H, W)`` as numpy ``(H, W, 3)``; others as given."""
     if isinstance(image, torch.Tensor):
-        t = image.detach().cpu()
-        return (t[0] if t.ndim == 4 else t).permute(1, 2, 0).numpy()
+        return bchw_to_hwc(image if image.ndim == 4 else image[None])
     return image
 
 
