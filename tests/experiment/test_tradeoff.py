@@ -2,7 +2,6 @@
 
 import json
 import math
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -165,36 +164,37 @@ def test_unknown_preset_fails_before_work(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
-def expected_model_calls(
-    steps: int,
-    tt_window: Sequence[float],
-    tt_length: int,
-    tt_repeats_main: int,
-    tt_repeats_pano: int,
-    panorama: bool = True,
-    time_travel: bool = True,
-) -> dict:
-    """Model calls per branch of the synchronized sampler: each block of ``tt_length`` steps that
-    starts inside the window ``[w0 T, w1 T)`` runs ``tt_repeats_*`` times, every other step once."""
-    T = int(steps)
-    main = pano = 0
-    i = 0
-    while i < T:
-        travel = time_travel and tt_window[0] * T <= i < tt_window[1] * T
-        L = min(int(tt_length), T - i) if travel else 1
-        main += L * (int(tt_repeats_main) if travel else 1)
-        pano += L * (int(tt_repeats_pano) if travel else 1)
-        i += L
-    return {"main": main, "pano": pano if panorama else 0}
+@pytest.mark.parametrize(
+    "overrides, expect",
+    [
+        # T = 5: the time-travel window [0.2 T, 0.8 T) = [1, 4) holds steps 1, 2, 3, each run 3 times on the main view
+        (["sampler.steps=5"], {"main": 5 + 2 * 3, "pano": 5}),
+        (["sampler.steps=3"], {"main": 3 + 2 * 2, "pano": 3}),  # window [0.6, 2.4): steps 1, 2
+        (["sampler.steps=4", "sampler.tt_repeats_main=1"], {"main": 4, "pano": 4}),
+        (["sampler.steps=5", "sampler.tt_length=2", "sampler.tt_repeats_main=2"], {"main": 1 + 2 * 2 * 2, "pano": 5}),
+        (["sampler.steps=4", "method=no_pano"], {"main": 4 + 2 * 3, "pano": 0}),  # window [0.8, 3.2): 1, 2, 3
+    ],
+)
+def test_recorded_model_calls_are_the_generators_calls(overrides, expect):
+    """The sampler's count against the calls the generator receives (per image in each batch)."""
+    from snell_bench import pipeline
 
+    base = ["preset=tiny_base", "warps.cache_dir=null", "reference.enabled=false", "reference.true_render=false"]
+    cfg = pipeline.apply_method(compose([*base, *overrides, "output_dir=/tmp/x"]))
+    inputs = pipeline.prepare_inputs(cfg, references=False)
+    gen = pipeline.build_generator(cfg.model, inputs)
+    seen = {"main": 0, "pano": 0}
+    velocity = gen.velocity
 
-def test_expected_model_calls_formula():
-    # T = 20, window [4, 16): 12 steps run 3 times on the main branch, once on the panorama
-    assert expected_model_calls(20, (0.2, 0.8), 1, 3, 1) == {"main": 20 + 2 * 12, "pano": 20}
-    assert expected_model_calls(5, (0.2, 0.8), 1, 3, 1) == {"main": 5 + 2 * 3, "pano": 5}
-    assert expected_model_calls(4, (0.2, 0.8), 1, 1, 1, panorama=False) == {"main": 4, "pano": 0}
-    # blocks of 2 steps starting at 1 and 3 (both inside [1, 4)), 2 repeats each
-    assert expected_model_calls(5, (0.2, 0.8), 2, 2, 1) == {"main": 1 + 2 * 2 * 2, "pano": 5}
+    def counting(z, sigma, cond):
+        for prompt in cond.prompts:
+            seen["pano" if prompt == cfg.scene.pano_prompt else "main"] += 1
+        return velocity(z, sigma, cond)
+
+    gen.velocity = counting
+    inputs.generators[OmegaConf.to_yaml(cfg.model, resolve=True)] = (gen, 0.0)
+    res = pipeline.run_method(cfg, inputs)
+    assert res.stats["model_calls"] == seen == expect
 
 
 # ---------------------------------------------------------------------------- the sweep
@@ -255,7 +255,6 @@ def test_model_calls_follow_the_steps_axis(sweep):
         base = res[f"{scene}-0/baseline"]["model_calls"]
         # T = 5: the time-travel window [0.2 T, 0.8 T) holds steps 1, 2, 3, each run 3 times on the main branch
         assert base == {"main": 5 + 2 * 3, "pano": 5}
-        assert base == expected_model_calls(5, cfg.sampler.tt_window, cfg.sampler.tt_length, 3, 1)
         assert res[f"{scene}-0/steps=3"]["model_calls"] == {"main": 3 + 2 * 2, "pano": 3}  # window [0.6, 2.4)
         assert res[f"{scene}-0/steps=5"]["model_calls"] == base
         assert res[f"{scene}-0/preset-tiny"]["model_calls"] == {"main": 4, "pano": 4}  # no extra repeats
@@ -397,18 +396,18 @@ def test_converged_reference_is_shared_and_independent_of_the_settings_spp(sweep
 def test_figure_keeps_the_bulk_and_points_at_isolated_outliers():
     from matplotlib.figure import Figure
 
-    from snell_bench.experiment.reports import _clip_outliers
+    from snell_bench.experiment.reports import clip_outliers
 
     x = np.array([4.0, 8.0, 10.0, 12.0, 15.0, 17.0])
     y = np.array([26.1, 28.4, 27.4, 27.5, 27.4, 13.3])  # one isolated low point (one bounce)
     ax = Figure().add_subplot()
     ax.scatter(x, y)
-    _clip_outliers(ax, [f"s{i}" for i in range(6)], x, y)
+    clip_outliers(ax, [f"s{i}" for i in range(6)], x, y)
     lo = ax.get_ylim()[0]
     assert 13.3 < lo < 26.1
     assert any("s5: 13.30 dB" in t.get_text() for t in ax.texts)
     ax2 = Figure().add_subplot()
     ax2.scatter(x[:5], y[:5])
     before = ax2.get_ylim()
-    _clip_outliers(ax2, [f"s{i}" for i in range(5)], x[:5], y[:5])  # a spread, no isolated cluster
+    clip_outliers(ax2, [f"s{i}" for i in range(5)], x[:5], y[:5])  # a spread, no isolated cluster
     assert ax2.get_ylim() == before and not ax2.texts

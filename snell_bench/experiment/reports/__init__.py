@@ -36,7 +36,7 @@ Conventions:
 
 from .build import build_reports, build_tradeoff_report
 from .collect import collect
-from .figures import _clip_outliers, pareto_figure, qualitative_figure  # noqa: F401  (_clip_outliers: for tests)
+from .figures import clip_outliers, pareto_figure, qualitative_figure
 from .spec import (
     ABLATION_METRICS,
     ABLATION_ROWS,
@@ -75,6 +75,7 @@ from .tradeoff import (
 from .writers import pipe_table, plain_markdown, stdout_table, to_csv, to_latex, to_markdown, tradeoff_markdown
 
 __all__ = [
+    "clip_outliers",
     # grid experiments
     "Metric",
     "METRICS",

@@ -324,7 +324,7 @@ def pareto_figure(table: pd.DataFrame, out_png: str | os.PathLike, title: str = 
             ax.xaxis.set_minor_locator(LogLocator(base=10, subs=tuple(range(1, 10))))
             ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
             ax.xaxis.set_minor_formatter(NullFormatter())
-        _clip_outliers(ax, table.index, x, y)
+        clip_outliers(ax, table.index, x, y)
         ax.set_xlabel("mean total time per image (s, log scale)")
         ax.set_ylabel(ylabel)
         ax.grid(True, which="both", alpha=0.3)
@@ -336,7 +336,7 @@ def pareto_figure(table: pd.DataFrame, out_png: str | os.PathLike, title: str = 
     return _save(fig, out_png, facecolor="white")
 
 
-def _clip_outliers(ax, labels, x: np.ndarray, y: np.ndarray) -> None:
+def clip_outliers(ax, labels, x: np.ndarray, y: np.ndarray) -> None:
     """Keep the y range on the bulk of the settings: settings separated from all others by a gap
     more than twice the rest of the range (e.g. one bounce, which breaks the glass) are drawn at the
     lower edge as arrows labelled with their values."""
