@@ -230,22 +230,23 @@ def render_reference(cfg: DictConfig, scene: SceneInputs, obj: GlassObject, *, s
     """Stage 4: the reference render and metric mask (``reference.*``), or ``(None, reason)``."""
     if not cfg.reference.enabled:
         return None, "reference.enabled=false"
-    try:
-        from snell_bench.render import render_reference as render
+    from snell_bench.render import render_reference as render
+
+    try:  # Mitsuba is imported on the first render
+        ref = render(
+            scene.image,
+            scene.depth,
+            scene.camera,
+            obj,
+            spp=int(cfg.reference.spp if spp is None else spp),
+            edge_threshold=float(cfg.warps.edge_threshold),
+            seed=int(cfg.seed),
+            unobserved_threshold=float(cfg.reference.unobserved_threshold),
+        )
     except ImportError as e:
         reason = f"reference renderer unavailable ({e}); install the render extra: make setup EXTRAS=test,render"
         log.warning(reason)
         return None, reason
-    ref = render(
-        scene.image,
-        scene.depth,
-        scene.camera,
-        obj,
-        spp=int(cfg.reference.spp if spp is None else spp),
-        edge_threshold=float(cfg.warps.edge_threshold),
-        seed=int(cfg.seed),
-        unobserved_threshold=float(cfg.reference.unobserved_threshold),
-    )
     return ref, None
 
 

@@ -120,3 +120,11 @@ def test_full_prompt_names_the_object():
     cfg = compose(["object=spot", "output_dir=/tmp/x"])
     p = pipeline.full_prompt(cfg)
     assert "{object}" not in p and "glass cow" in p
+
+
+def test_a_missing_renderer_is_a_reason_not_a_failure(monkeypatch, inputs):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "mitsuba", None)  # as if the render extra were not installed
+    ref, reason = pipeline.render_reference(compose(TINY), inputs.scene, inputs.obj)
+    assert ref is None and "render extra" in reason
