@@ -93,7 +93,11 @@ def find_support_plane(
         if len(remaining) < max(3, min_inlier_fraction * len(pts)):
             break
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts[remaining]))
-        model, inl = pc.segment_plane(distance_threshold=thr, ransac_n=3, num_iterations=num_iterations)
+        # probability=1 runs every iteration: Open3D's early stop in its parallel loop makes the
+        # result depend on thread timing (the same seed gave different planes within one process)
+        model, inl = pc.segment_plane(
+            distance_threshold=thr, ransac_n=3, num_iterations=num_iterations, probability=1.0
+        )
         inl = remaining[np.asarray(inl, np.int64)]
         n = np.asarray(model[:3], np.float64)
         n = n / np.linalg.norm(n)

@@ -81,3 +81,26 @@ def test_deterministic():
     np.testing.assert_allclose(oa.up, a.normal, atol=1e-12)  # up is the (re-normalised) plane normal
     assert np.array_equal(oa.corner_normals(), ob.corner_normals())
     assert oa.content_hash() == ob.content_hash()
+
+
+def test_ransac_runs_every_iteration_so_the_plane_does_not_depend_on_thread_timing(monkeypatch):
+    """Open3D's early stop inside its parallel RANSAC loop made the same seed give different planes
+    within one process; the placement asks for every iteration (probability 1)."""
+    import open3d as o3d
+
+    from snell_bench.scene.camera import Camera
+    from snell_bench.scene.placement import find_support_plane
+
+    seen = []
+    orig = o3d.geometry.PointCloud.segment_plane
+
+    def spy(self, *args, **kwargs):
+        seen.append(kwargs.get("probability"))
+        return orig(self, *args, **kwargs)
+
+    monkeypatch.setattr(o3d.geometry.PointCloud, "segment_plane", spy)
+    cam = Camera.from_fov(64, 48, 60.0)
+    ys = np.arange(48)[:, None] - cam.K[1, 2] + 0.5
+    depth = np.where(ys > 0, cam.K[1, 1] * 1.0 / np.maximum(ys, 1e-3), 50.0) * np.ones((1, 64))  # a floor 1 below
+    find_support_plane(np.minimum(depth, 50.0), cam, seed=0)
+    assert seen and all(p == 1.0 for p in seen)
