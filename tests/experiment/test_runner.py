@@ -129,6 +129,7 @@ def test_failures_and_skips_are_recorded_and_the_sweep_goes_on(tmp_path):
         [
             "grid.scenes=[living_room]",
             "grid.objects=[sphere,fox]",
+            "object.path=/nonexistent/fox.ply",  # kept by the fox cell (value overrides win over object=fox)
             "grid.methods=[t2i,flux2_dev]",
             "reference.enabled=false",
             "reference.true_render=false",
@@ -140,7 +141,7 @@ def test_failures_and_skips_are_recorded_and_the_sweep_goes_on(tmp_path):
     assert m["living_room-0/sphere/flux2_dev"]["status"] == "skipped"
     assert "GPU" in m["living_room-0/sphere/flux2_dev"]["reason"]
     fox = m["living_room-0/fox/t2i"]
-    assert fox["status"] == "failed" and "object.path" in fox["reason"]
+    assert fox["status"] == "failed" and "object.path" in fox["reason"] and "/nonexistent/fox.ply" in fox["reason"]
     assert summary["failed"] == 2 and any("fox" in c for c, _ in summary["failures"])
 
 
