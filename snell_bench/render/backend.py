@@ -6,12 +6,15 @@ Importing this module does not import Mitsuba; :func:`import_mitsuba` and :func:
 
 Convention:
     - Frames: everything is in the camera frame of :mod:`snell_bench.scene.camera` (OpenCV: x right,
-      y down, z forward, camera at the origin). Mitsuba's perspective camera looks along its local +z
+      y down, z forward, camera at the origin).
+    - Sensor: any pinhole ``K`` (see :func:`sensor`). Square pixels without skew (``fx == fy``,
+      ``K[0, 1] == K[1, 0] == 0``) use Mitsuba's ``perspective`` sensor: it looks along its local +z
       with +x to the *left* and +y *up* of the image, so its ``to_world`` is the rotation
-      ``diag(-1, -1, 1)`` (180° about z). The field of view is ``2 atan(W / (2 fx))`` along x; the
+      ``diag(-1, -1, 1)`` (180° about z); the field of view is ``2 atan(W / (2 fx))`` along x; the
       principal point offset is ``((W - 1) / 2 - cx) / W`` and ``((H - 1) / 2 - cy) / H`` (Mitsuba's
       offsets are fractions of the film, measured from its centre, and shift the ray, not the image).
-      Pixels must be square (``fx == fy``): Mitsuba's pinhole camera has one focal length.
+      Any other ``K`` uses the ``snell_pinhole`` sensor registered here, which casts the ray
+      ``K⁻¹ (x, y, 1)`` through each film sample.
     - Pixels: Mitsuba's film pixel ``i`` covers ``[i, i + 1)``; ours (centres at integers) covers
       ``[x - 0.5, x + 0.5)``; a ``box`` pixel filter makes each pixel the average over its own footprint.
     - Emitters and BSDFs: surfaces that emit are ``area`` emitters, textured texel-exact
@@ -43,7 +46,10 @@ __all__ = [
     "set_variant",
     "probe_render",
     "mesh",
+    "square_pixels",
     "sensor",
+    "perspective_sensor",
+    "pinhole_sensor",
     "black_bsdf",
     "rgb_emitter",
     "texture_emitter",
@@ -166,11 +172,15 @@ def set_variant():
 
 
 def _register_plugins(mi) -> None:
-    """Register the refraction-path BSDF (``snell_refraction_path``) for the current variant (once
-    per variant)."""
+    """Register the refraction-path BSDF (``snell_refraction_path``) and the pinhole sensor
+    (``snell_pinhole``) for the current variant (once per variant)."""
     variant = mi.variant()
     if variant in _registered:
         return
+    import drjit as dr
+
+    rgb = bool(mi.is_rgb)
+    unit_weight = mi.Color3f(1.0) if rgb else None
 
     class RefractionPathBSDF(mi.BSDF):
         """Mitsuba's smooth dielectric, but following the refraction path deterministically:
@@ -210,6 +220,69 @@ def _register_plugins(mi) -> None:
             return f"RefractionPathBSDF[{self._inner}]"
 
     mi.register_bsdf("snell_refraction_path", lambda props: RefractionPathBSDF(props))
+
+    class PinholeSensor(mi.Sensor):
+        """A pinhole camera at the origin with any intrinsics: the ray through film position ``u``
+        (Mitsuba's film pixels, pixel ``i`` covering ``[i, i + 1)``) has the direction of
+        ``K⁻¹ (u - 0.5, 1)`` in the camera frame (no ``to_world``). See :func:`pinhole_sensor`."""
+
+        def __init__(self, props):
+            mi.Sensor.__init__(self, props)
+            self.m_needs_sample_3 = False  # no aperture: the sampler's stream is that of `perspective`
+            self._inv_k = [float(props.get(f"inv_k_{i}{j}")) for i in range(2) for j in range(3)]
+            self._near = float(props.get("near_clip"))
+            self._far = float(props.get("far_clip"))
+            film = self.film()
+            offset, size = film.crop_offset(), film.crop_size()
+            # position samples are fractions of the crop window; pixel centres are at integers
+            self._x0, self._y0 = float(offset[0]) - 0.5, float(offset[1]) - 0.5
+            self._sx, self._sy = float(size[0]), float(size[1])
+
+        def _ray(self, time, wavelength_sample, position_sample, active):
+            if rgb:
+                wavelengths, weight = mi.Color0f(), unit_weight
+            else:
+                wavelengths, weight = self.sample_wavelengths(
+                    dr.zeros(mi.SurfaceInteraction3f), wavelength_sample, active
+                )
+            a, b, c, d, e, f = self._inv_k
+            x = position_sample.x * self._sx + self._x0
+            y = position_sample.y * self._sy + self._y0
+            # the direction of K⁻¹ (x, y, 1) is (dx, dy, 1) / n; the clip planes are planes of
+            # constant z, as in `perspective`: the ray starts at z = near_clip, ends at z = far_clip
+            dx, dy = a * x + b * y + c, d * x + e * y + f
+            n = dr.sqrt(dx * dx + dy * dy + 1.0)
+            inv_n = 1.0 / n
+            ray = mi.RayDifferential3f(
+                mi.Point3f(dx * self._near, dy * self._near, self._near),
+                mi.Vector3f(dx * inv_n, dy * inv_n, inv_n),
+                time,
+                wavelengths,
+            )
+            ray.maxt = (self._far - self._near) * n
+            # has_differentials stays False: texel-exact (nearest) textures use none
+            return ray, weight
+
+        def sample_ray(self, time, sample1, sample2, sample3, active=True):
+            ray, weight = self._ray(time, sample1, sample2, active)
+            return mi.Ray3f(ray), weight
+
+        def sample_ray_differential(self, time, sample1, sample2, sample3, active=True):
+            return self._ray(time, sample1, sample2, active)
+
+        def bbox(self):
+            return mi.ScalarBoundingBox3f(mi.ScalarPoint3f(0.0))
+
+        def traverse(self, callback):
+            pass
+
+        def parameters_changed(self, keys):
+            pass
+
+        def to_string(self):
+            return f"PinholeSensor[inv_k={self._inv_k}, near_clip={self._near}, far_clip={self._far}]"
+
+    mi.register_sensor("snell_pinhole", lambda props: PinholeSensor(props))
     _registered.add(variant)
 
 
@@ -258,16 +331,80 @@ def mesh(mi, name: str, vertices, faces, *, uv=None, normals=None, bsdf=None, em
     return m
 
 
+def square_pixels(camera: Camera) -> bool:
+    """Whether ``camera`` has square pixels without skew (``fx == fy``, ``K[0, 1] == K[1, 0] == 0``,
+    exactly), the cameras that Mitsuba's ``perspective`` sensor represents."""
+    K = camera.K
+    return bool(K[0, 0] == K[1, 1] and K[0, 1] == 0.0 and K[1, 0] == 0.0)
+
+
 def sensor(mi, camera: Camera, spp: int, near_clip: float, far_clip: float, rect=None) -> dict:
-    """Mitsuba's perspective sensor for ``camera`` (see the module's conventions).
+    """The sensor for ``camera``, any pinhole ``K``: :func:`perspective_sensor` for square pixels,
+    else :func:`pinhole_sensor`.
+
+    Why a sensor of its own for other cameras: Mitsuba's ``perspective`` sensor has one field of
+    view and square film pixels, and the alternatives are not exact:
+
+    - Rendering a square-pixel grid of another height and resampling its rows to ``H`` mixes
+      neighbouring pixels' footprints (a bilinear resample of box-filtered pixels is not the box
+      filter over the target pixel), so the background would no longer be I⁻ texel for texel.
+    - Scaling the scene along y by ``fx / fy`` makes the projection square-pixel but changes the
+      glass: refraction is not invariant under a non-uniform scale of the object's normals and
+      of the ray directions relative to them.
+    - A non-uniform scale in the sensor's ``to_world`` (the scene unscaled) would turn its rays
+      into those of another ``fy``, up to length; but ``perspective`` refuses it ("Scale factors in
+      the camera-to-world transformation are not allowed"): its clip distances and the ray
+      directions handed to BSDFs assume an orthonormal frame.
+
+    ``snell_pinhole`` instead casts, for each film sample, the ray ``K⁻¹ (x, y, 1)`` (normalised) that
+    :meth:`Camera.pixel_rays` gives for the same pixel coordinates; the scene is unchanged. With
+    the same ``spp`` and seed it draws the same samples as ``perspective`` (no aperture sample), so
+    for a square-pixel ``K`` both give the same rays up to float rounding; square pixels keep
+    ``perspective`` (C++, so faster on CPU variants, and bit for bit Mitsuba's own camera). Each
+    pixel is the box-filtered mean over samples uniform in its footprint, each on the ray of its
+    exact sub-pixel position: the definition that the warps (pixel-centre rays ``K⁻¹ (x, y, 1)``)
+    and the true render (sub-pixel rays of :meth:`Camera.pixel_rays`) use, exact up to float32.
+
+    Args:
+        mi: the ``mitsuba`` module, set to a variant (:func:`set_variant` registers ``snell_pinhole``).
+        camera: the camera.
+        spp: samples per pixel of its sampler.
+        near_clip, far_clip: the clip distances (along z).
+        rect: ``(x0, y0, x1, y1)``, end exclusive: render only those pixels (a crop window of the
+            same film); ``None``: the whole image.
+
+    Returns:
+        The sensor's scene dict.
+    """
+    if square_pixels(camera):
+        return perspective_sensor(mi, camera, spp, near_clip, far_clip, rect)
+    return pinhole_sensor(mi, camera, spp, near_clip, far_clip, rect)
+
+
+def _film_and_sampler(camera: Camera, spp: int, rect) -> dict:
+    """The film (box filter, float32 RGB, optional crop window) and sampler of a sensor dict."""
+    H, W = camera.shape
+    film = {
+        "type": "hdrfilm",
+        "width": W,
+        "height": H,
+        "rfilter": {"type": "box"},
+        "pixel_format": "rgb",
+        "component_format": "float32",
+    }
+    if rect is not None:
+        x0, y0, x1, y1 = map(int, rect)
+        film.update(crop_offset_x=x0, crop_offset_y=y0, crop_width=x1 - x0, crop_height=y1 - y0)
+    return {"film": film, "sampler": {"type": "independent", "sample_count": int(spp)}}
+
+
+def perspective_sensor(mi, camera: Camera, spp: int, near_clip: float, far_clip: float, rect=None) -> dict:
+    """Mitsuba's ``perspective`` sensor for ``camera`` (square pixels; see the module's conventions).
 
     Args:
         mi: the ``mitsuba`` module, set to a variant.
-        camera: the camera (square pixels).
-        spp: samples per pixel of its sampler.
-        near_clip, far_clip: the clip distances.
-        rect: ``(x0, y0, x1, y1)``, end exclusive: render only those pixels (a crop window of the
-            same film); ``None``: the whole image.
+        camera: the camera; its ``fy`` and skew are ignored.
+        spp, near_clip, far_clip, rect: as in :func:`sensor`.
 
     Returns:
         The sensor's scene dict.
@@ -284,19 +421,31 @@ def sensor(mi, camera: Camera, spp: int, near_clip: float, far_clip: float, rect
         "to_world": mi.ScalarTransform4f(np.diag([-1.0, -1.0, 1.0, 1.0]).tolist()),
         "near_clip": float(near_clip),
         "far_clip": float(far_clip),
-        "film": {
-            "type": "hdrfilm",
-            "width": W,
-            "height": H,
-            "rfilter": {"type": "box"},
-            "pixel_format": "rgb",
-            "component_format": "float32",
-        },
-        "sampler": {"type": "independent", "sample_count": int(spp)},
     }
-    if rect is not None:
-        x0, y0, x1, y1 = map(int, rect)
-        d["film"].update(crop_offset_x=x0, crop_offset_y=y0, crop_width=x1 - x0, crop_height=y1 - y0)
+    d.update(_film_and_sampler(camera, spp, rect))
+    return d
+
+
+def pinhole_sensor(mi, camera: Camera, spp: int, near_clip: float, far_clip: float, rect=None) -> dict:
+    """The ``snell_pinhole`` sensor for ``camera``: any ``K`` (``fx != fy``, skew), exact.
+
+    The film sample at Mitsuba film position ``(u, v)`` (pixel ``i`` covers ``[i, i + 1)``) is our
+    pixel coordinate ``(x, y) = (u - 0.5, v - 0.5)``; its ray starts at the origin with the direction
+    of ``K⁻¹ (x, y, 1)``, between the planes ``z = near_clip`` and ``z = far_clip``. The box filter
+    makes each pixel the average over its footprint ``[x - 0.5, x + 0.5) x [y - 0.5, y + 0.5)``.
+
+    Args:
+        mi: the ``mitsuba`` module, set to a variant by :func:`set_variant`.
+        camera: the camera.
+        spp, near_clip, far_clip, rect: as in :func:`sensor`.
+
+    Returns:
+        The sensor's scene dict.
+    """
+    inv_k = np.linalg.inv(camera.K)  # the matrix of Camera.pixel_rays
+    d = {"type": "snell_pinhole", "near_clip": float(near_clip), "far_clip": float(far_clip)}
+    d.update({f"inv_k_{i}{j}": float(inv_k[i, j]) for i in range(2) for j in range(3)})
+    d.update(_film_and_sampler(camera, spp, rect))
     return d
 
 
@@ -334,7 +483,9 @@ def render_linear(
 
     Python plugins hold the interpreter lock, so with several render threads they mostly wait for
     each other: on CPU variants the window ``python_rect`` is rendered on one thread and the rest of
-    the image, tile by tile, on all threads.
+    the image, tile by tile, on all threads; with the Python sensor of a non-square-pixel camera
+    (:func:`pinhole_sensor`) every ray starts in Python, and the whole image is rendered on one
+    thread.
 
     Args:
         mi: the ``mitsuba`` module, set to a variant.
@@ -365,20 +516,26 @@ def render_linear(
         return np.array(mi.render(scene, sensor=s, spp=int(spp), seed=int(seed)), dtype=np.float32)[..., :3]
 
     H, W = camera.shape
-    if python_rect is None or not mi.variant().startswith("scalar"):
+    python_sensor = not square_pixels(camera)
+    if not mi.variant().startswith("scalar") or (python_rect is None and not python_sensor):
         return render(None)
     import drjit as dr
 
+    def one_thread(rect):
+        threads = dr.thread_count()
+        dr.set_thread_count(1)
+        try:
+            return render(rect)
+        finally:
+            dr.set_thread_count(threads)
+
+    if python_sensor:
+        return one_thread(None)
     x0, y0, x1, y1 = python_rect
     out = np.zeros((H, W, 3), np.float32)
     for rx0, ry0, rx1, ry1 in ((0, 0, W, y0), (0, y1, W, H), (0, y0, x0, y1), (x1, y0, W, y1)):
         if rx1 > rx0 and ry1 > ry0:
             out[ry0:ry1, rx0:rx1] = render((rx0, ry0, rx1, ry1))
     if x1 > x0 and y1 > y0:
-        threads = dr.thread_count()
-        dr.set_thread_count(1)
-        try:
-            out[y0:y1, x0:x1] = render(python_rect)
-        finally:
-            dr.set_thread_count(threads)
+        out[y0:y1, x0:x1] = one_thread(python_rect)
     return out

@@ -93,7 +93,7 @@ def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject, spp: int) ->
 
     Raises:
         ValueError: a shape does not match the camera, I⁻ has non-finite values, the object is not
-            placed, ``spp`` is not a positive integer, or the pixels are not square.
+            placed, or ``spp`` is not a positive integer.
     """
     img = np.asarray(i_minus, dtype=np.float32)
     if img.ndim != 3 or img.shape[2] != 3:
@@ -114,12 +114,6 @@ def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject, spp: int) ->
         )
     if int(spp) != spp or spp < 1:
         raise ValueError(f"spp must be a positive integer, got {spp!r}")
-    fx, fy = camera.K[0, 0], camera.K[1, 1]
-    if abs(fx - fy) > 1e-4 * max(fx, fy) or abs(camera.K[0, 1]) > 1e-9:
-        raise ValueError(
-            f"the reference renderer needs square pixels without skew (Mitsuba's pinhole camera has one focal "
-            f"length), got fx={fx:.6g}, fy={fy:.6g}, skew={camera.K[0, 1]:.3g}; resample the image to square pixels"
-        )
     return img, depth
 
 
@@ -146,7 +140,8 @@ def render_reference(
     Args:
         i_minus: ``(H, W, 3)`` sRGB image in [0, 1] of the object-free scene.
         depth: ``(H, W)`` z-depth of I⁻ (NaN, inf or <= 0 where unknown).
-        camera: the camera of I⁻ (square pixels).
+        camera: the camera of I⁻, any pinhole ``K`` (``fx != fy`` and skew included; see
+            :func:`~snell_bench.render.backend.sensor`).
         obj: the glass object in camera coordinates.
         spp: samples per pixel of each of the two passes.
         edge_threshold: relative depth jump at which the depth mesh is cut (as in ``compute_warps``).
@@ -164,8 +159,8 @@ def render_reference(
 
     Raises:
         ImportError: Mitsuba is not installed (the message names the ``render`` extra).
-        ValueError: invalid inputs (shapes, non-square pixels, an object not placed, ``spp`` or
-            ``unobserved_threshold`` out of range).
+        ValueError: invalid inputs (shapes, an object not placed, ``spp`` or ``unobserved_threshold``
+            out of range).
     """
     img, depth = _check_inputs(i_minus, depth, camera, obj, spp)
     if not (0.0 < unobserved_threshold <= 1.0):

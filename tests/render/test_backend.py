@@ -1,5 +1,5 @@
 """The Mitsuba back end: choosing the variant (forced by the environment, or probed in a
-subprocess) and the sensor's camera conventions."""
+subprocess) and the sensors' camera conventions (square and non-square pixels)."""
 
 import math
 
@@ -61,3 +61,49 @@ class TestSensor:
         assert (film["crop_offset_x"], film["crop_offset_y"], film["crop_width"], film["crop_height"]) == (1, 2, 4, 7)
         assert d["sampler"]["sample_count"] == 4
         assert "crop_width" not in backend.sensor(m, cam, 4, 0.01, 100.0)["film"]
+
+    def test_square_pixels_use_perspective_others_the_pinhole(self):
+        m = backend.set_variant()
+        K = np.array([[80.0, 0.0, 40.0], [0.0, 80.0, 20.0], [0.0, 0.0, 1.0]])
+        assert backend.sensor(m, Camera(K=K, width=96, height=64), 4, 0.01, 100.0)["type"] == "perspective"
+        for i, j, v in ((1, 1, 80.001), (0, 1, 0.5)):
+            K2 = K.copy()
+            K2[i, j] = v
+            d = backend.sensor(m, Camera(K=K2, width=96, height=64), 4, 0.01, 100.0, rect=(1, 2, 5, 9))
+            assert d["type"] == "snell_pinhole" and d["film"]["crop_width"] == 4
+
+    @staticmethod
+    def _rays(m, sensor_dict, samples):
+        s = m.load_dict(sensor_dict)
+        rays = [s.sample_ray_differential(0.0, 0.5, m.Point2f(*p), m.Point2f(0.5)) for p in samples]
+        return (np.array([np.array(getattr(r, k)) for r, _ in rays]) for k in ("o", "d", "maxt"))
+
+    def test_pinhole_with_square_pixels_casts_the_perspective_rays(self):
+        """The same film samples (whole film and a crop window) give the same rays, up to float
+        rounding, as Mitsuba's perspective sensor."""
+        K = np.array([[80.0, 0.0, 40.3], [0.0, 80.0, 20.6], [0.0, 0.0, 1.0]])
+        cam = Camera(K=K, width=96, height=64)
+        m = backend.set_variant()
+        samples = np.random.default_rng(0).random((200, 2))
+        for rect in (None, (5, 7, 30, 20)):
+            args = (m, cam, 4, 0.01, 100.0, rect)
+            o0, d0, t0 = self._rays(m, backend.perspective_sensor(*args), samples)
+            o1, d1, t1 = self._rays(m, backend.pinhole_sensor(*args), samples)
+            np.testing.assert_allclose(d1, d0, atol=1e-6)
+            np.testing.assert_allclose(o1, o0, atol=1e-8)
+            np.testing.assert_allclose(t1, t0, rtol=1e-6)
+
+    def test_pinhole_rays_are_those_of_the_camera(self):
+        """fx != fy, skew, off-centre principal point, crop window: the film sample at the centre of
+        pixel (x, y) casts ``Camera.pixel_rays((x, y))``, from z = near_clip to z = far_clip."""
+        K = np.array([[80.0, 3.0, 41.7], [0.0, 93.5, 27.2], [0.0, 0.0, 1.0]])
+        cam = Camera(K=K, width=96, height=64)
+        m = backend.set_variant()
+        x0, y0, x1, y1 = rect = (5, 7, 30, 20)
+        px = np.random.default_rng(1).uniform([x0 - 0.5, y0 - 0.5], [x1 - 0.5, y1 - 0.5], (200, 2))
+        samples = (px + 0.5 - [x0, y0]) / [x1 - x0, y1 - y0]
+        o, d, t = self._rays(m, backend.pinhole_sensor(m, cam, 4, 0.01, 100.0, rect), samples)
+        np.testing.assert_allclose(d, cam.pixel_rays(px), atol=1e-6)
+        np.testing.assert_allclose(o[:, 2], 0.01, rtol=1e-6)
+        np.testing.assert_allclose(o, d * (0.01 / d[:, 2:]), atol=1e-8)
+        np.testing.assert_allclose((o + t[:, None] * d)[:, 2], 100.0, rtol=1e-5)

@@ -6,7 +6,16 @@ import sys
 
 import numpy as np
 import pytest
-from render_testing import H, W, far_from_object, forced_cpu_variant, make_room, metric_pixels, psnr
+from render_testing import (
+    H,
+    W,
+    far_from_object,
+    forced_cpu_variant,
+    make_non_square_room,
+    make_room,
+    metric_pixels,
+    psnr,
+)
 
 from snell_bench.render.true_render import render_true
 
@@ -22,6 +31,13 @@ class TestTrueRender:
         out = far_from_object(room.ws.object_mask)
         assert true.shape == (H, W, 3) and true.dtype == np.float32
         assert np.abs(true - room.image)[out].max() < 1e-5
+
+    def test_non_square_pixels_outside_object_equals_i_minus(self, room):
+        ns = make_non_square_room(room)
+        true = render_true(ns.scene, ns.camera, ns.obj, spp=4, jitter=False)
+        out = far_from_object(ns.ws.object_mask)
+        assert ns.ws.object_mask.sum() > 1000
+        assert np.abs(true - ns.image)[out].max() < 1e-5
 
     def test_inside_agrees_with_reference(self, room):
         pytest.importorskip("mitsuba")

@@ -52,6 +52,26 @@ def test_scaled_keeps_pixel_centre_convention():
     assert half.K[0, 2] == pytest.approx(319.5) and half.fov_x_deg == pytest.approx(60)
 
 
+def test_non_square_pixels_scale_and_serialise():
+    """fx != fy and an off-centre principal point: ``scaled`` keeps each point's pixel position in
+    the pixel-centre convention along both axes, and the dict round trip keeps K."""
+    cam = Camera(K=np.array([[520.9, 0, 325.1], [0, 521.0, 249.7], [0, 0, 1]]), width=640, height=480)
+    pts = cam.unproject(np.random.default_rng(0).uniform(0.5, 5.0, cam.shape))
+    small = cam.scaled(0.5)
+    assert (small.width, small.height) == (320, 240)
+    assert small.K[0, 0] == pytest.approx(260.45) and small.K[1, 1] == pytest.approx(260.5)
+    pix, _ = small.project(pts)
+    np.testing.assert_allclose(pix, (cam.pixel_grid() + 0.5) * 0.5 - 0.5, atol=1e-9)
+    d = small.pixel_rays(pix)
+    np.testing.assert_allclose(d, pts / np.linalg.norm(pts, axis=-1, keepdims=True), atol=1e-12)
+    # a factor that rounds the sides differently scales fx and fy differently
+    odd = Camera(K=cam.K, width=641, height=480).scaled(0.3)
+    assert (odd.width, odd.height) == (192, 144)
+    assert odd.K[0, 0] == pytest.approx(520.9 * 192 / 641) and odd.K[1, 1] == pytest.approx(521.0 * 0.3)
+    back = Camera.from_dict(cam.to_dict())
+    assert back == cam and np.array_equal(back.K, cam.K)
+
+
 @pytest.mark.parametrize(
     "kwargs,match",
     [
