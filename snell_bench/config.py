@@ -19,7 +19,8 @@ class SceneConfig:
 
     #: Scene id (a file in conf/scene/), used in output paths.
     name: str = "living_room"
-    #: ``procedural`` (CPU, exact geometry); generated and photo sources come with the generators.
+    #: ``procedural`` (CPU, exact 3-D truth) or ``image`` (a photo or RGB-D frame: ``image``,
+    #: ``depth``, ``depth_scale``, ``depth_kind``, ``intrinsics`` or ``fov_deg``).
     source: str = "procedural"
     #: Procedural stand-in kind (``room``, ``kitchen``, ``outdoor``).
     kind: str = "room"
@@ -33,6 +34,23 @@ class SceneConfig:
     height: int = 720
     #: Sub-pixel samples per side when rendering procedural images (anti-aliasing).
     supersample: int = 2
+    #: ``source=image``: the object-free photo I⁻ (PNG/JPEG, any size; centre-cropped to a multiple
+    #: of ``model.multiple``, the intrinsics adjusted); relative paths: the working folder, else the
+    #: checkout (``datasets/``).
+    image: Optional[str] = None
+    #: ``source=image``: its depth (16-bit PNG or TIFF with ``depth_scale``, ``.npy``, ``.pfm``,
+    #: ``.exr``); 0 and NaN are missing depth (unobserved space).
+    depth: Optional[str] = None
+    #: File units per metre of an integer depth file (5000 for TUM, 1000 for millimetres).
+    depth_scale: Optional[float] = None
+    #: ``z`` (depth along the optical axis) or ``range`` (distance along the ray).
+    depth_kind: str = "z"
+    #: ``[fx, fy, cx, cy]`` in pixels of the file as stored, or ``fov_deg`` (horizontal, square pixels).
+    intrinsics: Optional[list] = None
+    fov_deg: Optional[float] = None
+    #: The approximate up direction in camera coordinates (a camera pitched down by a sees
+    #: ``[0, -cos a, -sin a]``); ``null``: the source's own, else ``[0, -1, 0]``.
+    up: Optional[list] = None
     #: The full prompt p (``{object}`` stands for the object's noun), the object-free p⁻ and p³⁶⁰.
     prompt: str = (
         "A cozy living room with a polished wooden coffee table close to the camera, with a big glass {object} on top, "
@@ -68,6 +86,8 @@ class ObjectConfig:
     size: Optional[float] = None
     relative_size: float = 0.25
     yaw_deg: float = 0.0
+    #: A supporting plane counts as horizontal within this angle of the scene's up direction.
+    max_tilt_deg: float = 30.0
 
 
 @dataclass
@@ -115,6 +135,8 @@ class ModelConfig:
     vae_tiling: bool = True
     #: Seed of the model's own construction (analytic latent transform, tiny random weights).
     seed: int = 0
+    #: Image sizes must be multiples of this (the generator's latent block: 8 analytic, 16 FLUX).
+    multiple: int = 16
 
 
 @dataclass

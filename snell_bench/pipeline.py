@@ -50,6 +50,7 @@ __all__ = [
     "Skip",
     "apply_method",
     "full_prompt",
+    "data_path",
     "load_scene",
     "build_object",
     "place",
@@ -57,6 +58,7 @@ __all__ = [
     "render_reference",
     "render_true_scene",
     "scene_panorama",
+    "panorama_prior",
     "build_generator",
     "sample_method",
     "score",
@@ -136,28 +138,63 @@ def _plain(node) -> Any:
 
 
 # ---------------------------------------------------------------------------- 1. scene source
-def load_scene(scene_cfg: DictConfig) -> SceneInputs:
-    """Stage 1: I⁻, its depth and camera from ``scene.source``."""
-    if scene_cfg.source != "procedural":
-        raise ValueError(f"scene.source={scene_cfg.source!r} is not available; use scene.source=procedural")
-    from snell_bench.scene.procedural import ProceduralScene
+def data_path(value: str, key: str, what: str = "file") -> str:
+    """A file a config names: as given (absolute or relative to the working folder), else relative
+    to the checkout (where ``datasets/`` lies). Raises ``FileNotFoundError`` naming ``key``."""
+    path = Path(str(value))
+    if not path.is_absolute() and not path.exists():
+        path = _CHECKOUT / path
+    if not path.is_file():
+        raise FileNotFoundError(f"{key}={str(value)!r}: no such {what}; set {key} to an existing {what}")
+    return str(path)
 
-    scene = ProceduralScene(kind=scene_cfg.kind, seed=int(scene_cfg.seed_offset) + int(scene_cfg.variation))
-    r = scene.render(width=int(scene_cfg.width), height=int(scene_cfg.height), supersample=int(scene_cfg.supersample))
-    return SceneInputs(image=r.image, depth=r.depth, camera=r.camera, up=scene.up, source=scene)
+
+def load_scene(scene_cfg: DictConfig, *, multiple: int = 1) -> SceneInputs:
+    """Stage 1: I⁻, its depth and camera from ``scene.source``.
+
+    Args:
+        scene_cfg: the ``scene`` node.
+        multiple: the generator's size rule (``model.multiple``): a photo is centre-cropped to a
+            multiple of it, its intrinsics adjusted.
+    """
+    src = scene_cfg.source
+    up = None if scene_cfg.up is None else np.asarray(list(scene_cfg.up), np.float64)
+    if src == "procedural":
+        from snell_bench.scene.procedural import ProceduralScene
+
+        scene = ProceduralScene(kind=scene_cfg.kind, seed=int(scene_cfg.seed_offset) + int(scene_cfg.variation))
+        r = scene.render(
+            width=int(scene_cfg.width), height=int(scene_cfg.height), supersample=int(scene_cfg.supersample)
+        )
+        return SceneInputs(
+            image=r.image, depth=r.depth, camera=r.camera, up=scene.up if up is None else up, source=scene
+        )
+    if src == "image":
+        from snell_bench.scene.image_source import load_frame
+
+        if not scene_cfg.image:
+            raise ValueError("scene.source=image needs scene.image (a PNG or JPEG file of the object-free scene)")
+        if not scene_cfg.depth:
+            raise ValueError(
+                "scene.source=image needs scene.depth (a depth file; with scene.depth_scale for integer files): "
+                "estimating depth from the photo alone is not available yet"
+            )
+        frame = load_frame(
+            data_path(scene_cfg.image, "scene.image", "image file"),
+            data_path(scene_cfg.depth, "scene.depth", "depth file"),
+            depth_scale=scene_cfg.depth_scale,
+            depth_kind=str(scene_cfg.depth_kind),
+            intrinsics=None if scene_cfg.intrinsics is None else list(scene_cfg.intrinsics),
+            fov_deg=scene_cfg.fov_deg,
+            block=int(multiple),
+        )
+        return SceneInputs(image=frame.image, depth=frame.depth, camera=frame.camera, up=up, source=frame)
+    raise ValueError(f"scene.source={src!r} is unknown; use procedural or image")
 
 
 # ---------------------------------------------------------------------------- 2. the object
 def _mesh_path(obj_cfg: DictConfig) -> str:
-    path = Path(str(obj_cfg.path))
-    if not path.is_absolute() and not path.exists():
-        path = _CHECKOUT / path
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"object {obj_cfg.name!r}: mesh file {obj_cfg.path!r} not found; set object.path to an existing "
-            ".ply/.obj/.glb/.stl file"
-        )
-    return str(path)
+    return data_path(obj_cfg.path, "object.path", "mesh file (.ply/.obj/.glb/.stl)")
 
 
 def build_object(obj_cfg: DictConfig) -> GlassObject:
@@ -191,18 +228,27 @@ def place(obj: GlassObject, scene: SceneInputs, obj_cfg: DictConfig, seed: int =
     ``object.relative_size``, ``object.yaw_deg``)."""
     from snell_bench.scene.placement import place_object
 
-    kwargs: dict[str, Any] = {"seed": seed}
+    kwargs: dict[str, Any] = {"seed": seed, "max_tilt_deg": float(obj_cfg.max_tilt_deg)}
     if scene.up is not None:
         kwargs["up_hint"] = scene.up
-    return place_object(
-        obj,
-        scene.depth,
-        scene.camera,
-        size=obj_cfg.size,
-        relative_size=float(obj_cfg.relative_size),
-        yaw_deg=float(obj_cfg.yaw_deg),
-        **kwargs,
-    )
+    try:
+        return place_object(
+            obj,
+            scene.depth,
+            scene.camera,
+            size=obj_cfg.size,
+            relative_size=float(obj_cfg.relative_size),
+            yaw_deg=float(obj_cfg.yaw_deg),
+            **kwargs,
+        )
+    except ValueError as e:
+        if "surface" not in str(e):
+            raise
+        raise ValueError(
+            f"placing object {obj_cfg.name!r}: {e}. The depth (scene.depth) must cover a horizontal surface near the "
+            "image centre; for a tilted camera set scene.up (e.g. [0, -0.87, -0.5] for 30 degrees down) or widen "
+            "object.max_tilt_deg"
+        ) from None
 
 
 # ---------------------------------------------------------------------------- 3. warps
@@ -275,7 +321,7 @@ def prepare_inputs(cfg: DictConfig, *, references: bool = True) -> CellInputs:
     """
     t = Timer()
     with t("scene"):
-        scene = load_scene(cfg.scene)
+        scene = load_scene(cfg.scene, multiple=int(cfg.model.multiple))
         obj = place(build_object(cfg.object), scene, cfg.object, seed=int(cfg.seed))
     with t("warps"):
         ws = trace_warps(scene, obj, cfg.warps)
@@ -312,9 +358,27 @@ def scene_panorama(scene: SceneInputs, pano, supersample: int = 1) -> np.ndarray
     )
 
 
+def panorama_prior(inputs: CellInputs) -> np.ndarray:
+    """The panorama a generator built from the scene starts from, ``(Hp, 2 Hp, 3)`` sRGB: the
+    source's true panorama where the source can render one (procedural scenes), else I⁻ seen from
+    the object through π where I⁻ observes the panorama's rays, smoothly filled elsewhere
+    (:func:`~snell_bench.imaging.fill.push_pull_fill`): nothing but I⁻ is used."""
+    if hasattr(inputs.scene.source, "render_panorama"):
+        return scene_panorama(inputs.scene, inputs.warps.pano)
+    from snell_bench.imaging.fill import push_pull_fill
+    from snell_bench.imaging.remap import remap
+    from snell_bench.utils.tensors import bchw_to_hwc
+
+    ws = inputs.warps
+    seen, _ = remap(inputs.i_minus, ws.pano_to_persp)
+    known = torch.from_numpy(ws.pano_to_persp_valid & np.isfinite(ws.pano_to_persp).all(-1))
+    return bchw_to_hwc(push_pull_fill(torch.nan_to_num(seen), known, wrap_x=True)).clip(0, 1)
+
+
 def build_generator(model_cfg: DictConfig, inputs: CellInputs):
     """Stage 6: ``instantiate(model.generator)``; a generator built from the scene
-    (``model.from_scene``) also gets ``i_minus``, ``object_mask`` and the true ``panorama``."""
+    (``model.from_scene``) also gets ``i_minus``, ``object_mask`` and a ``panorama``
+    (:func:`panorama_prior`)."""
     from hydra.utils import instantiate
 
     if not model_cfg.get("generator"):
@@ -324,7 +388,7 @@ def build_generator(model_cfg: DictConfig, inputs: CellInputs):
         kwargs = {
             "i_minus": inputs.scene.image,
             "object_mask": inputs.warps.object_mask,
-            "panorama": scene_panorama(inputs.scene, inputs.warps.pano),
+            "panorama": panorama_prior(inputs),
         }
     return instantiate(model_cfg.generator, **kwargs)
 
