@@ -19,8 +19,10 @@ class SceneConfig:
 
     #: Scene id (a file in conf/scene/), used in output paths.
     name: str = "living_room"
-    #: ``procedural`` (CPU, exact 3-D truth) or ``image`` (a photo or RGB-D frame: ``image``,
-    #: ``depth``, ``depth_scale``, ``depth_kind``, ``intrinsics`` or ``fov_deg``).
+    #: ``procedural`` (CPU, exact 3-D truth), ``image`` (a photo or RGB-D frame: ``image``, ``depth``,
+    #: ``depth_scale``, ``depth_kind``, ``intrinsics`` or ``fov_deg``; without ``depth`` a depth
+    #: estimator, ``depth=...``) or ``generated`` (I⁻ generated from ``prompt_minus`` by the model at
+    #: seed ``variation``, depth and intrinsics from the depth estimator).
     source: str = "procedural"
     #: Procedural stand-in kind (``room``, ``kitchen``, ``outdoor``).
     kind: str = "room"
@@ -48,20 +50,25 @@ class SceneConfig:
     #: ``[fx, fy, cx, cy]`` in pixels of the file as stored, or ``fov_deg`` (horizontal, square pixels).
     intrinsics: Optional[list] = None
     fov_deg: Optional[float] = None
+    #: The surface the object stands on, for a segmenter (``segment=sam3``), e.g. "wooden coffee table".
+    surface: Optional[str] = "${prompts:${.text},surface}"
+    #: ``source=generated``: where generated I⁻ are cached (by prompt, size, seed, model); ``null``: off.
+    cache_dir: Optional[str] = "runs/cache/scenes"
     #: The approximate up direction in camera coordinates (a camera pitched down by a sees
     #: ``[0, -cos a, -sin a]``); ``null``: the source's own, else ``[0, -1, 0]``.
     up: Optional[list] = None
-    #: The full prompt p (``{object}`` stands for the object's noun), the object-free p⁻ and p³⁶⁰.
-    prompt: str = (
-        "A cozy living room with a polished wooden coffee table close to the camera, with a big glass {object} on top, "
-        "surrounded by a beige sofa, a patterned rug, plants, bookshelves, framed wall art, and sunlight through sheer "
-        "curtains."
+    #: The prompt with its object phrase marked (``[[with a big glass {object} on top,]]``;
+    #: ``{object}`` stands for the object's noun): p, p⁻, p³⁶⁰ and the surface derive from it
+    #: (:func:`snell_bench.scene.prompts.decompose`) unless set explicitly below.
+    text: str = (
+        "A cozy living room with a polished wooden coffee table close to the camera, [[with a big glass {object} on "
+        "top,]] surrounded by a beige sofa, a patterned rug, plants, bookshelves, framed wall art, and sunlight "
+        "through sheer curtains."
     )
-    prompt_minus: str = ""
-    pano_prompt: str = (
-        "A high resolution equirectangular 360 degree panorama captured on top of a polished wooden coffee table "
-        "in a cozy living room."
-    )
+    #: The full prompt p, the object-free p⁻ and the panorama's p³⁶⁰.
+    prompt: str = "${prompts:${.text},full}"
+    prompt_minus: str = "${prompts:${.text},minus}"
+    pano_prompt: str = "${prompts:${.text},pano}"
 
 
 @dataclass
@@ -160,6 +167,37 @@ class MethodConfig:
 
 
 @dataclass
+class DepthConfig:
+    """A monocular depth estimator (conf/depth/): for a photo without depth and for generated scenes."""
+
+    #: ``none`` / ``file`` (the source gives depth), ``moge2``, ``depth_pro``, ``depth_anything_v2``,
+    #: ``tiny_depth_pro``, ``tiny_depth_anything`` (random weights, tests).
+    name: str = "none"
+    #: A local folder with the weights or a model id in the Hugging Face cache (never downloaded).
+    path: Optional[str] = None
+    device: str = "cpu"
+    #: What builds it: a ``_target_`` node (``null``: no estimator).
+    estimator: Any = None
+
+
+@dataclass
+class SegmentConfig:
+    """Where the object stands (conf/segment/): ``ransac`` (a horizontal plane near the image centre),
+    ``sam3`` (the surface ``scene.surface`` names, segmented by SAM 3), ``mask`` (a mask file)."""
+
+    name: str = "ransac"
+    path: Optional[str] = None
+    #: ``segment=mask``: a PNG of the image's size (after its centre crop), nonzero on the surface.
+    mask: Optional[str] = None
+    #: ``cuda`` or ``cpu``; ``null``: CUDA when available, else the CPU.
+    device: Optional[str] = None
+    #: sam3: the score an instance needs; the region is the union of the instances above it.
+    threshold: float = 0.5
+    #: What builds it: a ``_target_`` node (``null``: RANSAC only).
+    segmenter: Any = None
+
+
+@dataclass
 class MetricsConfig:
     """Scorers that need weights read them from these local files (never downloaded)."""
 
@@ -236,6 +274,8 @@ class Config:
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
     method: MethodConfig = field(default_factory=MethodConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
+    depth: DepthConfig = field(default_factory=DepthConfig)
+    segment: SegmentConfig = field(default_factory=SegmentConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
     grid: GridConfig = field(default_factory=GridConfig)
     tradeoff: TradeoffConfig = field(default_factory=TradeoffConfig)
@@ -300,10 +340,23 @@ def group_options(group: str) -> list[str]:
     return sorted(n for n in names if not n.startswith("base_"))
 
 
+def _prompts(text: str, field: str) -> str:
+    """The ``prompts`` resolver: one field of the decomposition of a marked prompt."""
+    from snell_bench.scene.prompts import decompose
+
+    return getattr(decompose(str(text)), field)
+
+
 def register_configs() -> None:
+    from omegaconf import OmegaConf
+
+    if not OmegaConf.has_resolver("prompts"):
+        OmegaConf.register_new_resolver("prompts", _prompts)
     cs = ConfigStore.instance()
     cs.store(name="base_config", node=Config)
     cs.store(group="scene", name="base_scene", node=SceneConfig)
     cs.store(group="object", name="base_object", node=ObjectConfig)
     cs.store(group="model", name="base_model", node=ModelConfig)
     cs.store(group="method", name="base_method", node=MethodConfig)
+    cs.store(group="depth", name="base_depth", node=DepthConfig)
+    cs.store(group="segment", name="base_segment", node=SegmentConfig)

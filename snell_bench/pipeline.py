@@ -36,8 +36,8 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from snell_bench.optics.warps import WarpSet
-from snell_bench.scene.camera import Camera
 from snell_bench.scene.objects import GlassObject
+from snell_bench.scene.sources import SceneInputs
 from snell_bench.utils.tensors import hwc_to_bchw
 from snell_bench.utils.timing import Timer
 
@@ -53,6 +53,7 @@ __all__ = [
     "data_path",
     "load_scene",
     "build_object",
+    "surface_region",
     "place",
     "trace_warps",
     "render_reference",
@@ -74,17 +75,6 @@ _CHECKOUT = Path(__file__).resolve().parents[1]
 
 class Skip(Exception):
     """A method that cannot run here; the message says why."""
-
-
-@dataclass
-class SceneInputs:
-    """What a scene source gives: I⁻, its depth and camera."""
-
-    image: np.ndarray  #: (H, W, 3) float32 sRGB in [0, 1]: I⁻
-    depth: np.ndarray  #: (H, W) float32 camera-frame z
-    camera: Camera
-    up: np.ndarray | None  #: scene up in camera coordinates, if the source knows it
-    source: Any  #: the scene source (e.g. a ProceduralScene), for panoramas and ground truth
 
 
 @dataclass
@@ -149,47 +139,97 @@ def data_path(value: str, key: str, what: str = "file") -> str:
     return str(path)
 
 
-def load_scene(scene_cfg: DictConfig, *, multiple: int = 1) -> SceneInputs:
-    """Stage 1: I⁻, its depth and camera from ``scene.source``.
+def _model_key(model_cfg: DictConfig) -> str:
+    return OmegaConf.to_yaml(model_cfg, resolve=True)
+
+
+def _depth_estimator(cfg: DictConfig, why: str):
+    if not cfg.depth.get("estimator"):
+        raise ValueError(
+            f"{why}: choose a depth estimator (depth=moge2, depth=depth_pro, depth=depth_anything_v2) or give "
+            "scene.depth"
+        )
+    return _instantiate(cfg.depth.estimator)
+
+
+def load_scene(cfg: DictConfig, generators: dict | None = None) -> SceneInputs:
+    """Stage 1: I⁻, its depth and camera from ``scene.source`` (``procedural``, ``image``,
+    ``generated``; :mod:`snell_bench.scene.sources`).
 
     Args:
-        scene_cfg: the ``scene`` node.
-        multiple: the generator's size rule (``model.multiple``): a photo is centre-cropped to a
-            multiple of it, its intrinsics adjusted.
+        cfg: the cell's config (``scene``; ``model`` for the size rule and a generated I⁻;
+            ``depth`` for an image without depth or a generated one).
+        generators: where a generator built to generate I⁻ is kept for stage 6 (by model config).
     """
-    src = scene_cfg.source
-    up = None if scene_cfg.up is None else np.asarray(list(scene_cfg.up), np.float64)
-    if src == "procedural":
-        from snell_bench.scene.procedural import ProceduralScene
+    from snell_bench.scene import sources
 
-        scene = ProceduralScene(kind=scene_cfg.kind, seed=int(scene_cfg.seed_offset) + int(scene_cfg.variation))
-        r = scene.render(
-            width=int(scene_cfg.width), height=int(scene_cfg.height), supersample=int(scene_cfg.supersample)
-        )
-        return SceneInputs(
-            image=r.image, depth=r.depth, camera=r.camera, up=scene.up if up is None else up, source=scene
+    sc = cfg.scene
+    src = sc.source
+    up = None if sc.up is None else np.asarray(list(sc.up), np.float64)
+    intrinsics = None if sc.intrinsics is None else list(sc.intrinsics)
+    if src == "procedural":
+        return sources.procedural_scene(
+            sc.kind, int(sc.seed_offset) + int(sc.variation), sc.width, sc.height, sc.supersample, up
         )
     if src == "image":
-        from snell_bench.scene.image_source import load_frame
+        from snell_bench.scene.image_source import fit_to_block, load_frame
 
-        if not scene_cfg.image:
+        if not sc.image:
             raise ValueError("scene.source=image needs scene.image (a PNG or JPEG file of the object-free scene)")
-        if not scene_cfg.depth:
-            raise ValueError(
-                "scene.source=image needs scene.depth (a depth file; with scene.depth_scale for integer files): "
-                "estimating depth from the photo alone is not available yet"
+        if sc.depth:
+            frame = load_frame(
+                data_path(sc.image, "scene.image", "image file"),
+                data_path(sc.depth, "scene.depth", "depth file"),
+                depth_scale=sc.depth_scale,
+                depth_kind=str(sc.depth_kind),
+                intrinsics=intrinsics,
+                fov_deg=sc.fov_deg,
+                block=int(cfg.model.multiple),
             )
-        frame = load_frame(
-            data_path(scene_cfg.image, "scene.image", "image file"),
-            data_path(scene_cfg.depth, "scene.depth", "depth file"),
-            depth_scale=scene_cfg.depth_scale,
-            depth_kind=str(scene_cfg.depth_kind),
-            intrinsics=None if scene_cfg.intrinsics is None else list(scene_cfg.intrinsics),
-            fov_deg=scene_cfg.fov_deg,
-            block=int(multiple),
+            return SceneInputs(image=frame.image, depth=frame.depth, camera=frame.camera, up=up, source=frame)
+        from snell_bench.scene.image_source import load_image
+
+        image = load_image(data_path(sc.image, "scene.image", "image file"))
+        depth, camera = sources.estimate_depth(
+            image, _depth_estimator(cfg, "scene.depth is not set"), intrinsics=intrinsics, fov_deg=sc.fov_deg
         )
-        return SceneInputs(image=frame.image, depth=frame.depth, camera=frame.camera, up=up, source=frame)
-    raise ValueError(f"scene.source={src!r} is unknown; use procedural or image")
+        image, depth, camera = fit_to_block(image, depth, camera, int(cfg.model.multiple))
+        return SceneInputs(image=image, depth=depth, camera=camera, up=up, source="image")
+    if src == "generated":
+        if cfg.model.from_scene:
+            raise ValueError(
+                f"scene.source=generated needs a text-to-image generator; model={cfg.model.name} is built from the "
+                "scene itself: use model=tiny_flux (CPU, random weights) or model=flux_dev (GPU)"
+            )
+        from hydra.utils import instantiate
+
+        key = _model_key(cfg.model)
+        generators = {} if generators is None else generators
+
+        def build():
+            if key not in generators:
+                timer = Timer()
+                with timer("generator"):
+                    generators[key] = (instantiate(cfg.model.generator), 0.0)
+                generators[key] = (generators[key][0], timer.seconds["generator"])
+            return generators[key][0]
+
+        image, info = sources.generated_image(
+            build,
+            str(sc.prompt_minus),
+            int(sc.height),
+            int(sc.width),
+            steps=int(cfg.sampler.steps),
+            seed=int(sc.variation),
+            schedule=str(cfg.sampler.schedule),
+            cache_dir=sc.cache_dir,
+            model_key=key,
+        )
+        depth, camera = sources.estimate_depth(
+            image, _depth_estimator(cfg, "scene.source=generated"), intrinsics=intrinsics, fov_deg=sc.fov_deg
+        )
+        return SceneInputs(image=image, depth=depth, camera=camera, up=up, source="generated", info=info)
+    raise ValueError(f"scene.source={src!r} is unknown; use procedural, image or generated")
 
 
 # ---------------------------------------------------------------------------- 2. the object
@@ -223,14 +263,50 @@ def build_object(obj_cfg: DictConfig) -> GlassObject:
         raise ValueError(f"object.factory._target_={factory['_target_']!r} failed: {cause or e}") from None
 
 
-def place(obj: GlassObject, scene: SceneInputs, obj_cfg: DictConfig, seed: int = 0) -> GlassObject:
+#: Segmenters built in this process, by their resolved config (a real SAM 3 is large: built once).
+_SEGMENTERS: dict[str, Any] = {}
+
+
+def _instantiate(node: DictConfig):
+    from hydra.errors import InstantiationException
+    from hydra.utils import instantiate
+
+    try:
+        return instantiate(node)
+    except InstantiationException as e:  # the constructor's own error (missing weights, no GPU, bad file)
+        raise (e.__cause__ or e) from None
+
+
+def surface_region(cfg: DictConfig, scene: SceneInputs) -> np.ndarray | None:
+    """Stage 2a: where the object may stand, ``(H, W)`` bool: the surface ``scene.surface`` names,
+    segmented by ``segment.segmenter`` (SAM 3, a mask file), or ``None`` (RANSAC near the image
+    centre, the default)."""
+    from snell_bench.models.segment import surface_region as segment
+
+    if not cfg.segment.get("segmenter"):
+        return None
+    key = OmegaConf.to_yaml(cfg.segment, resolve=True)
+    if key not in _SEGMENTERS:
+        _SEGMENTERS.clear()
+        _SEGMENTERS[key] = _instantiate(cfg.segment.segmenter)
+    phrase = cfg.scene.surface
+    if not phrase:
+        raise ValueError(
+            f"segment={cfg.segment.name} needs the surface to find: set scene.surface (e.g. 'wooden table')"
+        )
+    return segment(_SEGMENTERS[key], scene.image, str(phrase))
+
+
+def place(obj: GlassObject, scene: SceneInputs, obj_cfg: DictConfig, seed: int = 0, region=None) -> GlassObject:
     """Stage 2b: ``obj`` standing on a supporting surface of the scene (``object.size``,
-    ``object.relative_size``, ``object.yaw_deg``)."""
+    ``object.relative_size``, ``object.yaw_deg``), inside ``region`` when given."""
     from snell_bench.scene.placement import place_object
 
     kwargs: dict[str, Any] = {"seed": seed, "max_tilt_deg": float(obj_cfg.max_tilt_deg)}
     if scene.up is not None:
         kwargs["up_hint"] = scene.up
+    if region is not None:
+        kwargs["region"] = region
     try:
         return place_object(
             obj,
@@ -242,7 +318,7 @@ def place(obj: GlassObject, scene: SceneInputs, obj_cfg: DictConfig, seed: int =
             **kwargs,
         )
     except ValueError as e:
-        if "surface" not in str(e):
+        if "surface" not in str(e) or region is not None:
             raise
         raise ValueError(
             f"placing object {obj_cfg.name!r}: {e}. The depth (scene.depth) must cover a horizontal surface near the "
@@ -321,8 +397,10 @@ def prepare_inputs(cfg: DictConfig, *, references: bool = True) -> CellInputs:
     """
     t = Timer()
     with t("scene"):
-        scene = load_scene(cfg.scene, multiple=int(cfg.model.multiple))
-        obj = place(build_object(cfg.object), scene, cfg.object, seed=int(cfg.seed))
+        generators: dict = {}
+        scene = load_scene(cfg, generators)
+        region = surface_region(cfg, scene)
+        obj = place(build_object(cfg.object), scene, cfg.object, seed=int(cfg.seed), region=region)
     with t("warps"):
         ws = trace_warps(scene, obj, cfg.warps)
     reference, reason, true = None, "not rendered", None
@@ -341,6 +419,7 @@ def prepare_inputs(cfg: DictConfig, *, references: bool = True) -> CellInputs:
         reference_reason=reason,
         true_render=true,
         timings=t.seconds,
+        generators=generators,
     )
 
 

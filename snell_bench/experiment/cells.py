@@ -143,7 +143,11 @@ def run_cells(
             shared.release(cell.shares)
         cfg = cell.config.copy()
         cfg.output_dir = str(cell.folder)
-        write_text(cell.folder / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+        try:
+            text = OmegaConf.to_yaml(cfg, resolve=True)
+        except Exception:  # noqa: BLE001 - a value that cannot resolve (the cell's failure says why)
+            text = OmegaConf.to_yaml(cfg, resolve=False)
+        write_text(cell.folder / "config.yaml", text)
         write_json(cell.folder / record_name, record)  # last: marks the cell complete
         counts[record["status"]] += 1
         bar.update(1)

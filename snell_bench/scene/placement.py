@@ -5,6 +5,10 @@ Convention:
     camera held level it is ``(0, -1, 0)`` (y points down). A plane counts as *horizontal* when its
     normal is within ``max_tilt_deg`` of ``up_hint``; the fitted normal then replaces the hint as the
     scene's up direction (``GlassObject.up`` of the placed object).
+    Where to look: by default the points come from a central window of the image; a ``region``
+    (a bool ``(H, W)`` mask of the supporting surface, e.g. from
+    :mod:`snell_bench.models.segment`) replaces the window, so the named surface can lie anywhere
+    in the image.
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ class SupportPlane:
 
     point: np.ndarray  # (3,) the centre of the visible supporting region (camera frame)
     normal: np.ndarray  # (3,) unit, pointing up
-    inliers: int  # depth points on the plane inside the search window
+    inliers: int  # depth points on the plane inside the search window (or region)
     pixel: np.ndarray  # (2,) where ``point`` is seen in the image
 
 
@@ -42,23 +46,55 @@ def find_support_plane(
     up_hint=(0.0, -1.0, 0.0),
     max_tilt_deg: float = 30.0,
     window: tuple[float, float] = (0.6, 0.9),
+    region: np.ndarray | None = None,
     distance_threshold: float = 0.004,
     min_inlier_fraction: float = 0.05,
-    prefer: str = "highest",
+    prefer: str | None = None,
     max_planes: int = 6,
     max_points: int = 60_000,
     num_iterations: int = 500,
     seed: int = 0,
 ) -> SupportPlane:
-    """Find a horizontal supporting surface near the optical axis with RANSAC (Open3D).
+    """Find a horizontal supporting surface with RANSAC (Open3D), near the optical axis or inside a region.
 
-    Points come from a central window of the image (``window`` = fraction of width, height). Planes
-    are peeled off one at a time (up to ``max_planes``). Candidates are horizontal, below the camera
-    (seen from above) and hold at least ``min_inlier_fraction`` of the window's points; ``prefer``
-    picks among them: ``"highest"`` (default: a table top rather than the floor under it),
-    ``"largest"`` (most points) or ``"central"`` (nearest the image centre). The object stands at
-    the median of the chosen plane's points. ``distance_threshold`` is relative to the median depth. Raises
-    ``ValueError`` when no horizontal plane exists. Deterministic for a given ``seed``.
+    Points come from a central window of the image (``window`` = fraction of width, height), or,
+    when ``region`` is given, from the region alone (the window is then ignored: a segmented
+    surface may lie anywhere in the image). Planes are peeled off one at a time (up to
+    ``max_planes``). Candidates are horizontal, below the camera (seen from above) and hold at least
+    ``min_inlier_fraction`` of the window's (region's) points; ``prefer`` picks among them:
+    ``"highest"`` (a table top rather than the floor under it), ``"largest"`` (most points) or
+    ``"central"`` (nearest the image centre). The object stands at the median of the chosen plane's
+    points. ``distance_threshold`` is relative to the median depth of the points. Deterministic for
+    a given ``seed``; with ``region=None`` the result is the same as without the argument.
+
+    Args:
+        depth: ``(H, W)`` z-depth; missing depth is 0, negative or not finite.
+        camera: the camera of ``depth``.
+        up_hint: the approximate up direction in camera coordinates.
+        max_tilt_deg: a plane counts as horizontal within this angle of ``up_hint``.
+        window: ``(fraction of width, fraction of height)`` of the central search window; ignored
+            when ``region`` is given.
+        region: ``(H, W)`` bool mask of the supporting surface (``True`` = surface), e.g. a
+            :class:`~snell_bench.models.segment.SurfaceSegmenter`'s output; only its pixels with
+            valid depth are used. ``None``: the central ``window``.
+        distance_threshold: RANSAC inlier distance, as a fraction of the median depth of the points.
+        min_inlier_fraction: the smallest share of the points a candidate plane must hold.
+        prefer: ``"highest"``, ``"largest"`` or ``"central"``. ``None`` (default): ``"highest"``
+            without a region and ``"largest"`` with one (the region *is* the surface, so its
+            dominant plane is; "highest" would pick the top of a small thing lying on it).
+        max_planes: the most planes peeled off.
+        max_points: the points are subsampled (deterministically, from ``seed``) to at most this many.
+        num_iterations: RANSAC iterations per plane (all of them run, for determinism).
+        seed: seeds the subsampling and RANSAC.
+
+    Returns:
+        The chosen plane.
+
+    Raises:
+        ValueError: if no horizontal plane is found; if ``region`` has the wrong shape or has no
+            pixel with valid depth (the message names the config keys ``segment`` and
+            ``scene.depth``); if ``prefer`` is unknown.
+        TypeError: if ``region`` is not boolean.
     """
     depth = np.asarray(depth, np.float64)
     if depth.shape != camera.shape:
@@ -66,16 +102,33 @@ def find_support_plane(
     up = np.asarray(up_hint, np.float64)
     up = up / np.linalg.norm(up)
     H, W = depth.shape
-    fx, fy = window
-    x0, x1 = int(round(W * (1 - fx) / 2)), int(round(W * (1 + fx) / 2))
-    y0, y1 = int(round(H * (1 - fy) / 2)), int(round(H * (1 + fy) / 2))
-    sub = np.zeros_like(depth, bool)
-    sub[y0:y1, x0:x1] = True
+    if region is None:
+        fx, fy = window
+        x0, x1 = int(round(W * (1 - fx) / 2)), int(round(W * (1 + fx) / 2))
+        y0, y1 = int(round(H * (1 - fy) / 2)), int(round(H * (1 + fy) / 2))
+        sub = np.zeros_like(depth, bool)
+        sub[y0:y1, x0:x1] = True
+        where = "near the image centre"
+    else:
+        sub = np.asarray(region)
+        if sub.dtype != np.bool_:
+            raise TypeError(f"region must be a bool mask, got dtype {sub.dtype}")
+        if sub.shape != depth.shape:
+            raise ValueError(f"region has shape {sub.shape} but the depth is {H}x{W}")
+        where = "inside the supporting-surface region"
     sel = sub & valid_depth_mask(depth)
     ys, xs = np.nonzero(sel)
+    if prefer is None:
+        prefer = "highest" if region is None else "largest"
     if prefer not in ("highest", "largest", "central"):
         raise ValueError(f"prefer must be 'highest', 'largest' or 'central', got {prefer!r}")
     if len(ys) < 3:
+        if region is not None:
+            raise ValueError(
+                f"the supporting surface has no valid depth: its region has {int(sub.sum())} pixels, {len(ys)} of "
+                "them with valid depth (3 are needed). Check the segmentation (config group `segment`: the "
+                "surface phrase `scene.surface`, or the mask file `segment.mask`) and the depth map (`scene.depth`)"
+            )
         raise ValueError("no valid depth near the image centre to find a supporting surface on")
     rng = np.random.default_rng(seed)
     if len(ys) > max_points:
@@ -116,9 +169,10 @@ def find_support_plane(
         remaining = np.setdiff1d(remaining, inl, assume_unique=True)
     if not candidates:
         raise ValueError(
-            f"no horizontal supporting surface found near the image centre (tried {max_planes} planes; a plane "
+            f"no horizontal supporting surface found {where} (tried {max_planes} planes; a plane "
             f"counts as horizontal within {max_tilt_deg} deg of up_hint={np.round(up, 3).tolist()}). Pass up_hint "
-            "for a tilted camera, widen `window`, or place the object explicitly with GlassObject.from_mesh"
+            "for a tilted camera, widen `window` (or check the region: config group `segment`), or place the "
+            "object explicitly with GlassObject.from_mesh"
         )
     if prefer == "highest":  # a table top rather than the floor under it
         candidates.sort(key=lambda c: (-round(float(c[3].mean(axis=0) @ c[2]), 6), c[1]))
@@ -164,6 +218,7 @@ def place_object(
     size: float | None = None,
     relative_size: float = 0.25,
     plane: SupportPlane | None = None,
+    region: np.ndarray | None = None,
     yaw_deg: float = 0.0,
     lift: float = 1e-3,
     **plane_kwargs,
@@ -173,11 +228,31 @@ def place_object(
     ``size`` is the object's largest bounding-box side in scene units; by default
     ``relative_size`` times the distance from the camera to the placement point. ``lift`` raises it
     by that fraction of its size, so it stands on the surface instead of touching it.
+
+    Args:
+        obj: the canonical (unplaced) object.
+        depth: ``(H, W)`` z-depth of the scene.
+        camera: the camera of ``depth``.
+        size: the object's largest bounding-box side; ``None``: ``relative_size`` x distance.
+        relative_size: see ``size``.
+        plane: the supporting plane; ``None``: :func:`find_support_plane` (``region`` and
+            ``plane_kwargs`` are used only then).
+        region: ``(H, W)`` bool mask of the supporting surface, passed to :func:`find_support_plane`
+            (the plane is fitted inside it; ``None``: the central window).
+        yaw_deg: turn about the up direction, in degrees.
+        lift: raise the object by this fraction of its size.
+        **plane_kwargs: more arguments of :func:`find_support_plane`.
+
+    Returns:
+        The placed object.
+
+    Raises:
+        ValueError: if the object is already placed, ``size`` is invalid, or no plane is found.
     """
     if obj.placed:
         raise ValueError(f"{obj.name} is already placed in camera coordinates")
     if plane is None:
-        plane = find_support_plane(depth, camera, **plane_kwargs)
+        plane = find_support_plane(depth, camera, region=region, **plane_kwargs)
     dist = float(np.linalg.norm(plane.point))
     if size is None:
         if not relative_size > 0:

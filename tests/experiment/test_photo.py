@@ -141,3 +141,29 @@ def test_photo_experiment_end_to_end(tmp_path):
     assert m["snellcaster"]["metrics"]["psnr"] > m["t2i"]["metrics"]["psnr"] + 3
     assert m["snellcaster"]["scene_source"] == "image" and "psnr_true" not in m["snellcaster"]["metrics"]
     assert (tmp_path / "reports/photo/method_table.md").is_file()
+
+
+def test_a_prompt_without_an_object_phrase_fails_the_cell_naming_the_key(tmp_path):
+    from snell_bench.experiment.runner import run_grid
+
+    cfg = compose(
+        [
+            "+experiment=smoke",
+            "scene.width=160",
+            "scene.height=96",
+            *CHEAP,
+            "reference.enabled=false",
+            "reference.true_render=false",
+            "grid.scenes=[living_room]",
+            "grid.methods=[t2i,snellcaster]",
+            "scene.text='A bare room with a table.'",
+            "grid.report=false",
+            f"runs_dir={tmp_path}",
+            f"output_dir={tmp_path}",
+        ]
+    )
+    summary = run_grid(cfg)
+    assert summary["failed"] == 2
+    rec = json.loads((tmp_path / "smoke/living_room-0/sphere/t2i/metrics.json").read_text())
+    assert "scene.text" in rec["reason"] and "[[" in rec["reason"]
+    assert (tmp_path / "smoke/living_room-0/sphere/t2i/config.yaml").is_file()

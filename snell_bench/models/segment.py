@@ -1,0 +1,479 @@
+"""Segmenting the supporting surface the prompt names, so that the object is placed on it.
+
+A :class:`SurfaceSegmenter` turns the object-free image I⁻ and a phrase naming the surface
+("wooden coffee table") into a bool mask of that surface;
+:func:`~snell_bench.scene.placement.find_support_plane` then fits the support plane to the depth
+inside the mask (``region=``). Backends: SAM 3 through transformers (:class:`Sam3Segmenter`), a
+random-weight SAM 3 for tests (:class:`TinySam3Segmenter`), and a mask file the user drew
+(:class:`MaskFileSegmenter`).
+
+Convention:
+    - Input image: float ``(H, W, 3)`` sRGB in ``[0, 1]`` (that of
+      :mod:`snell_bench.scene.image_source`); output: ``np.ndarray`` of dtype bool and shape
+      ``(H, W)``, ``True`` on the surface. The segmenters never raise for a surface they cannot
+      find: they return an empty mask, and :func:`surface_region` turns that into an error naming
+      the phrase.
+    - SAM 3 is prompted with the phrase as text (no boxes). The mask is the **union** of the
+      instance masks whose score (``sigmoid(logit) * sigmoid(presence)``, transformers'
+      ``post_process_instance_segmentation``) exceeds ``threshold``, binarised at ``mask_threshold``
+      after resizing to the input size. A union rather than the best instance: a surface is often
+      seen in pieces (a floor between pieces of furniture), and where two different surfaces match
+      the phrase, the placement's plane fit keeps the dominant plane of the region.
+    - The image reaches SAM 3 quantised to 8 bits (as a photo would), through the processor's own
+      resizing and normalisation.
+    - Weights are never downloaded: ``from_pretrained(..., local_files_only=True)``; missing weights
+      raise :class:`~snell_bench.models.errors.WeightsNotFoundError` naming the config key
+      ``segment.path``. Mask-file problems name ``segment.mask``, devices ``segment.device``.
+    - Every call runs under :func:`torch.inference_mode` with the model in eval mode, so the mask is
+      a deterministic function of the image, the phrase and the weights (on the CPU).
+    - transformers is imported only when a SAM 3 segmenter is built.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from .errors import WeightsNotFoundError
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "SAM3_ID",
+    "MaskFileSegmenter",
+    "Sam3Segmenter",
+    "SurfaceSegmenter",
+    "TinySam3Segmenter",
+    "read_mask",
+    "surface_region",
+    "tiny_sam3",
+]
+
+#: The Hugging Face id of SAM 3 (gated: the licence must be accepted on the hub).
+SAM3_ID = "facebook/sam3"
+#: The checkout's root: relative mask paths not found in the working folder are looked up there.
+_CHECKOUT = Path(__file__).resolve().parents[2]
+#: The tiny SAM 3's input size (square, as SAM 3's 1008 x 1008) and ViT patch size (SAM 3's).
+_TINY_IMAGE_SIZE = 56
+_TINY_PATCH_SIZE = 14
+
+
+@runtime_checkable
+class SurfaceSegmenter(Protocol):
+    """Finds the supporting surface a phrase names in an image.
+
+    Attributes:
+        name: the backend's name (``sam3``, ``tiny_sam3``, ``mask``).
+    """
+
+    name: str
+
+    def __call__(self, image: np.ndarray, phrase: str) -> np.ndarray:
+        """The surface's mask.
+
+        Args:
+            image: float ``(H, W, 3)`` sRGB in ``[0, 1]``.
+            phrase: what the surface is, e.g. ``"wooden coffee table"``.
+
+        Returns:
+            bool ``(H, W)``, ``True`` on the surface; all ``False`` when it is not found.
+        """
+        ...
+
+
+def _check_image(image: np.ndarray) -> np.ndarray:
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"image must be (H, W, 3) sRGB, got shape {image.shape}")
+    if not np.issubdtype(image.dtype, np.floating):
+        raise TypeError(f"image must be float sRGB in [0, 1], got dtype {image.dtype}")
+    if not np.all(np.isfinite(image)):
+        raise ValueError("image has NaN or infinite values")
+    return image
+
+
+def _check_phrase(phrase: str) -> str:
+    if not isinstance(phrase, str) or not phrase.strip():
+        raise ValueError(f"the surface phrase must be a non-empty string (e.g. 'wooden coffee table'), got {phrase!r}")
+    return phrase.strip()
+
+
+def surface_region(segmenter: SurfaceSegmenter, image: np.ndarray, phrase: str) -> np.ndarray:
+    """Segment the surface and check the result: the ``region`` for
+    :func:`~snell_bench.scene.placement.find_support_plane`.
+
+    Args:
+        segmenter: the backend.
+        image: float ``(H, W, 3)`` sRGB in ``[0, 1]``.
+        phrase: the surface's name.
+
+    Returns:
+        bool ``(H, W)``, not empty.
+
+    Raises:
+        ValueError: if the segmenter finds nothing (the message names the phrase and the config
+            keys ``scene.surface``, ``segment.threshold`` and ``segment``), or returns a mask of
+            the wrong shape.
+        TypeError: if the segmenter returns a mask that is not boolean.
+    """
+    image = _check_image(image)
+    mask = np.asarray(segmenter(image, phrase))
+    name = getattr(segmenter, "name", type(segmenter).__name__)
+    if mask.shape != image.shape[:2]:
+        raise ValueError(f"segmenter {name!r} returned a mask of shape {mask.shape} for an image of {image.shape[:2]}")
+    if mask.dtype != np.bool_:
+        raise TypeError(f"segmenter {name!r} returned a mask of dtype {mask.dtype}, not bool")
+    if not mask.any():
+        raise ValueError(
+            f"segmenter {name!r} found no {phrase!r} in the image: name the supporting surface as it is seen "
+            "(config key scene.surface), lower segment.threshold, give a mask file (segment=mask segment.mask=PATH), "
+            "or place the object without segmentation (segment=ransac)"
+        )
+    return mask
+
+
+# ---------------------------------------------------------------------------- mask file
+def read_mask(path: str | os.PathLike) -> np.ndarray:
+    """A mask image as bool: a pixel is ``True`` where any colour channel is nonzero.
+
+    Args:
+        path: an image file Pillow reads (PNG: 1-bit, 8- or 16-bit grey, RGB, RGBA, palette).
+            Transparency is ignored; palette images are read through their colours.
+
+    Returns:
+        bool ``(H, W)``.
+    """
+    from PIL import Image
+
+    with Image.open(path) as im:
+        if im.mode == "P":
+            im = im.convert("RGBA")
+        mode = im.mode
+        arr = np.asarray(im)
+    if arr.ndim == 3:
+        if mode in ("LA", "RGBA", "PA", "La", "RGBa"):
+            arr = arr[..., :-1]
+        return np.any(arr != 0, axis=-1)
+    return arr != 0
+
+
+class MaskFileSegmenter:
+    """The surface from a mask image the user drew (nonzero = surface); the phrase is ignored.
+
+    Args:
+        path: the mask file (config key ``segment.mask``), the size of the image it is used with
+            (I⁻ as the pipeline uses it); relative paths: the working folder, else the checkout.
+
+    Raises:
+        ValueError: if ``path`` is not set.
+        FileNotFoundError: if the file does not exist (both name ``segment.mask``).
+    """
+
+    name = "mask"
+
+    def __init__(self, path: str | os.PathLike | None):
+        if path is None or not str(path).strip():
+            raise ValueError("segment=mask needs a mask file: set segment.mask=PATH (a PNG, nonzero = surface)")
+        p = Path(os.fspath(path)).expanduser()
+        if not p.is_absolute() and not p.exists():
+            p = _CHECKOUT / p
+        if not p.is_file():
+            raise FileNotFoundError(f"segment.mask={str(path)!r}: no such file; set segment.mask to a mask image (PNG)")
+        self.path = p
+        try:
+            self.mask = read_mask(p)
+        except OSError as err:
+            raise ValueError(f"segment.mask={str(path)!r}: not an image Pillow can read ({err})") from err
+        self.mask.setflags(write=False)
+
+    def __call__(self, image: np.ndarray, phrase: str | None = None) -> np.ndarray:
+        """The mask file's mask (a fresh copy).
+
+        Args:
+            image: float ``(H, W, 3)`` sRGB; only its size is used.
+            phrase: ignored.
+
+        Returns:
+            bool ``(H, W)``.
+
+        Raises:
+            ValueError: if the mask's size is not the image's (naming ``segment.mask``).
+        """
+        h, w = _check_image(image).shape[:2]
+        if self.mask.shape != (h, w):
+            mh, mw = self.mask.shape
+            raise ValueError(
+                f"segment.mask={str(self.path)!r} is {mw}x{mh} pixels but the image is {w}x{h}: the mask must have "
+                "the size of I⁻ as used (after its centre crop to a multiple of model.multiple)"
+            )
+        return self.mask.copy()
+
+
+# ---------------------------------------------------------------------------- SAM 3
+def _weights_help(what: str) -> str:
+    return (
+        f"SAM 3 weights not found: {what}. Set the config key segment.path to a local folder with the transformers "
+        f"layout of {SAM3_ID} (config.json, model.safetensors, processor and tokenizer files), e.g. "
+        f"`segment.path=/data/sam3`, or to a Hugging Face id already in the local cache. To populate the cache, on "
+        f"a machine with internet: accept the licence at https://huggingface.co/{SAM3_ID}, run `hf auth login`, "
+        f"then `hf download {SAM3_ID}`, and copy the cache (~/.cache/huggingface/hub, or $HF_HOME/hub) to this "
+        "machine. Weights are never downloaded by snell_bench; segment=ransac places the object without them."
+    )
+
+
+def _load_sam3(path: str | os.PathLike):
+    """``(Sam3Model, Sam3Processor)`` from a local folder or a cached hub id, never downloading."""
+    from transformers import Sam3Model, Sam3Processor
+
+    text = os.fspath(path)
+    local = Path(text).expanduser()
+    if local.exists() and not local.is_dir():
+        raise WeightsNotFoundError(_weights_help(f"{text!r} is a file, not a folder"))
+    if text.startswith((".", "/", "~")) and not local.is_dir():
+        raise WeightsNotFoundError(_weights_help(f"no folder {text!r}"))
+    source = str(local) if local.is_dir() else text
+    try:
+        processor = Sam3Processor.from_pretrained(source, local_files_only=True)
+        model = Sam3Model.from_pretrained(source, local_files_only=True)
+    except (OSError, ValueError) as err:  # missing files, not cached, not a valid id
+        where = (
+            f"the folder {source!r}" if local.is_dir() else f"{text!r} (not a folder; not in the Hugging Face cache)"
+        )
+        raise WeightsNotFoundError(_weights_help(f"{where}: {type(err).__name__}: {str(err)[:200]}")) from err
+    return model, processor
+
+
+def _resolve_device(device: Any):
+    import torch
+
+    from .devices import resolve_device
+
+    if device is None or str(device) == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return resolve_device(
+        device,
+        unavailable=(
+            f"segment.device={device!r} asks for CUDA, which is not available on this machine: set segment.device=cpu "
+            "(SAM 3 runs on the CPU too, slowly) or segment.device=null (CUDA when available, else the CPU)"
+        ),
+    )
+
+
+class Sam3Segmenter:
+    """SAM 3 (transformers ``Sam3Model`` + ``Sam3Processor``), prompted with the surface phrase.
+
+    Args:
+        path: a local folder with the transformers layout, or a Hugging Face id found in the local
+            cache (config key ``segment.path``; the authors use ``facebook/sam3``).
+        device: ``"cpu"``, ``"cuda[:i]"``, or ``None`` / ``"auto"``: CUDA when available, else the
+            CPU (config key ``segment.device``). The model runs in float32.
+        threshold: the score an instance needs to count (config key ``segment.threshold``).
+        mask_threshold: the mask probability above which a pixel belongs to an instance.
+
+    Raises:
+        WeightsNotFoundError: naming ``segment.path``, when the weights are not on this machine.
+        DeviceNotAvailableError: naming ``segment.device``, when CUDA is asked for and missing.
+    """
+
+    name = "sam3"
+
+    def __init__(
+        self,
+        path: str | os.PathLike = SAM3_ID,
+        *,
+        device: Any = "cpu",
+        threshold: float = 0.5,
+        mask_threshold: float = 0.5,
+    ):
+        if path is None or not str(path).strip():
+            raise WeightsNotFoundError(_weights_help("segment.path is not set"))
+        dev = _resolve_device(device)  # before loading: a missing GPU fails fast
+        model, processor = _load_sam3(path)
+        self.path = str(path)
+        self._setup(model, processor, dev, threshold, mask_threshold)
+
+    def _setup(self, model, processor, device, threshold: float, mask_threshold: float) -> None:
+        if not 0.0 <= float(threshold) <= 1.0:
+            raise ValueError(f"segment.threshold must be in [0, 1], got {threshold}")
+        if not 0.0 <= float(mask_threshold) <= 1.0:
+            raise ValueError(f"mask_threshold must be in [0, 1], got {mask_threshold}")
+        self.device = device
+        self.model = model.to(device).eval().requires_grad_(False)
+        self.processor = processor
+        self.threshold = float(threshold)
+        self.mask_threshold = float(mask_threshold)
+
+    def instances(self, image: np.ndarray, phrase: str) -> dict[str, np.ndarray]:
+        """Every instance of the phrase that passes ``threshold``, at the input size.
+
+        Args:
+            image: float ``(H, W, 3)`` sRGB in ``[0, 1]``.
+            phrase: what to segment.
+
+        Returns:
+            ``{"masks": bool (N, H, W), "scores": float32 (N,), "boxes": float32 (N, 4)}`` (boxes in
+            pixels, ``x0, y0, x1, y1``), highest score first; ``N`` may be 0.
+        """
+        import torch
+
+        image = _check_image(image)
+        phrase = _check_phrase(phrase)
+        h, w = image.shape[:2]
+        pixels = np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+        inputs = self.processor(images=pixels, text=phrase, return_tensors="pt").to(self.device)
+        with torch.inference_mode():
+            outputs = self.model(**inputs)
+            result = self.processor.post_process_instance_segmentation(
+                outputs, threshold=self.threshold, mask_threshold=self.mask_threshold, target_sizes=[(h, w)]
+            )[0]
+        scores = result["scores"].float().cpu().numpy()
+        order = np.argsort(-scores, kind="stable")
+        if len(scores) == 0:  # the post-processing leaves an empty set at the model's mask size
+            masks = np.zeros((0, h, w), bool)
+        else:
+            masks = result["masks"].bool().cpu().numpy()[order]
+        return {"masks": masks, "scores": scores[order], "boxes": result["boxes"].float().cpu().numpy()[order]}
+
+    def __call__(self, image: np.ndarray, phrase: str) -> np.ndarray:
+        """The union of the phrase's instance masks.
+
+        Args:
+            image: float ``(H, W, 3)`` sRGB in ``[0, 1]``.
+            phrase: the surface's name.
+
+        Returns:
+            bool ``(H, W)``; all ``False`` when no instance passes ``threshold``.
+        """
+        found = self.instances(image, phrase)
+        mask = found["masks"].any(axis=0) if len(found["masks"]) else np.zeros(np.shape(image)[:2], bool)
+        log.info(
+            "%s: %d instance(s) of %r (scores %s), %.1f%% of the image",
+            self.name,
+            len(found["scores"]),
+            phrase,
+            np.round(found["scores"], 3).tolist(),
+            100.0 * mask.mean(),
+        )
+        return mask
+
+
+def tiny_sam3(seed: int = 0):
+    """A ``Sam3Model`` with SAM 3's architecture at toy size and random weights, and its processor,
+    built offline.
+
+    Convention:
+        - Vision: ViT with SAM 3's patch size 14 on a 56 x 56 input (4 x 4 tokens), width 8, 2 heads,
+          2 layers (one windowed with window 2, one global), axial RoPE; FPN neck of width 8 at SAM 3's
+          scales (4, 2, 1, 0.5).
+        - Text: CLIP text encoder (width 8, 2 heads, 1 layer) over CLIP's 49408-token vocabulary and
+          32 positions (SAM 3's), tokenised by the CLIP tokenizer written from open_clip's vocabulary
+          (:func:`~snell_bench.models.tiny_flux.clip_tokenizer_from_open_clip_vocab`).
+        - Geometry encoder, DETR encoder and decoder: width 8, 2 heads, 1 layer, feed-forward 16;
+          4 queries. Mask decoder: width 8 (``GroupNorm(8, width)`` makes 8 the least), 2 upsampling
+          stages (SAM 3 uses 2 of its 3 with three FPN levels); instance masks at 16 x 16.
+        - Processor: ``Sam3ImageProcessor`` resizing to 56 x 56 (ImageNet normalisation, as SAM 3)
+          and the CLIP tokenizer.
+        - Weights come from ``torch.manual_seed(seed)`` in a forked RNG (the caller's RNG state is
+          untouched); the model is in eval mode, on the CPU, float32.
+
+    Args:
+        seed: seeds the random weights.
+
+    Returns:
+        ``(model, processor)``.
+    """
+    import torch
+    from transformers import Sam3Config, Sam3Model, Sam3Processor
+    from transformers.models.sam3 import Sam3ImageProcessor
+    from transformers.models.sam3.configuration_sam3 import (
+        Sam3DETRDecoderConfig,
+        Sam3DETREncoderConfig,
+        Sam3GeometryEncoderConfig,
+        Sam3MaskDecoderConfig,
+        Sam3VisionConfig,
+        Sam3ViTConfig,
+    )
+
+    from .tiny_flux import clip_tokenizer_from_open_clip_vocab
+
+    tokenizer = clip_tokenizer_from_open_clip_vocab()
+    width, heads, ff = 8, 2, 16
+    tokens = _TINY_IMAGE_SIZE // _TINY_PATCH_SIZE
+    config = Sam3Config(
+        vision_config=Sam3VisionConfig(
+            backbone_config=Sam3ViTConfig(
+                hidden_size=width,
+                intermediate_size=ff,
+                num_hidden_layers=2,
+                num_attention_heads=heads,
+                image_size=_TINY_IMAGE_SIZE,
+                pretrain_image_size=_TINY_IMAGE_SIZE,
+                patch_size=_TINY_PATCH_SIZE,
+                window_size=2,
+                global_attn_indexes=[1],
+            ),
+            fpn_hidden_size=width,
+            scale_factors=[4.0, 2.0, 1.0, 0.5],
+            backbone_feature_sizes=[[4 * tokens] * 2, [2 * tokens] * 2, [tokens] * 2],
+        ),
+        text_config={
+            "vocab_size": len(tokenizer),
+            "hidden_size": width,
+            "intermediate_size": ff,
+            "projection_dim": width,
+            "num_hidden_layers": 1,
+            "num_attention_heads": heads,
+            "max_position_embeddings": 32,
+            "hidden_act": "gelu",
+        },
+        geometry_encoder_config=Sam3GeometryEncoderConfig(
+            hidden_size=width, num_layers=1, num_attention_heads=heads, intermediate_size=ff
+        ),
+        detr_encoder_config=Sam3DETREncoderConfig(
+            hidden_size=width, num_layers=1, num_attention_heads=heads, intermediate_size=ff
+        ),
+        detr_decoder_config=Sam3DETRDecoderConfig(
+            hidden_size=width, num_layers=1, num_queries=4, num_attention_heads=heads, intermediate_size=ff
+        ),
+        mask_decoder_config=Sam3MaskDecoderConfig(
+            hidden_size=width, num_upsampling_stages=2, num_attention_heads=heads
+        ),
+    )
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        model = Sam3Model(config)
+    model.eval().requires_grad_(False)
+    processor = Sam3Processor(
+        image_processor=Sam3ImageProcessor(
+            size={"height": _TINY_IMAGE_SIZE, "width": _TINY_IMAGE_SIZE},
+            mask_size={"height": 4 * tokens, "width": 4 * tokens},
+        ),
+        tokenizer=tokenizer,
+    )
+    return model, processor
+
+
+class TinySam3Segmenter(Sam3Segmenter):
+    """:class:`Sam3Segmenter` around :func:`tiny_sam3` (random weights: its masks mean nothing).
+
+    Random weights give scores near 0.25 (both sigmoids near one half), so the default
+    ``threshold=0.5`` finds nothing and ``threshold=0`` keeps every query.
+
+    Args:
+        seed: seeds the random weights.
+        device: as :class:`Sam3Segmenter` (default the CPU).
+        threshold: as :class:`Sam3Segmenter`.
+        mask_threshold: as :class:`Sam3Segmenter`.
+    """
+
+    name = "tiny_sam3"
+
+    def __init__(self, seed: int = 0, *, device: Any = "cpu", threshold: float = 0.5, mask_threshold: float = 0.5):
+        model, processor = tiny_sam3(seed)
+        self.path = None
+        self.seed = int(seed)
+        self._setup(model, processor, _resolve_device(device), threshold, mask_threshold)

@@ -1,0 +1,45 @@
+"""The generator alone from a prompt: the rectified-flow Euler loop of a text-to-image pipeline.
+
+Convention: the same initial noise, schedule and deterministic steps as the synchronized sampler
+with ``sync="none"`` (:func:`snell_bench.sampler.snellcaster.sample`), without any warps; the
+image is ``(1, 3, H, W)`` float32 sRGB in [0, 1] on the CPU.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from snell_bench.models.base import Generator
+from snell_bench.sampler.steps import euler_estimate, sync_step
+
+__all__ = ["text_to_image"]
+
+
+@torch.no_grad()
+def text_to_image(
+    gen: Generator, prompt: str, height: int, width: int, *, steps: int = 20, seed: int = 0, schedule: str = "flux"
+) -> torch.Tensor:
+    """Generate one image from ``prompt``.
+
+    Args:
+        gen: any generator backend.
+        prompt: the text.
+        height: image height in pixels (a multiple of ``gen.geometry.multiple``).
+        width: image width in pixels (likewise).
+        steps: denoising steps T.
+        seed: seeds the initial noise (the only randomness).
+        schedule: ``flux`` or ``linear`` (:meth:`Generator.sigmas`).
+
+    Returns:
+        The image ``(1, 3, H, W)`` in [0, 1], deterministic for the seed.
+    """
+    g = torch.Generator().manual_seed(int(seed))
+    shape = gen.geometry.latent_shape(int(height), int(width))
+    sig = gen.sigmas(int(steps), int(height), int(width), kind=schedule)
+    z = torch.randn((1,) + shape, generator=g)
+    cond = gen.condition([prompt], ["main"])
+    for i in range(int(steps)):
+        sigma, sigma_next = float(sig[i]), float(sig[i + 1])
+        x0 = euler_estimate(z, gen.velocity(z, sigma, cond), sigma)
+        z = x0 if sigma_next == 0 else sync_step(z, x0, sigma, sigma_next)
+    return gen.decode(z)

@@ -1,0 +1,164 @@
+"""Scene sources: where I⁻, its depth and the camera come from.
+
+- ``procedural``: a :class:`~snell_bench.scene.procedural.ProceduralScene` (CPU, exact 3-D truth);
+- ``image``: a user's photo or RGB-D frame (:mod:`snell_bench.scene.image_source`), its depth from
+  a file or a monocular depth estimator;
+- ``generated``: I⁻ generated from the object-free prompt p⁻ by the configured generator at the
+  cell's seed (the paper's setting), its depth and intrinsics from a depth estimator.
+
+Convention: I⁻ ``(H, W, 3)`` float32 sRGB in [0, 1]; depth ``(H, W)`` float32 camera-frame z in
+metres, NaN where unknown (unobserved space); the camera in the OpenCV frame with K in pixels.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from snell_bench.scene.camera import Camera
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SceneInputs", "procedural_scene", "estimate_depth", "generated_image"]
+
+
+@dataclass
+class SceneInputs:
+    """What a scene source gives: I⁻, its depth and camera."""
+
+    image: np.ndarray  #: (H, W, 3) float32 sRGB in [0, 1]: I⁻
+    depth: np.ndarray  #: (H, W) float32 camera-frame z, NaN where unknown
+    camera: Camera
+    up: np.ndarray | None  #: scene up in camera coordinates, if known
+    source: Any  #: the source object (a ProceduralScene, an RGBDFrame, ...), for panoramas and truth
+    #: what a generated source recorded (seed, prompt, cache file, generator build time)
+    info: dict = field(default_factory=dict)
+
+
+def procedural_scene(
+    kind: str, seed: int, width: int, height: int, supersample: int = 1, up: np.ndarray | None = None
+) -> SceneInputs:
+    """A procedural scene rendered at ``width x height``; its exact depth and camera."""
+    from snell_bench.scene.procedural import ProceduralScene
+
+    scene = ProceduralScene(kind=kind, seed=int(seed))
+    r = scene.render(width=int(width), height=int(height), supersample=int(supersample))
+    return SceneInputs(image=r.image, depth=r.depth, camera=r.camera, up=scene.up if up is None else up, source=scene)
+
+
+def estimate_depth(
+    image: np.ndarray, estimator: Callable, *, intrinsics=None, fov_deg: float | None = None
+) -> tuple[np.ndarray, Camera]:
+    """Metric depth and the camera of ``image`` from a depth estimator.
+
+    Args:
+        image: ``(H, W, 3)`` sRGB.
+        estimator: a :class:`~snell_bench.models.depth.DepthEstimator` (returns ``depth`` in metres
+            and, for models that estimate it, ``intrinsics`` ``(fx, fy, cx, cy)``).
+        intrinsics: ``[fx, fy, cx, cy]`` that override the estimator's (``scene.intrinsics``).
+        fov_deg: a horizontal field of view that overrides them (``scene.fov_deg``).
+
+    Returns:
+        ``(depth, camera)``.
+
+    Raises:
+        ValueError: no intrinsics (neither given nor estimated) or no valid depth.
+    """
+    from snell_bench.scene.image_source import camera_from
+
+    H, W = image.shape[:2]
+    est = estimator(image)
+    depth = np.asarray(est.depth, np.float32)
+    if depth.shape != (H, W):
+        raise ValueError(f"the depth estimator returned shape {depth.shape} for an image of {(H, W)}")
+    depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
+    if not np.isfinite(depth).any():
+        raise ValueError("the depth estimator gave no valid depth; check depth.path (the weights) or give scene.depth")
+    if intrinsics is None and fov_deg is None:
+        if est.intrinsics is None:
+            raise ValueError(
+                f"depth estimator {getattr(estimator, 'name', estimator)!r} does not estimate intrinsics: set "
+                "scene.fov_deg or scene.intrinsics"
+            )
+        intrinsics = list(est.intrinsics)
+    return depth, camera_from(W, H, intrinsics=intrinsics, fov_deg=fov_deg)
+
+
+def _cache_key(meta: dict) -> str:
+    return hashlib.sha256(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def generated_image(
+    gen,
+    prompt: str,
+    height: int,
+    width: int,
+    *,
+    steps: int,
+    seed: int,
+    schedule: str = "flux",
+    cache_dir: str | Path | None = None,
+    model_key: str = "",
+) -> tuple[np.ndarray, dict]:
+    """I⁻ generated from ``prompt`` (p⁻) at ``seed``, cached by content.
+
+    Args:
+        gen: the generator, or a callable returning it (called only on a cache miss).
+        prompt: the object-free prompt p⁻.
+        height: image height (a multiple of the generator's block).
+        width: image width.
+        steps: denoising steps.
+        seed: the seed (the paper: variation = seed; the baselines reuse it).
+        schedule: the noise schedule's kind.
+        cache_dir: where generated images are kept (``None``: no cache); a file that cannot be
+            read is a miss.
+        model_key: what identifies the generator (its resolved config) in the cache key.
+
+    Returns:
+        ``(image (H, W, 3) float32 sRGB, info)`` with ``seed``, ``prompt``, ``cache`` (the file or
+        ``None``) and ``cached`` (whether it was read from the cache).
+    """
+    from snell_bench.utils.io import save_npy, save_png, write_json
+    from snell_bench.utils.tensors import bchw_to_hwc
+
+    meta = {
+        "prompt": prompt,
+        "height": int(height),
+        "width": int(width),
+        "steps": int(steps),
+        "seed": int(seed),
+        "schedule": schedule,
+        "model": model_key,
+    }
+    info = {"seed": int(seed), "prompt": prompt, "cache": None, "cached": False}
+    path = None
+    if cache_dir is not None:
+        folder = Path(cache_dir) / _cache_key(meta)
+        path = folder / "I_minus.npy"
+        info["cache"] = str(path)
+        if path.is_file():
+            try:
+                image = np.load(path)
+                if image.shape == (int(height), int(width), 3):
+                    return image.astype(np.float32), dict(info, cached=True)
+            except (OSError, ValueError) as e:
+                log.warning("generated scene cache %s unreadable (%s): generating again", path, e)
+    from snell_bench.sampler.text_to_image import text_to_image
+
+    model = gen() if callable(gen) and not hasattr(gen, "velocity") else gen
+    image = bchw_to_hwc(
+        text_to_image(model, prompt, int(height), int(width), steps=steps, seed=seed, schedule=schedule)
+    ).astype(np.float32)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_npy(path, image)
+        save_png(path.with_suffix(".png"), image)
+        write_json(path.with_name("meta.json"), meta)
+    return image, info
