@@ -175,7 +175,8 @@ class DepthConfig:
     name: str = "none"
     #: A local folder with the weights or a model id in the Hugging Face cache (never downloaded).
     path: Optional[str] = None
-    device: str = "cpu"
+    #: ``cpu``, ``cuda[:i]`` (must be available) or ``auto`` (CUDA when available).
+    device: Optional[str] = "cpu"
     #: What builds it: a ``_target_`` node (``null``: no estimator).
     estimator: Any = None
 

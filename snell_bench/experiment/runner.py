@@ -109,6 +109,7 @@ def run_cell(cell: Cell, shared: SharedCache, scorers) -> dict:
         link_or_copy(path, cell.folder / name)
     res = pipeline.run_method(cell.config, inputs, scorers=scorers, image_path=cell.folder / "image.png")
     return {
+        **({"scene_info": inputs.scene.info} if inputs.scene.info else {}),
         **res.scores,
         "timings_s": {k: round(v, 3) for k, v in {**inputs.timings, **res.timings}.items()},
         **res.stats,

@@ -167,3 +167,33 @@ def test_a_prompt_without_an_object_phrase_fails_the_cell_naming_the_key(tmp_pat
     rec = json.loads((tmp_path / "smoke/living_room-0/sphere/t2i/metrics.json").read_text())
     assert "scene.text" in rec["reason"] and "[[" in rec["reason"]
     assert (tmp_path / "smoke/living_room-0/sphere/t2i/config.yaml").is_file()
+
+
+def test_a_photo_without_depth_gets_it_from_the_depth_estimator(monkeypatch):
+    """scene.depth unset: the depth estimator gives metric depth; the configured intrinsics win over
+    the estimator's (random weights: the supporting plane is fixed here)."""
+    from snell_bench.scene import placement
+
+    plane = placement.SupportPlane(
+        point=np.array([0.0, 0.4, 2.0]), normal=np.array([0.0, -1.0, 0.0]), inliers=1, pixel=np.array([320.0, 300.0])
+    )
+    monkeypatch.setattr(placement, "find_support_plane", lambda *a, **k: plane)
+    cfg = compose(["scene=tum_office", "scene.depth=null", "depth=tiny_depth_pro", *CHEAP, "output_dir=/tmp/x"])
+    inputs = pipeline.prepare_inputs(cfg, references=False)
+    d = inputs.scene.depth
+    assert d.shape == (480, 640) and np.isfinite(d).mean() > 0.99 and np.nanmin(d) > 0
+    np.testing.assert_allclose(inputs.scene.camera.K[[0, 1, 0, 1], [0, 1, 2, 2]], [525.0, 525.0, 319.5, 239.5])
+    no_k = compose(
+        [
+            "scene=tum_office",
+            "scene.depth=null",
+            "scene.intrinsics=null",
+            "depth=tiny_depth_pro",
+            *CHEAP,
+            "output_dir=/tmp/x",
+        ]
+    )
+    cam = pipeline.load_scene(no_k).camera  # the estimator's own focal length and centred principal point
+    assert cam.K[0, 0] == cam.K[1, 1] and cam.K[0, 2] == pytest.approx(319.5)
+    with pytest.raises(ValueError, match="depth estimator"):
+        pipeline.load_scene(compose(["scene=tum_office", "scene.depth=null", "output_dir=/tmp/x"]))
