@@ -51,7 +51,7 @@ class SceneConfig:
     intrinsics: Optional[list] = None
     fov_deg: Optional[float] = None
     #: The surface the object stands on, for a segmenter (``segment=sam3``), e.g. "wooden coffee table".
-    surface: Optional[str] = "${prompts:${.text},surface}"
+    surface: Optional[str] = "${prompts:${.text},surface,${.prompt_llm}}"
     #: ``source=generated``: where generated I⁻ are cached (by prompt, size, seed, model); ``null``: off.
     cache_dir: Optional[str] = "runs/cache/scenes"
     #: The approximate up direction in camera coordinates (a camera pitched down by a sees
@@ -66,9 +66,12 @@ class SceneConfig:
         "through sheer curtains."
     )
     #: The full prompt p, the object-free p⁻ and the panorama's p³⁶⁰.
-    prompt: str = "${prompts:${.text},full}"
-    prompt_minus: str = "${prompts:${.text},minus}"
-    pano_prompt: str = "${prompts:${.text},pano}"
+    prompt: str = "${prompts:${.text},full,${.prompt_llm}}"
+    prompt_minus: str = "${prompts:${.text},minus,${.prompt_llm}}"
+    pano_prompt: str = "${prompts:${.text},pano,${.prompt_llm}}"
+    #: A local text-generation model (folder or cached id) that marks the object phrase of a
+    #: ``text`` written without ``[[...]]``; ``null``: the phrase must be marked.
+    prompt_llm: Optional[str] = None
 
 
 @dataclass
@@ -341,10 +344,13 @@ def group_options(group: str) -> list[str]:
     return sorted(n for n in names if not n.startswith("base_"))
 
 
-def _prompts(text: str, field: str) -> str:
-    """The ``prompts`` resolver: one field of the decomposition of a marked prompt."""
-    from snell_bench.scene.prompts import decompose
+def _prompts(text: str, field: str, llm: Optional[str] = None) -> str:
+    """The ``prompts`` resolver: one field of the decomposition of a marked prompt (or of one a
+    local language model marks, ``scene.prompt_llm``)."""
+    from snell_bench.scene.prompts import decompose, decompose_with_llm
 
+    if llm and "[[" not in str(text):
+        return getattr(decompose_with_llm(str(text), model_path=str(llm)), field)
     return getattr(decompose(str(text)), field)
 
 

@@ -197,3 +197,20 @@ def test_a_photo_without_depth_gets_it_from_the_depth_estimator(monkeypatch):
     assert cam.K[0, 0] == cam.K[1, 1] and cam.K[0, 2] == pytest.approx(319.5)
     with pytest.raises(ValueError, match="depth estimator"):
         pipeline.load_scene(compose(["scene=tum_office", "scene.depth=null", "output_dir=/tmp/x"]))
+
+
+@pytest.mark.parametrize("obj", ["sphere", "cylinder", "pyramid", "fox", "dog", "sculpture"])
+def test_the_papers_six_objects_stand_upright_on_the_desk(obj):
+    """Each at its configured size (a quarter of its distance), its lowest point on the desk plane
+    (within 1 cm), its up axis the plane's normal."""
+    from snell_bench.scene.placement import find_support_plane
+
+    cfg = compose(["scene=tum_office", f"object={obj}", *CHEAP, "output_dir=/tmp/x"])
+    sc = pipeline.load_scene(cfg)
+    placed = pipeline.place(pipeline.build_object(cfg.object), sc, cfg.object, seed=0)
+    desk = find_support_plane(sc.depth, sc.camera, up_hint=np.asarray(cfg.scene.up), seed=0)
+    up = placed.up / np.linalg.norm(placed.up)
+    assert abs(float((placed.vertices @ up).min() - desk.point @ up)) < 0.01
+    assert abs(float(up @ desk.normal)) > np.cos(np.radians(0.5))
+    extent = np.ptp(placed.vertices, axis=0).max()
+    assert 0.9 * 0.25 * np.linalg.norm(desk.point) < extent < 1.8 * 0.25 * np.linalg.norm(desk.point)
