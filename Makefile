@@ -2,8 +2,10 @@
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
-# Optional extras, comma-separated: test, gpu, render, metrics (see README).
+# Optional extras, comma-separated: test, gpu, render, metrics, depth (see README).
 EXTRAS ?= test
+# pytest-xdist workers for `make test` (whole test files per worker, so module fixtures are shared)
+WORKERS ?= 2
 # torch and torchvision must be a matched pair (a mismatched torchvision fails to import, and with
 # it diffusers and open_clip). Override for another platform or CUDA version.
 TORCH_SPEC ?= torch==2.14.1 torchvision==0.29.1
@@ -35,7 +37,7 @@ demo: setup
 	HF_HUB_OFFLINE=1 $(PY) -m snell_bench +experiment=smoke
 
 test: setup
-	HF_HUB_OFFLINE=1 $(PY) -m pytest -q
+	HF_HUB_OFFLINE=1 $(PY) -m pytest -q -n $(WORKERS) --dist loadfile
 
 # the tests marked slow (end-to-end launchers, the installed package, long sweeps)
 test-slow: setup
