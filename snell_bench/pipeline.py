@@ -6,9 +6,11 @@ these two functions and wires no stage itself::
     inputs = prepare_inputs(cfg)           # 1-5: what every method of a (scene, object) shares
     result = run_method(cfg, inputs)       # 6-8: one method's image, scored
 
-1. scene source: I⁻ (sRGB), its z-depth and camera (:func:`load_scene`);
-2. the glass object, built from ``object.factory`` (:func:`build_object`) and placed on a
-   supporting surface (:func:`place`);
+1. scene source: I⁻ (sRGB), its z-depth and camera, from a procedural scene, a photo or RGB-D
+   frame, or generated from p⁻, with a depth estimator where needed (:func:`load_scene`);
+2. where the object stands: the surface ``scene.surface`` names, segmented
+   (:func:`surface_region`); the glass object, built from ``object.factory``
+   (:func:`build_object`), placed on it (:func:`place`);
 3. ray-traced warps (:func:`trace_warps`);
 4. the reference render and its metric mask, by an independent renderer (:func:`render_reference`);
 5. the true render of the full procedural scene with the object (:func:`render_true_scene`);
@@ -18,7 +20,7 @@ these two functions and wires no stage itself::
 
 Conventions: images handed between stages are ``(1, 3, H, W)`` float32 sRGB tensors in [0, 1]
 (``CellInputs.i_minus``, ``CellResult.image``) or ``(H, W, 3)`` numpy arrays where a stage
-works in numpy (``SceneInputs.image``, references); depth is camera-frame z in scene units;
+works in numpy (``SceneInputs.image``, references); depth is camera-frame z in metres (NaN: unknown);
 the camera frame is OpenCV's. Stage times are wall seconds in ``timings`` (one
 :class:`~snell_bench.utils.timing.Timer` per call), keyed ``scene``, ``warps``, ``reference``,
 ``true_render`` (inputs) and ``generator``, ``sampling``, ``metrics`` (a method).
@@ -58,14 +60,12 @@ __all__ = [
     "trace_warps",
     "render_reference",
     "render_true_scene",
-    "scene_panorama",
-    "panorama_prior",
     "build_generator",
     "sample_method",
     "score",
     "prepare_inputs",
     "run_method",
-    "save_inputs",
+    "cached_generator",
 ]
 
 #: The checkout's root (``datasets/`` is found there when a relative mesh path is not found in the
@@ -201,18 +201,10 @@ def load_scene(cfg: DictConfig, generators: dict | None = None) -> SceneInputs:
                 f"scene.source=generated needs a text-to-image generator; model={cfg.model.name} is built from the "
                 "scene itself: use model=tiny_flux (CPU, random weights) or model=flux_dev (GPU)"
             )
-        from hydra.utils import instantiate
-
-        key = _model_key(cfg.model)
         generators = {} if generators is None else generators
 
         def build():
-            if key not in generators:
-                timer = Timer()
-                with timer("generator"):
-                    generators[key] = (instantiate(cfg.model.generator), 0.0)
-                generators[key] = (generators[key][0], timer.seconds["generator"])
-            return generators[key][0]
+            return cached_generator(cfg.model, generators, lambda: _instantiate(cfg.model.generator))[0]
 
         image, info = sources.generated_image(
             build,
@@ -223,7 +215,7 @@ def load_scene(cfg: DictConfig, generators: dict | None = None) -> SceneInputs:
             seed=int(sc.variation),
             schedule=str(cfg.sampler.schedule),
             cache_dir=sc.cache_dir,
-            model_key=key,
+            model_key=_model_key(cfg.model),
         )
         depth, camera = sources.estimate_depth(
             image, _depth_estimator(cfg, "scene.source=generated"), intrinsics=intrinsics, fov_deg=sc.fov_deg
@@ -424,41 +416,13 @@ def prepare_inputs(cfg: DictConfig, *, references: bool = True) -> CellInputs:
 
 
 # ---------------------------------------------------------------------------- 6. generator
-def scene_panorama(scene: SceneInputs, pano, supersample: int = 1) -> np.ndarray:
-    """The source's true panorama seen by a :class:`~snell_bench.imaging.PanoramaCamera` (sRGB)."""
-    if not hasattr(scene.source, "render_panorama"):
-        raise ValueError("this scene source cannot render panoramas")
-    return scene.source.render_panorama(
-        center=pano.center,
-        height=pano.height,
-        up=-pano.rotation[:, 1],
-        forward=pano.rotation[:, 2],
-        supersample=supersample,
-    )
-
-
-def panorama_prior(inputs: CellInputs) -> np.ndarray:
-    """The panorama a generator built from the scene starts from, ``(Hp, 2 Hp, 3)`` sRGB: the
-    source's true panorama where the source can render one (procedural scenes), else I⁻ seen from
-    the object through π where I⁻ observes the panorama's rays, smoothly filled elsewhere
-    (:func:`~snell_bench.imaging.fill.push_pull_fill`): nothing but I⁻ is used."""
-    if hasattr(inputs.scene.source, "render_panorama"):
-        return scene_panorama(inputs.scene, inputs.warps.pano)
-    from snell_bench.imaging.fill import push_pull_fill
-    from snell_bench.imaging.remap import remap
-    from snell_bench.utils.tensors import bchw_to_hwc
-
-    ws = inputs.warps
-    seen, _ = remap(inputs.i_minus, ws.pano_to_persp)
-    known = torch.from_numpy(ws.pano_to_persp_valid & np.isfinite(ws.pano_to_persp).all(-1))
-    return bchw_to_hwc(push_pull_fill(torch.nan_to_num(seen), known, wrap_x=True)).clip(0, 1)
-
-
 def build_generator(model_cfg: DictConfig, inputs: CellInputs):
     """Stage 6: ``instantiate(model.generator)``; a generator built from the scene
     (``model.from_scene``) also gets ``i_minus``, ``object_mask`` and a ``panorama``
-    (:func:`panorama_prior`)."""
+    (:func:`~snell_bench.scene.sources.panorama_prior`)."""
     from hydra.utils import instantiate
+
+    from snell_bench.scene.sources import panorama_prior
 
     if not model_cfg.get("generator"):
         raise ValueError(f"model {model_cfg.name!r} has no model.generator._target_; choose a model (model=analytic)")
@@ -467,24 +431,22 @@ def build_generator(model_cfg: DictConfig, inputs: CellInputs):
         kwargs = {
             "i_minus": inputs.scene.image,
             "object_mask": inputs.warps.object_mask,
-            "panorama": panorama_prior(inputs),
+            "panorama": panorama_prior(inputs.scene, inputs.warps, inputs.i_minus),
         }
     return instantiate(model_cfg.generator, **kwargs)
 
 
-def _generator(cfg: DictConfig, inputs: CellInputs, t: Timer):
-    """The generator of ``cfg.model`` on ``inputs``, built once; ``generator`` time is the time it
-    took to build (the same for every method that reuses it)."""
-    key = OmegaConf.to_yaml(cfg.model, resolve=True)
-    if key not in inputs.generators:
-        inputs.generators.clear()  # one model per inputs at a time
-        build = Timer()
-        with build("generator"):
-            gen = build_generator(cfg.model, inputs)
-        inputs.generators[key] = (gen, build.seconds["generator"])
-    gen, seconds = inputs.generators[key]
-    t.seconds["generator"] = seconds
-    return gen
+def cached_generator(model_cfg: DictConfig, generators: dict, build) -> tuple[Any, float]:
+    """The generator of ``model_cfg`` from ``generators`` (built by ``build()`` the first time, one
+    model at a time) and the seconds its build took (reported by every method that reuses it)."""
+    key = _model_key(model_cfg)
+    if key not in generators:
+        generators.clear()
+        t = Timer()
+        with t("generator"):
+            gen = build()
+        generators[key] = (gen, t.seconds["generator"])
+    return generators[key]
 
 
 # ---------------------------------------------------------------------------- 7. sampling
@@ -524,7 +486,9 @@ def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer)
                 steps=int(cfg.sampler.steps),
             )
         return CellResult(image=img, warps=warps)
-    gen = _generator(cfg, inputs, t)
+    gen, t.seconds["generator"] = cached_generator(
+        cfg.model, inputs.generators, lambda: build_generator(cfg.model, inputs)
+    )
     settings = OmegaConf.to_object(cfg.sampler)
     assert isinstance(settings, SamplerSettings)
     with t("sampling"):
@@ -588,36 +552,3 @@ def run_method(cfg: DictConfig, inputs: CellInputs, *, scorers=None, image_path=
             result.scores = score(cfg, inputs, result.image, scorers, image_path=image_path)
     result.timings = {**t.seconds, **result.timings}
     return result
-
-
-# ---------------------------------------------------------------------------- files
-def save_inputs(inputs: CellInputs, folder: Path, *, arrays: bool = False) -> dict[str, Path]:
-    """Write the inputs that define a cell into ``folder`` (atomically): ``I_minus.png``,
-    ``depth.npy``, ``camera.json``, ``object.ply``, and where rendered ``reference.png``,
-    ``mask.png``, ``unobserved.npy``, ``true.png``; with ``arrays`` also the float
-    ``reference.npy`` and ``metric_mask.npy``. Returns ``{file name: path}`` of the files a cell
-    links (not the arrays)."""
-    from snell_bench.utils.io import atomic_write_bytes, save_npy, save_png, write_json
-
-    folder.mkdir(parents=True, exist_ok=True)
-    obj, sc = inputs.obj, inputs.scene
-    files = {
-        "I_minus.png": save_png(folder / "I_minus.png", sc.image),
-        "depth.npy": save_npy(folder / "depth.npy", sc.depth.astype(np.float32)),
-        "camera.json": write_json(
-            folder / "camera.json",
-            dict(sc.camera.to_dict(), ior=obj.ior, object=obj.name, up=obj.up.tolist() if obj.up is not None else None),
-        ),
-        "object.ply": atomic_write_bytes(folder / "object.ply", obj.mesh.export(file_type="ply")),
-    }
-    ref = inputs.reference
-    if ref is not None:
-        files["reference.png"] = save_png(folder / "reference.png", ref.image)
-        files["mask.png"] = save_png(folder / "mask.png", ref.mask.astype(np.float32))
-        save_npy(folder / "unobserved.npy", ref.unobserved.astype(np.float16))
-        if arrays:
-            save_npy(folder / "reference.npy", np.asarray(ref.image, np.float32))
-            save_npy(folder / "metric_mask.npy", np.asarray(ref.mask, bool))
-    if inputs.true_render is not None:
-        files["true.png"] = save_png(folder / "true.png", inputs.true_render)
-    return files

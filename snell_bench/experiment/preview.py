@@ -25,6 +25,7 @@ from snell_bench import pipeline
 from snell_bench.imaging.blend import fresnel_combine
 from snell_bench.imaging.remap import remap
 from snell_bench.optics.warps import WarpSet
+from snell_bench.scene.sources import scene_panorama
 from snell_bench.utils.io import save_png, write_json
 from snell_bench.utils.tensors import bchw_to_hwc, hwc_to_bchw
 from snell_bench.utils.timing import Timer
@@ -64,7 +65,7 @@ def run_preview(cfg: DictConfig) -> dict:
     ws, image, obj = inputs.warps, inputs.scene.image, inputs.obj
     t = Timer()
     with t("panorama"):  # the source's true panorama, in the orientation of the warps' panorama camera
-        panorama = pipeline.scene_panorama(inputs.scene, ws.pano, supersample=int(cfg.scene.supersample))
+        panorama = scene_panorama(inputs.scene, ws.pano, supersample=int(cfg.scene.supersample))
     with t("composite"):
         composite = composite_refraction(image, panorama, ws)
         H, W = ws.camera.shape

@@ -30,6 +30,7 @@ from omegaconf import DictConfig
 
 from snell_bench import pipeline
 from snell_bench.experiment.cells import Cell, SharedCache, run_cells
+from snell_bench.experiment.files import save_inputs
 from snell_bench.experiment.plan import (
     check_names,
     check_reproducible,
@@ -97,7 +98,7 @@ def _group_inputs(cell: Cell, shared: SharedCache) -> tuple[pipeline.CellInputs,
 
     def compute():
         inputs = pipeline.prepare_inputs(cell.extra["inputs_config"])
-        return inputs, pipeline.save_inputs(inputs, cell.shares / "_inputs")
+        return inputs, save_inputs(inputs, cell.shares / "_inputs")
 
     return shared.get(cell.shares, compute, by=cell.name)
 

@@ -84,6 +84,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from snell_bench import pipeline
 from snell_bench.experiment.cells import Cell, SharedCache, run_cells
+from snell_bench.experiment.files import save_inputs
 from snell_bench.experiment.plan import (
     check_names,
     check_reproducible,
@@ -362,7 +363,7 @@ def _inputs(cell: Cell, shared: SharedCache) -> pipeline.CellInputs:
     def compute():
         inputs = pipeline.prepare_inputs(cell.config)
         d = cell.folder.parent / "_shared" / cell.record["inputs_key"] / "_inputs"
-        pipeline.save_inputs(inputs, d, arrays=True)
+        save_inputs(inputs, d, arrays=True)
         inputs.timings = {k: _r(v) for k, v in inputs.timings.items()}
         write_json(d / "timings.json", {"timings_s": inputs.timings, "computed_by": cell.record["setting"]})
         return inputs

@@ -26,7 +26,7 @@ from snell_bench.scene.camera import Camera
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SceneInputs", "procedural_scene", "estimate_depth", "generated_image"]
+__all__ = ["SceneInputs", "procedural_scene", "estimate_depth", "generated_image", "scene_panorama", "panorama_prior"]
 
 
 @dataclass
@@ -162,3 +162,40 @@ def generated_image(
         save_png(path.with_suffix(".png"), image)
         write_json(path.with_name("meta.json"), meta)
     return image, info
+
+
+def scene_panorama(scene: SceneInputs, pano, supersample: int = 1) -> np.ndarray:
+    """The source's true panorama seen by a :class:`~snell_bench.imaging.PanoramaCamera` (sRGB)."""
+    if not hasattr(scene.source, "render_panorama"):
+        raise ValueError("this scene source cannot render panoramas")
+    return scene.source.render_panorama(
+        center=pano.center,
+        height=pano.height,
+        up=-pano.rotation[:, 1],
+        forward=pano.rotation[:, 2],
+        supersample=supersample,
+    )
+
+
+def panorama_prior(scene: SceneInputs, warps, i_minus) -> np.ndarray:
+    """The panorama a generator built from the scene starts from, ``(Hp, 2 Hp, 3)`` sRGB: the
+    source's true panorama where the source can render one (procedural scenes), else I⁻ seen from
+    the object through π where I⁻ observes the panorama's rays, smoothly filled elsewhere
+    (:func:`~snell_bench.imaging.fill.push_pull_fill`): nothing but I⁻ is used.
+
+    Args:
+        scene: the scene's inputs.
+        warps: its :class:`~snell_bench.optics.warps.WarpSet` (π and the panorama camera).
+        i_minus: I⁻ as a ``(1, 3, H, W)`` tensor.
+    """
+    if hasattr(scene.source, "render_panorama"):
+        return scene_panorama(scene, warps.pano)
+    import torch
+
+    from snell_bench.imaging.fill import push_pull_fill
+    from snell_bench.imaging.remap import remap
+    from snell_bench.utils.tensors import bchw_to_hwc
+
+    seen, _ = remap(i_minus, warps.pano_to_persp)
+    known = torch.from_numpy(warps.pano_to_persp_valid & np.isfinite(warps.pano_to_persp).all(-1))
+    return bchw_to_hwc(push_pull_fill(torch.nan_to_num(seen), known, wrap_x=True)).clip(0, 1)

@@ -56,7 +56,9 @@ def test_the_panorama_prior_comes_from_the_photo_alone(desk):
     from snell_bench.imaging.remap import remap
 
     cfg, inputs = desk
-    pano = pipeline.panorama_prior(inputs)
+    from snell_bench.scene.sources import panorama_prior
+
+    pano = panorama_prior(inputs.scene, inputs.warps, inputs.i_minus)
     ws = inputs.warps
     assert pano.shape == (64, 128, 3) and np.isfinite(pano).all()
     seen, _ = remap(inputs.i_minus, ws.pano_to_persp)
