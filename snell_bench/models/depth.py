@@ -5,10 +5,15 @@ Backends:
     - :class:`TransformersDepth`: transformers' ``DepthProForDepthEstimation`` (Depth Pro: metric depth
       and the horizontal field of view, e.g. ``apple/DepthPro-hf``) and ``DepthAnythingForDepthEstimation``
       (Depth Anything V2, metric checkpoints only, e.g. ``depth-anything/Depth-Anything-V2-Metric-Indoor-Large-hf``).
-    - :class:`MoGe2Depth`: MoGe-2 (``moge.model.v2.MoGeModel`` from the optional ``dlr-moge`` package,
-      e.g. ``Ruicheng/moge-2-vitl-normal``): metric depth, a validity mask and the intrinsics.
-    - :func:`tiny_depth_pro` / :func:`tiny_depth_anything`: the two transformers architectures at toy
-      size with random weights, built from configs in code (CPU tests; their outputs mean nothing).
+    - :class:`MoGe2Depth` (:mod:`snell_bench.models.moge`): MoGe-2 (``moge.model.v2.MoGeModel`` from the
+      optional ``dlr-moge`` package, e.g. ``Ruicheng/moge-2-vitl-normal``): metric depth, a validity mask
+      and the intrinsics.
+    - :func:`tiny_depth_pro` / :func:`tiny_depth_anything` (:mod:`snell_bench.models.tiny_depth`): the two
+      transformers architectures at toy size with random weights, built from configs in code (CPU tests;
+      their outputs mean nothing).
+
+The interface and the shared helpers are here; :class:`MoGe2Depth`, :func:`tiny_depth_pro` and
+:func:`tiny_depth_anything` are re-exported from their modules (imported on first use).
 
 Convention:
     - Input: ``(H, W, 3)`` float sRGB in [0, 1] (any size: each model's image processor resizes it, and
@@ -42,20 +47,24 @@ Convention:
 
 from __future__ import annotations
 
+import importlib
 import logging
 import math
 import os
 import re
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 import torch
 
 from .devices import parse_dtype, resolve_device
 from .errors import WeightsNotFoundError
+
+if TYPE_CHECKING:
+    from .moge import MoGe2Depth
+    from .tiny_depth import tiny_depth_anything, tiny_depth_pro
 
 __all__ = [
     "DEPTH_ANYTHING_V2_METRIC_INDOOR_ID",
@@ -77,9 +86,8 @@ DEPTH_PRO_ID = "apple/DepthPro-hf"
 DEPTH_ANYTHING_V2_METRIC_INDOOR_ID = "depth-anything/Depth-Anything-V2-Metric-Indoor-Large-hf"
 MOGE2_ID = "Ruicheng/moge-2-vitl-normal"
 
-_REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[\w.-]+$")
-_MOGE_CHECKPOINT = "model.pt"
-_MOGE_EXTRA_HELP = 'pip install "snell_bench[depth]" (or make setup EXTRAS=test,depth)'
+#: A Hugging Face model id (``owner/name``), as opposed to a local path.
+HF_REPO_ID = re.compile(r"^[A-Za-z0-9][\w.-]*/[\w.-]+$")
 
 
 # ---------------------------------------------------------------------------------------- interface
@@ -176,7 +184,7 @@ def resolve_depth_device(device: str | torch.device | None) -> torch.device:
     )
 
 
-def _check_image(image: np.ndarray) -> np.ndarray:
+def check_image(image: np.ndarray) -> np.ndarray:
     """``image`` as a C-contiguous float32 ``(H, W, 3)`` array clipped to [0, 1]."""
     arr = np.asarray(image)
     if arr.ndim != 3 or arr.shape[2] != 3:
@@ -190,7 +198,7 @@ def _check_image(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.clip(arr, 0.0, 1.0), dtype=np.float32)
 
 
-def _valid_depth(depth: np.ndarray) -> np.ndarray:
+def valid_depth(depth: np.ndarray) -> np.ndarray:
     """float32 depth with NaN where it is non-finite or not positive."""
     depth = np.asarray(depth, dtype=np.float32).copy()
     with np.errstate(invalid="ignore"):
@@ -198,7 +206,8 @@ def _valid_depth(depth: np.ndarray) -> np.ndarray:
     return depth
 
 
-def _weights_help(what: str, *, example: str, layout: str) -> str:
+def weights_help(what: str, *, example: str, layout: str) -> str:
+    """The message of a :class:`WeightsNotFoundError`: what is missing and how to set ``depth.path``."""
     return (
         f"depth estimator weights not found: {what}. Set the config key depth.path to a local folder with {layout}, "
         f"e.g. `depth.path=/data/{example.split('/')[-1]}`, or to a Hugging Face id already in the local cache "
@@ -300,18 +309,18 @@ class TransformersDepth:
         )
 
         if path is None:
-            raise WeightsNotFoundError(_weights_help("depth.path is not set", example=DEPTH_PRO_ID, layout=_HF_LAYOUT))
+            raise WeightsNotFoundError(weights_help("depth.path is not set", example=DEPTH_PRO_ID, layout=_HF_LAYOUT))
         text = os.fspath(path)
         example = DEPTH_ANYTHING_V2_METRIC_INDOOR_ID if "depth-anything" in text.lower() else DEPTH_PRO_ID
         local = Path(text).expanduser()
-        if not local.is_dir() and not _REPO_ID.match(text):
-            raise WeightsNotFoundError(_weights_help(f"no folder {text!r}", example=example, layout=_HF_LAYOUT))
+        if not local.is_dir() and not HF_REPO_ID.match(text):
+            raise WeightsNotFoundError(weights_help(f"no folder {text!r}", example=example, layout=_HF_LAYOUT))
         source = str(local) if local.is_dir() else text
         try:
             config = AutoConfig.from_pretrained(source, local_files_only=True)
         except (OSError, ValueError) as err:
             raise WeightsNotFoundError(
-                _weights_help(
+                weights_help(
                     f"the config of {text!r} is not available locally ({err})", example=example, layout=_HF_LAYOUT
                 )
             ) from err
@@ -326,7 +335,7 @@ class TransformersDepth:
             processor = AutoImageProcessor.from_pretrained(source, local_files_only=True)
         except OSError as err:
             raise WeightsNotFoundError(
-                _weights_help(f"loading {text!r} failed ({err})", example=example, layout=_HF_LAYOUT)
+                weights_help(f"loading {text!r} failed ({err})", example=example, layout=_HF_LAYOUT)
             ) from err
         return cls(model, processor, device=dev, dtype=dt, name=name)
 
@@ -340,7 +349,7 @@ class TransformersDepth:
         Returns:
             The estimate at ``(H, W)``: Depth Pro with intrinsics, Depth Anything without.
         """
-        img = _check_image(image)
+        img = check_image(image)
         H, W = img.shape[:2]
         chw = torch.from_numpy(img).permute(2, 0, 1)
         inputs = self.processor(images=chw, return_tensors="pt", do_rescale=False)
@@ -351,7 +360,7 @@ class TransformersDepth:
             return self._depth_pro(outputs, H, W)
         result = self.processor.post_process_depth_estimation(outputs, target_sizes=[(H, W)])[0]
         depth = result["predicted_depth"].reshape(H, W).cpu().numpy()
-        return DepthEstimate(depth=_valid_depth(depth), intrinsics=None)
+        return DepthEstimate(depth=valid_depth(depth), intrinsics=None)
 
     def _depth_pro(self, outputs: Any, H: int, W: int) -> DepthEstimate:
         fov = outputs.field_of_view.float()
@@ -365,7 +374,7 @@ class TransformersDepth:
         result = self.processor.post_process_depth_estimation(outputs, target_sizes=[(H, W)])[0]
         f = float(result["focal_length"])
         depth = result["predicted_depth"].reshape(H, W).cpu().numpy()
-        return DepthEstimate(depth=_valid_depth(depth), intrinsics=(f, f, (W - 1) / 2.0, (H - 1) / 2.0))
+        return DepthEstimate(depth=valid_depth(depth), intrinsics=(f, f, (W - 1) / 2.0, (H - 1) / 2.0))
 
 
 def _check_transformers_config(config: Any, *, source: str) -> str:
@@ -389,309 +398,15 @@ def _check_transformers_config(config: Any, *, source: str) -> str:
     )
 
 
-# ---------------------------------------------------------------------------------------- MoGe-2
+# ---------------------------------------------------------------------------------------- re-exports
+
+#: name -> the module (relative to this package) that defines it.
+_REEXPORTS = {"MoGe2Depth": ".moge", "tiny_depth_pro": ".tiny_depth", "tiny_depth_anything": ".tiny_depth"}
 
 
-def _import_moge_model() -> Any:
-    try:
-        from moge.model.v2 import MoGeModel
-    except ImportError as err:
-        raise ImportError(
-            f"MoGe-2 needs the optional dependency dlr-moge (module moge.model.v2), which is not installed "
-            f"({err}); install the optional extra depth: {_MOGE_EXTRA_HELP}"
-        ) from err
-    return MoGeModel
-
-
-def _moge_checkpoint(path: str | os.PathLike | None) -> str:
-    """The local ``model.pt`` of a MoGe checkpoint given as a file, a folder or a cached hub id."""
-    layout = f"the MoGe checkpoint file {_MOGE_CHECKPOINT}"
-    if path is None:
-        raise WeightsNotFoundError(_weights_help("depth.path is not set", example=MOGE2_ID, layout=layout))
-    text = os.fspath(path)
-    local = Path(text).expanduser()
-    if local.is_file():
-        return str(local)
-    if local.is_dir():
-        if (local / _MOGE_CHECKPOINT).is_file():
-            return str(local / _MOGE_CHECKPOINT)
-        raise WeightsNotFoundError(
-            _weights_help(f"the folder {text!r} has no {_MOGE_CHECKPOINT}", example=MOGE2_ID, layout=layout)
-        )
-    if not _REPO_ID.match(text):
-        raise WeightsNotFoundError(_weights_help(f"no file or folder {text!r}", example=MOGE2_ID, layout=layout))
-    from huggingface_hub import hf_hub_download
-
-    try:
-        return hf_hub_download(repo_id=text, filename=_MOGE_CHECKPOINT, repo_type="model", local_files_only=True)
-    except Exception as err:  # LocalEntryNotFoundError, HFValidationError, OSError, ...
-        raise WeightsNotFoundError(
-            _weights_help(
-                f"{text!r} is not in the Hugging Face cache ({type(err).__name__})", example=MOGE2_ID, layout=layout
-            )
-        ) from err
-
-
-class MoGe2Depth:
-    """MoGe-2 (``moge.model.v2.MoGeModel``): metric depth, a validity mask and the intrinsics.
-
-    Convention:
-        - ``infer`` gets the image as a ``(3, H, W)`` float32 tensor in [0, 1] on the model's device and
-          returns ``depth`` ``(H, W)`` (``inf`` outside ``mask``), ``mask`` ``(H, W)`` bool and
-          normalised ``intrinsics`` ``(3, 3)``; the depth is NaN outside the mask or where it is
-          non-finite or not positive.
-        - Intrinsics: ``fx = W K[0, 0]``, ``fy = H K[1, 1]``, ``cx = W K[0, 2] - 0.5``,
-          ``cy = H K[1, 2] - 0.5`` (MoGe's normalised coordinates put the centre of pixel ``i`` at
-          ``(i + 0.5) / W``; here pixel centres are integers).
-        - fp16 autocast (``use_fp16``) only on CUDA by default.
-
-    Args:
-        model: a ``MoGeModel`` (or anything with its ``infer``).
-        device: see :func:`resolve_depth_device`.
-        resolution_level: MoGe's ``resolution_level`` (0-9: more ViT tokens, finer detail, slower).
-        num_tokens: MoGe's ``num_tokens`` (overrides ``resolution_level``); ``None``: from the level.
-        use_fp16: mixed precision; ``None``: on CUDA only.
-    """
-
-    name = "moge2"
-
-    def __init__(
-        self,
-        model: Any,
-        *,
-        device: str | torch.device | None = "cpu",
-        resolution_level: int = 9,
-        num_tokens: int | None = None,
-        use_fp16: bool | None = None,
-    ):
-        self.device = resolve_depth_device(device)
-        self.model = model.to(self.device).eval()
-        self.resolution_level = int(resolution_level)
-        self.num_tokens = None if num_tokens is None else int(num_tokens)
-        self.use_fp16 = (self.device.type == "cuda") if use_fp16 is None else bool(use_fp16)
-
-    @classmethod
-    def from_pretrained(
-        cls,
-        path: str | os.PathLike | None = MOGE2_ID,
-        *,
-        device: str | torch.device | None = "cpu",
-        resolution_level: int = 9,
-        num_tokens: int | None = None,
-        use_fp16: bool | None = None,
-    ) -> MoGe2Depth:
-        """Load a MoGe-2 checkpoint from local files.
-
-        Args:
-            path: the checkpoint ``model.pt``, a folder holding it, or a Hugging Face id whose
-                ``model.pt`` is in the local cache (config key ``depth.path``).
-            device: see :func:`resolve_depth_device` (config key ``depth.device``).
-            resolution_level: see :class:`MoGe2Depth`.
-            num_tokens: see :class:`MoGe2Depth`.
-            use_fp16: see :class:`MoGe2Depth`.
-
-        Returns:
-            The estimator.
-
-        Raises:
-            ImportError: when ``dlr-moge`` is not installed (naming the optional extra ``depth``).
-            WeightsNotFoundError: naming ``depth.path``, when the checkpoint is not on this machine.
-            DeviceNotAvailableError: when CUDA is asked for and missing.
-        """
-        MoGeModel = _import_moge_model()
-        checkpoint = _moge_checkpoint(path)
-        dev = resolve_depth_device(device)
-        try:
-            model = MoGeModel.from_pretrained(checkpoint)
-        except (OSError, RuntimeError, KeyError) as err:
-            raise WeightsNotFoundError(
-                _weights_help(
-                    f"loading {checkpoint!r} failed ({err})", example=MOGE2_ID, layout=f"the MoGe {_MOGE_CHECKPOINT}"
-                )
-            ) from err
-        return cls(model, device=dev, resolution_level=resolution_level, num_tokens=num_tokens, use_fp16=use_fp16)
-
-    @torch.no_grad()
-    def __call__(self, image: np.ndarray) -> DepthEstimate:
-        """Estimate the metric depth and intrinsics of ``image``.
-
-        Args:
-            image: ``(H, W, 3)`` float sRGB in [0, 1], any size.
-
-        Returns:
-            The estimate at ``(H, W)``, with intrinsics.
-        """
-        img = _check_image(image)
-        H, W = img.shape[:2]
-        chw = torch.from_numpy(img).permute(2, 0, 1).contiguous().to(self.device)
-        with warnings.catch_warnings():
-            # infer's float32 post-processing opens a CPU autocast region, which torch declines with a warning
-            warnings.filterwarnings("ignore", message="In CPU autocast, but the target dtype is not supported")
-            out = self.model.infer(
-                chw, num_tokens=self.num_tokens, resolution_level=self.resolution_level, use_fp16=self.use_fp16
-            )
-        depth = out["depth"].float().cpu().numpy().reshape(H, W)
-        mask = out.get("mask")
-        if mask is not None:
-            depth = np.where(mask.cpu().numpy().reshape(H, W).astype(bool), depth, np.nan)
-        K = out["intrinsics"].double().cpu().numpy().reshape(3, 3)
-        intrinsics = (W * K[0, 0], H * K[1, 1], W * K[0, 2] - 0.5, H * K[1, 2] - 0.5)
-        return DepthEstimate(depth=_valid_depth(depth), intrinsics=intrinsics)
-
-
-# ---------------------------------------------------------------------------------------- tiny models
-
-
-def _calibrate_affine(layer: torch.nn.Module, stats: torch.Tensor, *, mean: float, std: float | None) -> None:
-    """Rescale ``layer``'s weight and shift its bias so its output ``stats`` get ``mean`` (and ``std``)."""
-    scale = 1.0 if std is None else std / max(float(stats.std()), 1e-12)
-    with torch.no_grad():
-        layer.weight.mul_(scale)
-        layer.bias.copy_(scale * (layer.bias - float(stats.mean())) + mean)
-
-
-def _reference_pixels(processor: Any, height: int, width: int) -> torch.Tensor:
-    """A fixed smooth-plus-noise test image through ``processor`` (the calibration input)."""
-    g = torch.Generator().manual_seed(1234)
-    yy, xx = torch.meshgrid(torch.linspace(0, 1, height), torch.linspace(0, 1, width), indexing="ij")
-    img = torch.stack([xx, yy, 0.5 + 0.3 * torch.sin(7 * xx) * torch.cos(5 * yy)])
-    img = (0.7 * img + 0.3 * torch.rand(3, height, width, generator=g)).clamp(0, 1)
-    return processor(images=img, return_tensors="pt", do_rescale=False)["pixel_values"]
-
-
-def _tiny_dinov2(num_layers: int, patch_size: int, **kwargs: Any) -> dict:
-    return dict(
-        model_type="dinov2",
-        num_hidden_layers=num_layers,
-        hidden_size=16,
-        num_attention_heads=2,
-        intermediate_size=32,
-        patch_size=patch_size,
-        **kwargs,
-    )
-
-
-def tiny_depth_pro(seed: int = 0, *, device: str | torch.device | None = "cpu") -> TransformersDepth:
-    """Depth Pro's architecture at toy size with random weights (CPU tests; its depth means nothing).
-
-    Convention:
-        - ``DepthProConfig``: patch size 16, scaled images (0.25, 0.5, 1) with overlaps (0, 0.5, 0.25)
-          and feature dims (16, 16, 8), one intermediate hook (layer 1, dim 8), fusion width 16, merge
-          padding 1, the field-of-view head (1 head layer); the image, patch and FoV encoders are
-          DINOv2 ViTs (width 16, 2 heads, MLP 32, patch 8; 2, 2 and 1 layers).
-        - ``DepthProImageProcessor`` at 64 x 64 (= patch size / smallest ratio; the real one: 1536);
-          the predicted canonical inverse depth is 64 x 64.
-        - Built from ``torch.manual_seed(seed)`` in a forked RNG (the caller's RNG is untouched), then
-          the depth head's last convolution and the FoV head's last convolution are rescaled/shifted so
-          that a fixed reference image gives a canonical inverse depth of 0.3 +- 0.06 (about 3 m at
-          60 degrees) and a field of view of 60 degrees: other images give plausible, image-dependent
-          values. Deterministic for the seed; eval mode.
-
-    Args:
-        seed: seeds the random weights.
-        device: see :func:`resolve_depth_device`.
-
-    Returns:
-        A :class:`TransformersDepth` named ``tiny_depth_pro``.
-    """
-    from transformers import DepthProConfig, DepthProForDepthEstimation, DepthProImageProcessor
-
-    config = DepthProConfig(
-        patch_size=16,
-        fusion_hidden_size=16,
-        intermediate_hook_ids=[1],
-        intermediate_feature_dims=[8],
-        scaled_images_ratios=[0.25, 0.5, 1.0],
-        scaled_images_overlap_ratios=[0.0, 0.5, 0.25],
-        scaled_images_feature_dims=[16, 16, 8],
-        merge_padding_value=1,
-        use_fov_model=True,
-        num_fov_head_layers=1,
-        image_model_config=_tiny_dinov2(2, 8),
-        patch_model_config=_tiny_dinov2(2, 8),
-        fov_model_config=_tiny_dinov2(1, 8),
-    )
-    processor = DepthProImageProcessor(size={"height": 64, "width": 64})
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        model = DepthProForDepthEstimation(config).eval()
-    depth_layer, fov_layer = model.head.layers[-2], model.fov_model.head.layers[-1]
-    seen: dict[str, torch.Tensor] = {}
-    hooks = [
-        depth_layer.register_forward_hook(lambda m, i, o: seen.__setitem__("depth", o.detach())),
-        fov_layer.register_forward_hook(lambda m, i, o: seen.__setitem__("fov", o.detach())),
-    ]
-    with torch.no_grad():
-        model(pixel_values=_reference_pixels(processor, 64, 96))
-    for h in hooks:
-        h.remove()
-    _calibrate_affine(depth_layer, seen["depth"], mean=0.3, std=0.06)
-    _calibrate_affine(fov_layer, seen["fov"], mean=60.0, std=None)
-    return TransformersDepth(model, processor, device=device, name="tiny_depth_pro")
-
-
-def tiny_depth_anything(seed: int = 0, *, device: str | torch.device | None = "cpu") -> TransformersDepth:
-    """Metric Depth Anything V2's architecture at toy size with random weights (CPU tests).
-
-    Convention:
-        - ``DepthAnythingConfig``: ``depth_estimation_type="metric"``, ``max_depth=20`` (the indoor
-          checkpoints' value), patch 14, reassemble width 16, neck (8, 8, 16, 16), fusion 8, head 8; the
-          backbone is a DINOv2 (4 layers, width 16, 2 heads, MLP 32, patch 14, features of layers 1-4).
-        - ``DPTImageProcessor`` as the real checkpoints' (keep the aspect ratio, multiple of 14, bicubic,
-          ImageNet mean / std) at 56 x 56 instead of 518 x 518.
-        - Built from ``torch.manual_seed(seed)`` in a forked RNG; the neck and head convolutions use
-          PyTorch's default initialisation (transformers' small normal one makes their output vanish),
-          and the head's last convolution is rescaled/shifted so that a fixed reference image gives
-          depths of about 3 m (pre-sigmoid logit(3 / 20) +- 0.3). Deterministic for the seed; eval mode.
-
-    Args:
-        seed: seeds the random weights.
-        device: see :func:`resolve_depth_device`.
-
-    Returns:
-        A :class:`TransformersDepth` named ``tiny_depth_anything``.
-    """
-    from transformers import DepthAnythingConfig, DepthAnythingForDepthEstimation, Dinov2Config, DPTImageProcessor
-
-    backbone = Dinov2Config(
-        **{k: v for k, v in _tiny_dinov2(4, 14).items() if k != "model_type"},
-        image_size=56,
-        out_indices=[1, 2, 3, 4],
-        reshape_hidden_states=False,
-        apply_layernorm=True,
-    )
-    max_depth = 20
-    config = DepthAnythingConfig(
-        backbone_config=backbone,
-        patch_size=14,
-        reassemble_hidden_size=16,
-        reassemble_factors=[4, 2, 1, 0.5],
-        neck_hidden_sizes=[8, 8, 16, 16],
-        fusion_hidden_size=8,
-        head_hidden_size=8,
-        depth_estimation_type="metric",
-        max_depth=max_depth,
-    )
-    processor = DPTImageProcessor(
-        size={"height": 56, "width": 56},
-        keep_aspect_ratio=True,
-        ensure_multiple_of=14,
-        resample=3,  # bicubic
-        image_mean=[0.485, 0.456, 0.406],
-        image_std=[0.229, 0.224, 0.225],
-        do_pad=False,
-    )
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        model = DepthAnythingForDepthEstimation(config).eval()
-        for module in (*model.neck.modules(), *model.head.modules()):
-            if isinstance(module, (torch.nn.Conv2d, torch.nn.ConvTranspose2d, torch.nn.Linear)):
-                module.reset_parameters()
-    layer = model.head.conv3
-    seen: dict[str, torch.Tensor] = {}
-    hook = layer.register_forward_hook(lambda m, i, o: seen.__setitem__("logit", o.detach()))
-    with torch.no_grad():
-        model(pixel_values=_reference_pixels(processor, 64, 96))
-    hook.remove()
-    _calibrate_affine(layer, seen["logit"], mean=math.log(3.0 / (max_depth - 3.0)), std=0.3)
-    return TransformersDepth(model, processor, device=device, name="tiny_depth_anything")
+def __getattr__(name: str) -> Any:
+    """:class:`MoGe2Depth`, :func:`tiny_depth_pro` and :func:`tiny_depth_anything`, imported on first use
+    (their modules import this one)."""
+    if name in _REEXPORTS:
+        return getattr(importlib.import_module(_REEXPORTS[name], __package__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
