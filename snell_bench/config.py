@@ -52,6 +52,9 @@ class SceneConfig:
     fov_deg: Optional[float] = None
     #: The surface the object stands on, for a segmenter (``segment=sam3``), e.g. "wooden coffee table".
     surface: Optional[str] = "${prompts:${.text},surface,${.prompt_llm}}"
+    #: ``source=generated``: denoising steps and schedule of I⁻ (FluxPipeline's default 28 steps).
+    steps: int = 28
+    schedule: str = "flux"
     #: ``source=generated``: where generated I⁻ are cached (by prompt, size, seed, model); ``null``: off.
     cache_dir: Optional[str] = "runs/cache/scenes"
     #: The approximate up direction in camera coordinates (a camera pitched down by a sees

@@ -52,6 +52,7 @@ __all__ = [
     "Skip",
     "apply_method",
     "full_prompt",
+    "cell_seed",
     "data_path",
     "load_scene",
     "build_object",
@@ -116,6 +117,12 @@ def apply_method(cfg: DictConfig) -> DictConfig:
     c.sampler = OmegaConf.merge(c.sampler, c.method.sampler or {})
     c.warps = OmegaConf.merge(c.warps, c.method.warps or {})
     return c
+
+
+def cell_seed(cfg: DictConfig) -> int:
+    """The seed of a cell's sampling: ``seed + scene.variation`` (a generated I⁻ uses the same one,
+    so every method of the cell, the baselines included, starts from the seed of its scene)."""
+    return int(cfg.seed) + int(cfg.scene.variation)
 
 
 def full_prompt(cfg: DictConfig) -> str:
@@ -211,9 +218,9 @@ def load_scene(cfg: DictConfig, generators: dict | None = None) -> SceneInputs:
             str(sc.prompt_minus),
             int(sc.height),
             int(sc.width),
-            steps=int(cfg.sampler.steps),
-            seed=int(sc.variation),
-            schedule=str(cfg.sampler.schedule),
+            steps=int(sc.steps),
+            seed=cell_seed(cfg),
+            schedule=str(sc.schedule),
             cache_dir=sc.cache_dir,
             model_key=_model_key(cfg.model),
         )
@@ -391,6 +398,7 @@ def prepare_inputs(cfg: DictConfig, *, references: bool = True) -> CellInputs:
     with t("scene"):
         generators: dict = {}
         scene = load_scene(cfg, generators)
+        t.seconds["scene"] = -sum(seconds for _, seconds in generators.values())  # timed as "generator"
         region = surface_region(cfg, scene)
         obj = place(build_object(cfg.object), scene, cfg.object, seed=int(cfg.seed), region=region)
     with t("warps"):
@@ -463,28 +471,33 @@ def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer)
 
     _check_requirements(cfg)
     kind, prompt = cfg.method.kind, full_prompt(cfg)
-    if kind == "external":
-        from snell_bench.models.external import generate_external
-
-        with t("sampling"):
-            img = generate_external(
-                cfg.method.model_id, prompt, warps.camera.shape, seed=int(cfg.seed), steps=int(cfg.sampler.steps)
-            )
-        return CellResult(image=img, warps=warps)
-    if kind not in ("snellcaster", "t2i", "inpaint"):
+    if kind not in ("snellcaster", "t2i", "inpaint", "external"):
         raise ValueError(f"method.kind={kind!r} is unknown; use snellcaster, t2i, inpaint or external")
-    if kind == "inpaint" and cfg.model.name != "analytic":
-        from snell_bench.models.external import inpaint_external
+    if kind == "external" or (kind == "inpaint" and cfg.model.name != "analytic"):
+        from snell_bench.models.errors import DeviceNotAvailableError, WeightsNotFoundError
+        from snell_bench.models.external import generate_external, inpaint_external
 
-        with t("sampling"):
-            img = inpaint_external(
-                cfg.method.model_id,
-                prompt,
-                inputs.i_minus,
-                warps.object_mask,
-                seed=int(cfg.seed),
-                steps=int(cfg.sampler.steps),
-            )
+        try:
+            with t("sampling"):  # loading the diffusers pipeline included
+                if kind == "external":
+                    img = generate_external(
+                        cfg.method.model_id,
+                        prompt,
+                        warps.camera.shape,
+                        seed=cell_seed(cfg),
+                        steps=int(cfg.sampler.steps),
+                    )
+                else:
+                    img = inpaint_external(
+                        cfg.method.model_id,
+                        prompt,
+                        inputs.i_minus,
+                        warps.object_mask,
+                        seed=cell_seed(cfg),
+                        steps=int(cfg.sampler.steps),
+                    )
+        except (WeightsNotFoundError, DeviceNotAvailableError) as e:
+            raise Skip(f"{cfg.method.label} cannot run here: {e}") from None
         return CellResult(image=img, warps=warps)
     gen, t.seconds["generator"] = cached_generator(
         cfg.model, inputs.generators, lambda: build_generator(cfg.model, inputs)
@@ -492,7 +505,7 @@ def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer)
     settings = OmegaConf.to_object(cfg.sampler)
     assert isinstance(settings, SamplerSettings)
     with t("sampling"):
-        res = sample(gen, warps, inputs.i_minus, prompt, str(cfg.scene.pano_prompt), settings, seed=int(cfg.seed))
+        res = sample(gen, warps, inputs.i_minus, prompt, str(cfg.scene.pano_prompt), settings, seed=cell_seed(cfg))
     img = res.image
     if kind == "inpaint":  # CPU stand-in: the generator fills the object region of I⁻, no optics
         img = torch.where(torch.from_numpy(warps.object_mask)[None, None], img, inputs.i_minus)

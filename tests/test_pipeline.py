@@ -128,3 +128,35 @@ def test_a_missing_renderer_is_a_reason_not_a_failure(monkeypatch, inputs):
     monkeypatch.setitem(sys.modules, "mitsuba", None)  # as if the render extra were not installed
     ref, reason = pipeline.render_reference(compose(TINY), inputs.scene, inputs.obj)
     assert ref is None and "render extra" in reason
+
+
+def test_each_variation_has_its_own_seed(inputs):
+    """The sampling seed is seed + variation (so a text-only baseline differs between variations);
+    variation 0 keeps the run's seed."""
+    from omegaconf import OmegaConf
+
+    cfg = pipeline.apply_method(compose([*TINY, "model=tiny_flux", "method=t2i"]))
+    assert pipeline.cell_seed(cfg) == 0
+    a = pipeline.run_method(cfg, inputs).image
+    cfg1 = pipeline.apply_method(compose([*TINY, "model=tiny_flux", "method=t2i", "scene.variation=1", "seed=0"]))
+    assert pipeline.cell_seed(cfg1) == 1 and OmegaConf.to_yaml(cfg1.model) == OmegaConf.to_yaml(cfg.model)
+    assert not torch.equal(a, pipeline.run_method(cfg1, inputs).image)
+
+
+def test_a_diffusers_method_without_its_device_or_weights_is_skipped(inputs):
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA machine would try to load the weights")
+    with pytest.raises(pipeline.Skip, match="cannot run here"):
+        pipeline.run_method(pipeline.apply_method(compose([*TINY, "model=tiny_flux", "method=inpaint"])), inputs)
+
+
+def test_warps_traced_without_a_region_of_interest_are_cached_apart(tmp_path, inputs):
+    cfg = compose([*TINY, f"warps.cache_dir={tmp_path}"])
+    roi = pipeline.trace_warps(inputs.scene, inputs.obj, cfg.warps)
+    full = pipeline.trace_warps(
+        inputs.scene, inputs.obj, compose([*TINY, f"warps.cache_dir={tmp_path}", "warps.roi=false"]).warps
+    )
+    assert roi.stats["roi"] is True and full.stats["roi"] is False
+    assert full.stats["traced_primary_rays"] > roi.stats["traced_primary_rays"]
+    np.testing.assert_array_equal(full.refraction, roi.refraction)
+    assert len(list(tmp_path.glob("*.npz"))) == 2

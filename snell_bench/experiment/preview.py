@@ -25,7 +25,7 @@ from snell_bench import pipeline
 from snell_bench.imaging.blend import fresnel_combine
 from snell_bench.imaging.remap import remap
 from snell_bench.optics.warps import WarpSet
-from snell_bench.scene.sources import scene_panorama
+from snell_bench.scene.sources import panorama_prior, scene_panorama
 from snell_bench.utils.io import save_png, write_json
 from snell_bench.utils.tensors import bchw_to_hwc, hwc_to_bchw
 from snell_bench.utils.timing import Timer
@@ -64,8 +64,11 @@ def run_preview(cfg: DictConfig) -> dict:
     inputs = pipeline.prepare_inputs(cfg, references=False)
     ws, image, obj = inputs.warps, inputs.scene.image, inputs.obj
     t = Timer()
-    with t("panorama"):  # the source's true panorama, in the orientation of the warps' panorama camera
-        panorama = scene_panorama(inputs.scene, ws.pano, supersample=int(cfg.scene.supersample))
+    with t("panorama"):  # in the orientation of the warps' panorama camera
+        if hasattr(inputs.scene.source, "render_panorama"):  # the source's true panorama
+            panorama = scene_panorama(inputs.scene, ws.pano, supersample=int(cfg.scene.supersample))
+        else:  # a photo or a generated scene: I⁻ through π, smoothly filled
+            panorama = panorama_prior(inputs.scene, ws, inputs.i_minus)
     with t("composite"):
         composite = composite_refraction(image, panorama, ws)
         H, W = ws.camera.shape
@@ -83,7 +86,7 @@ def run_preview(cfg: DictConfig) -> dict:
         bottom = np.concatenate([np.repeat(mask[..., None], 3, -1), warp_rgb], axis=1)
         save_png(out / "preview.png", np.concatenate([top, bottom], axis=0)[::2, ::2])
     summary = {
-        "scene": OmegaConf.to_container(cfg.scene),
+        "scene": OmegaConf.to_container(cfg.scene, resolve=True),
         "object": {
             "name": obj.name,
             "ior": obj.ior,

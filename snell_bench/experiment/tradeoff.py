@@ -39,7 +39,8 @@ Stages and times (``timings_s``, seconds of wall time):
     setting is not charged for them.
 
 Reuse:
-    The inputs depend only on the resolved ``scene``, ``object``, ``warps``, ``reference`` and
+    The inputs depend only on the resolved ``scene``, ``object``, ``warps``, ``reference``,
+    ``model``, ``depth``, ``segment`` (a generated or estimated scene) and
     ``seed`` subtrees; their SHA-256 (16 hex digits) is the *inputs key*. Within one process
     settings with the same key and scene share those inputs and their measured times
     (``inputs_reused_from`` names the setting that measured them). A resumed sweep recomputes
@@ -139,7 +140,7 @@ KNOBS: dict[str, str] = {
 }
 
 #: The config subtrees the shared inputs (scene, warps, references) depend on.
-SHARED_SUBTREES = ("scene", "object", "warps", "reference", "seed")
+SHARED_SUBTREES = ("scene", "object", "warps", "reference", "seed", "model", "depth", "segment")
 
 BASELINE = "baseline"
 _SLUG_RE = re.compile(r"[^A-Za-z0-9._=+-]")
@@ -209,7 +210,7 @@ def _axis_settings(name: str, spec: Any) -> list[Setting]:
                 f"{name}={v}",
                 name,
                 ov.value() if not ov.is_sweep_override() else _typed(v),
-                (f"{ov.key_or_group}={v}",),
+                (f"{ov.get_key_element()}={v}",),
             )
             for v in values
         ]
@@ -256,11 +257,15 @@ def inputs_key(c: DictConfig) -> str:
 
 
 def converged_key(c: DictConfig, spp: int) -> str:
-    """What a converged reference depends on: the scene, the object, the background mesh's cut, the
-    reference settings with ``spp`` replaced, and the seed."""
+    """What a converged reference depends on: the scene (and what makes a generated one: model, depth,
+    segment), the object, the background mesh's cut, the reference settings with ``spp`` replaced,
+    and the seed."""
     ref = dict(_plain(c.reference), spp=int(spp))
     blob = json.dumps(
         {
+            "model": _plain(c.model),
+            "depth": _plain(c.depth),
+            "segment": _plain(c.segment),
             "scene": _plain(c.scene),
             "object": _plain(c.object),
             "edge_threshold": float(c.warps.edge_threshold),
@@ -371,7 +376,7 @@ def _inputs(cell: Cell, shared: SharedCache) -> pipeline.CellInputs:
     return shared.get(cell.shares, compute, by=cell.record["setting"])
 
 
-def _converged_reference(cell: Cell, inputs: pipeline.CellInputs, sweep: _Sweep) -> _Converged:
+def _converged_reference(cell: Cell, inputs: pipeline.CellInputs, sweep: _Sweep) -> _Converged | None:
     """The converged reference of a setting's inputs: cached, read from its files (resume), or
     rendered and saved under ``_shared/converged-<key>/``."""
     c, spp = cell.config, int(sweep.converged_spp)
@@ -381,7 +386,9 @@ def _converged_reference(cell: Cell, inputs: pipeline.CellInputs, sweep: _Sweep)
         if (d / "reference.npy").is_file() and (d / "metric_mask.npy").is_file():
             conv = _Converged(np.load(d / "reference.npy"), np.load(d / "metric_mask.npy"), spp, key)
         else:
-            ref, _ = pipeline.render_reference(c, inputs.scene, inputs.obj, spp=spp)
+            ref, reason = pipeline.render_reference(c, inputs.scene, inputs.obj, spp=spp)
+            if ref is None:
+                return None
             d.mkdir(parents=True, exist_ok=True)
             conv = _Converged(np.asarray(ref.image, np.float32), np.asarray(ref.mask, bool), spp, key)
             save_npy(d / "reference.npy", conv.image)
@@ -408,8 +415,13 @@ def _run_setting(cell: Cell, shared: SharedCache, sweep: _Sweep) -> dict:
             if conv["metrics"].get(k) is None:
                 scored["missing"][f"{k}_converged"] = conv["missing"].get(k, "no value")
     else:
+        why = (
+            "tradeoff.converged_spp=null (no converged reference)"
+            if not sweep.converged_spp
+            else f"no converged reference: {inputs.reference_reason}"
+        )
         for k in ("psnr", "mae", "lpips"):
-            scored["missing"][f"{k}_converged"] = "tradeoff.converged_spp=null (no converged reference)"
+            scored["missing"][f"{k}_converged"] = why
     t["total"] = _r(sum(t[k] for k in TOTAL_STAGES))
     metrics = {k: scored["metrics"].get(k) for k in RECORD_METRICS}
     missing = {k: v for k, v in scored["missing"].items() if k in RECORD_METRICS}

@@ -173,6 +173,7 @@ def compute_warps(
         eps=eps,
         verify_visibility=verify_visibility,
         infinity_tolerance_px=infinity_tolerance_px,
+        roi=roi,
     )
     pano_height = options["pano_height"]
     key = warp_inputs_hash(depth, camera, obj, options)
@@ -239,6 +240,7 @@ def _warp_options(
     eps,
     verify_visibility,
     infinity_tolerance_px,
+    roi: bool = True,
 ) -> tuple[np.ndarray, dict]:
     """Check the arguments of :func:`compute_warps` and collect the options its warps depend on.
 
@@ -277,6 +279,8 @@ def _warp_options(
     }
     if infinity_tolerance_px is not None:  # keeps the hashes of exact warps unchanged
         options["infinity_tolerance_px"] = float(infinity_tolerance_px)
+    if not roi:  # the same arrays, other statistics (traced rays, timings): a cache entry of its own
+        options["roi"] = False
     return up_vec, options
 
 

@@ -216,3 +216,13 @@ def test_the_papers_six_objects_stand_upright_on_the_desk(obj):
     assert abs(float(up @ desk.normal)) > np.cos(np.radians(0.5))
     extent = np.ptp(placed.vertices, axis=0).max()
     assert 0.9 * 0.25 * np.linalg.norm(desk.point) < extent < 1.8 * 0.25 * np.linalg.norm(desk.point)
+
+
+def test_preview_of_a_photo(tmp_path):
+    """job=preview on the real frame: the panorama is I⁻ through π, filled (a photo has no other)."""
+    from snell_bench.experiment.preview import run_preview
+
+    summary = run_preview(compose(["scene=tum_office", *CHEAP, f"output_dir={tmp_path}"]))
+    pano = np.asarray(Image.open(tmp_path / "panorama.png"))
+    assert pano.shape == (64, 128, 3) and summary["warps"]["object_pixels"] > 1000
+    assert summary["scene"]["prompt"].startswith("An office")  # resolved, not the ${prompts:...} interpolation
