@@ -96,7 +96,7 @@ def _cache_key(meta: dict) -> str:
 
 
 def generated_image(
-    gen,
+    build: Callable[[], Any],
     prompt: str,
     height: int,
     width: int,
@@ -110,7 +110,7 @@ def generated_image(
     """I⁻ generated from ``prompt`` (p⁻) at ``seed``, cached by content.
 
     Args:
-        gen: the generator, or a callable returning it (called only on a cache miss).
+        build: returns the generator (called only on a cache miss).
         prompt: the object-free prompt p⁻.
         height: image height (a multiple of the generator's block).
         width: image width.
@@ -152,7 +152,7 @@ def generated_image(
                 log.warning("generated scene cache %s unreadable (%s): generating again", path, e)
     from snell_bench.sampler.text_to_image import text_to_image
 
-    model = gen() if callable(gen) and not hasattr(gen, "velocity") else gen
+    model = build()
     image = bchw_to_hwc(
         text_to_image(model, prompt, int(height), int(width), steps=steps, seed=seed, schedule=schedule)
     ).astype(np.float32)
