@@ -3,7 +3,10 @@
 For the analytic backend and tiny FLUX at 720 x 1280 with a 1024 x 2048 panorama (a procedural
 room, a glass sphere), prints the time per step of each part (median over the steps of a short
 run without time travel) and the synchronisation overhead: decode/encode plus warp + blend, which
-a plain sampler does not spend, as a fraction of the step.
+a plain sampler does not spend, as a fraction of the step; and the bytes that cross between the
+host and the generator's device (``--device cuda`` for tiny FLUX on a GPU): once per run (the
+warps of the scene and the final images) and per step (the goal: 0). On a CPU-only machine there
+is one device and nothing can cross.
 Usage: python benchmarks/bench_sampler.py [--height 720 --width 1280 --pano 1024 --steps 3]
 """
 
@@ -25,6 +28,7 @@ from snell_bench.sampler import SamplerSettings, sample
 from snell_bench.scene.objects import GlassObject
 from snell_bench.scene.placement import place_object
 from snell_bench.scene.procedural import ProceduralScene
+from snell_bench.utils.transfers import TransferCounter
 
 
 def main() -> None:
@@ -34,6 +38,7 @@ def main() -> None:
     ap.add_argument("--pano", type=int, default=1024)
     ap.add_argument("--steps", type=int, default=3)
     ap.add_argument("--skip-tiny-flux", action="store_true")
+    ap.add_argument("--device", default="cpu", help="where tiny FLUX runs (cpu, cuda)")
     args = ap.parse_args()
 
     scene = ProceduralScene("room", seed=0)
@@ -49,24 +54,32 @@ def main() -> None:
     if not args.skip_tiny_flux:
         from snell_bench.models.tiny_flux import TinyFluxGenerator
 
-        gens.append(("tiny_flux", lambda: TinyFluxGenerator(seed=0)))
+        gens.append(("tiny_flux", lambda: TinyFluxGenerator(seed=0, device=args.device)))
     print(f"snell_bench sampler benchmark ({platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__})")
     print(
         f"view {args.height}x{args.width}, panorama {args.pano}x{2 * args.pano}, {args.steps} steps, no time travel; "
         "seconds per synchronized step (both branches)"
     )
     print(
-        f"  {'backend':10s} {'model':>8s} {'codec':>8s} {'warp+blend':>11s} {'step':>7s} {'total':>8s} {'sync overhead':>14s}"
+        f"  {'backend':10s} {'device':>7s} {'model':>8s} {'codec':>8s} {'warp+blend':>11s} {'step':>7s} {'total':>8s} "
+        f"{'sync overhead':>14s} {'MB moved/run':>13s} {'bytes/step':>11s}"
     )
+    one_step = SamplerSettings(steps=1, time_travel=False, progress=False)
     for name, build in gens:
         gen = build()
-        res = sample(gen, ws, i_minus, "a glass sphere", "a panorama", settings, seed=0)
+        with TransferCounter() as moved:
+            res = sample(gen, ws, i_minus, "a glass sphere", "a panorama", settings, seed=0)
+        with TransferCounter() as moved_1:
+            sample(gen, ws, i_minus, "a glass sphere", "a panorama", one_step, seed=0)
+        per_step = (moved.bytes - moved_1.bytes) / max(args.steps - 1, 1)
         t = {k: v / args.steps for k, v in res.timings.items() if k != "setup"}
         total = sum(t.values())
         overhead = (t["codec"] + t["warp_blend"]) / total
+        device = str(getattr(gen, "device", "cpu"))
         print(
-            f"  {name:10s} {t['model']:8.3f} {t['codec']:8.3f} {t['warp_blend']:11.3f} {t['step']:7.3f} "
-            f"{total:8.3f} {overhead:13.0%}   (once per run: warps of I⁻ {res.timings['setup']:.2f} s)"
+            f"  {name:10s} {device:>7s} {t['model']:8.3f} {t['codec']:8.3f} {t['warp_blend']:11.3f} {t['step']:7.3f} "
+            f"{total:8.3f} {overhead:13.0%} {moved_1.bytes / 1e6:13.1f} {per_step:11.0f}"
+            f"   (once per run: warps of I⁻ {res.timings['setup']:.2f} s)"
         )
 
 

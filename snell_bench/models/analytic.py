@@ -124,6 +124,9 @@ class AnalyticGenerator:
     """
 
     name = "analytic"
+    #: A CPU backend in float32.
+    device = torch.device("cpu")
+    dtype = torch.float32
 
     def __init__(
         self,

@@ -11,6 +11,10 @@ Convention:
       sigma_T = 0`` (step ``i`` goes from ``sigmas[i]`` to ``sigmas[i + 1]``), of a kind in
       :data:`SCHEDULES`: ``"flux"`` (the backend's own resolution-shifted schedule) or ``"linear"``.
     - Randomness comes only from the ``torch.Generator`` passed in (bitwise reproducible on CPU).
+    - Placement: a backend may have a ``device`` (where its tensors live; the CPU when absent) and a
+      ``dtype`` (its precision; float32 when absent). Samplers keep every latent, noise draw, warp
+      and blend on ``device`` (:func:`generator_device`); the backend's methods return tensors on
+      their inputs' device.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import torch
 
-__all__ = ["SCHEDULES", "Condition", "Generator", "LatentGeometry", "check_schedule"]
+__all__ = ["SCHEDULES", "Condition", "Generator", "LatentGeometry", "check_schedule", "generator_device"]
 
 #: Schedule kinds every backend's :meth:`Generator.sigmas` accepts.
 SCHEDULES = ("flux", "linear")
@@ -40,6 +44,16 @@ def check_schedule(kind: str, num_steps: int) -> None:
         raise ValueError(f"unknown schedule {kind!r} (config key sampler.schedule); use one of {SCHEDULES}")
     if isinstance(num_steps, bool) or int(num_steps) != num_steps or num_steps < 1:
         raise ValueError(f"the number of steps must be a positive integer, got {num_steps!r}")
+
+
+def generator_device(gen) -> torch.device:
+    """Where ``gen``'s tensors live: its ``device`` attribute, the CPU when it has none.
+
+    Examples:
+        >>> generator_device(object())
+        device(type='cpu')
+    """
+    return torch.device(getattr(gen, "device", None) or "cpu")
 
 
 @dataclass

@@ -10,9 +10,10 @@ from typing import Optional
 
 from snell_bench.models.base import SCHEDULES
 
-__all__ = ["SamplerSettings", "SYNC_MODES"]
+__all__ = ["LATENT_DTYPES", "SamplerSettings", "SYNC_MODES"]
 
 SYNC_MODES = ("snellcaster", "none")
+LATENT_DTYPES = ("float32", "model")
 
 
 @dataclass
@@ -56,6 +57,13 @@ class SamplerSettings:
     #: (and its mirror ray, where reflection is kept) to surfaces I⁻ observes; ``null``: never skip.
     #: Without the panorama the reflection comes from I⁻ where the mirror ray reaches what it shows.
     skip_panorama_above: Optional[float] = None
+    #: Synchronise the last step too (``false``: the last step uses each branch's own estimate, as
+    #: the authors' code does).
+    sync_last_step: bool = True
+    #: ``float32``: latents stay float32 between steps whatever the model's precision; ``model``:
+    #: they are rounded to the model's dtype after every step, as ``FluxPipeline`` does (bfloat16
+    #: on a GPU: the pipeline's own numbers).
+    latent_dtype: str = "float32"
     #: Keep the decoded estimates every k steps (0: never).
     dump_every: int = 0
     progress: bool = True
@@ -63,6 +71,8 @@ class SamplerSettings:
     def __post_init__(self) -> None:
         if self.sync not in SYNC_MODES:
             raise ValueError(f"sampler.sync={self.sync!r} is unknown; use one of {SYNC_MODES}")
+        if self.latent_dtype not in LATENT_DTYPES:
+            raise ValueError(f"sampler.latent_dtype={self.latent_dtype!r} is unknown; use one of {LATENT_DTYPES}")
         if self.schedule not in SCHEDULES:
             raise ValueError(f"sampler.schedule={self.schedule!r} is unknown; use one of {SCHEDULES}")
         for name in ("steps", "levels", "tt_length", "tt_repeats_main", "tt_repeats_pano"):

@@ -31,11 +31,19 @@ from tqdm.auto import tqdm
 
 from snell_bench.imaging.blend import blend_pyramids, fresnel_combine
 from snell_bench.imaging.pyramid import gaussian_pyramid, laplacian_from_gaussian, pyramid_warp
-from snell_bench.models.base import Generator
+from snell_bench.models.base import Generator, generator_device
 from snell_bench.optics.warps import WarpSet
 from snell_bench.sampler.adaptive import decide
 from snell_bench.sampler.settings import SamplerSettings
-from snell_bench.sampler.steps import euler_estimate, renoise, stochastic_step, sync_step
+from snell_bench.sampler.steps import (
+    euler_estimate,
+    latent_rounding,
+    pipeline_step,
+    renoise,
+    rounding_dtype,
+    stochastic_step,
+    sync_step,
+)
 
 log = logging.getLogger(__name__)
 
@@ -71,35 +79,46 @@ class _Views:
     """Warp maps as tensors and the constant warps of I⁻, prepared once per run."""
 
     def __init__(
-        self, ws: WarpSet, i_minus: torch.Tensor, s: SamplerSettings, reflection_mask: np.ndarray | None = None
+        self,
+        ws: WarpSet,
+        i_minus: torch.Tensor,
+        s: SamplerSettings,
+        reflection_mask: np.ndarray | None = None,
+        device: torch.device | None = None,
     ) -> None:
         L = s.effective_levels
         self.levels = L
         self.roi = bool(s.roi)
         self._gauss_last: dict[bool, tuple[torch.Tensor, list[torch.Tensor]]] = {}
         self.lam = s.effective_lam
-        self.object_mask = torch.from_numpy(ws.object_mask)[None, None]
-        self.fresnel = torch.from_numpy(ws.fresnel)[None, None]
+        dev = torch.device("cpu") if device is None else torch.device(device)
+
+        def on_device(a: np.ndarray) -> torch.Tensor:  # every map and mask crosses to the device once
+            return torch.from_numpy(np.ascontiguousarray(a)).to(dev)
+
+        i_minus = i_minus.to(dev)
+        self.object_mask = on_device(ws.object_mask)[None, None]
+        self.fresnel = on_device(ws.fresnel)[None, None]
         # maps: NaN marks every invalid source, so the masks follow from the maps
-        self.main_from_pano = ws.pano_refraction
-        self.main_refl_from_pano = ws.pano_reflection
+        self.main_from_pano = on_device(ws.pano_refraction)
+        self.main_refl_from_pano = on_device(ws.pano_reflection)
         refl_self = ws.reflection
         if reflection_mask is not None:  # reflect only where it is not negligible
-            self.main_refl_from_pano = _nan_where(ws.pano_reflection, ~reflection_mask)
+            self.main_refl_from_pano = on_device(_nan_where(ws.pano_reflection, ~reflection_mask))
             refl_self = _nan_where(ws.reflection, ~reflection_mask)
-        self.pano_from_main = _nan_where(ws.pano_to_persp, ws.pano_to_persp_object)
+        self.pano_from_main = on_device(_nan_where(ws.pano_to_persp, ws.pano_to_persp_object))
         self.refl_iminus = None  # reflection of I⁻ itself, for runs without the panorama branch
         if s.reflection and not s.uses_panorama:
-            self.refl_iminus = pyramid_warp(i_minus, refl_self, levels=L, roi=self.roi)
-        self.imin_main, self.imin_main_m = pyramid_warp(i_minus, ws.refraction, levels=L, collapse=False)
+            self.refl_iminus = pyramid_warp(i_minus, on_device(refl_self), levels=L, roi=self.roi)
+        self.imin_main, self.imin_main_m = pyramid_warp(i_minus, on_device(ws.refraction), levels=L, collapse=False)
         self.imin_pano, self.imin_pano_m = pyramid_warp(
-            i_minus, ws.pano_to_persp, levels=L, collapse=False, dest_wrap_x=True, roi=self.roi
+            i_minus, on_device(ws.pano_to_persp), levels=L, collapse=False, dest_wrap_x=True, roi=self.roi
         )
 
     @staticmethod
     def _own(gauss: list[torch.Tensor], wrap_x: bool = False):
         pyr = laplacian_from_gaussian(gauss, wrap_x=wrap_x)
-        return pyr, [torch.ones((p.shape[0], 1) + p.shape[-2:], dtype=torch.bool) for p in pyr]
+        return pyr, [torch.ones((p.shape[0], 1) + p.shape[-2:], dtype=torch.bool, device=p.device) for p in pyr]
 
     def gauss(self, img: torch.Tensor | None, wrap_x: bool = False) -> list[torch.Tensor] | None:
         """The Gaussian pyramid of an estimate, built once and shared by its own Laplacian pyramid and
@@ -224,7 +243,8 @@ def sample(
             "panorama branch skipped: %.1f %% of object pixels observed in I⁻",
             100 * decisions["panorama"]["observed_share"],
         )
-    g = torch.Generator().manual_seed(int(seed))
+    dev = generator_device(gen)
+    g = torch.Generator(dev).manual_seed(int(seed))
     clock = _Clock()
     use_pano = s.uses_panorama
     shape_m = gen.geometry.latent_shape(H, W)
@@ -233,22 +253,24 @@ def sample(
     T = s.steps
     if tuple(sig.shape) != (T + 1,):
         raise ValueError(f"{gen.name}.sigmas gave {tuple(sig.shape)} noise levels for {T} steps, expected ({T + 1},)")
+    keep = latent_rounding(gen, s.latent_dtype)
+    model_dtype = rounding_dtype(gen, s.latent_dtype)
 
-    z_m = torch.randn((1,) + shape_m, generator=g)
-    z_p = torch.randn((1,) + shape_p, generator=g) if use_pano else None
+    z_m = keep(torch.randn((1,) + shape_m, generator=g, device=dev))
+    z_p = keep(torch.randn((1,) + shape_p, generator=g, device=dev)) if use_pano else None
     cond_m = gen.condition([prompt], ["main"])
     cond_p = gen.condition([pano_prompt], ["pano"]) if use_pano else None
     cond_both = gen.condition([prompt, pano_prompt], ["main", "pano"]) if use_pano and shape_m == shape_p else None
 
     t0 = time.perf_counter()
-    views = _Views(warps, i_minus.float(), s, reflection_mask) if s.sync == "snellcaster" else None
+    views = _Views(warps, i_minus.float(), s, reflection_mask, device=dev) if s.sync == "snellcaster" else None
     clock.add("setup", t0)
 
     calls = {"main": 0, "pano": 0}
     dumps: list[dict] = []
 
-    def estimates(run_m: bool, run_p: bool, sigma: float):
-        """Model calls -> decoded clean estimates (None for a branch that does not run)."""
+    def velocities(run_m: bool, run_p: bool, sigma: float):
+        """Model calls -> the clean latent estimates (None for a branch that does not run)."""
         t0 = time.perf_counter()
         vm = vp = None
         if run_m and run_p and cond_both is not None:
@@ -262,16 +284,25 @@ def sample(
         calls["main"] += int(run_m)
         calls["pano"] += int(run_p)
         clock.add("model", t0)
+        lm = euler_estimate(z_m, vm, sigma) if run_m else None
+        lp = euler_estimate(z_p, vp, sigma) if run_p else None
+        return lm, lp
+
+    def decode(lat):
         t0 = time.perf_counter()
-        xm = gen.decode(euler_estimate(z_m, vm, sigma)) if run_m else None
-        xp = gen.decode(euler_estimate(z_p, vp, sigma)) if run_p else None
+        out = gen.decode(lat) if lat is not None else None
         clock.add("codec", t0)
-        return xm, xp, vm, vp
+        return out
 
     def step(z, x0_lat, sigma, sigma_next):
         if s.stochastic:
-            return stochastic_step(z, x0_lat, sigma, sigma_next, g, s.eta)
+            return keep(stochastic_step(z, x0_lat, sigma, sigma_next, g, s.eta))
+        if model_dtype is not None:  # the scheduler's step with latents in the model's dtype
+            return pipeline_step(z, x0_lat, sigma, sigma_next, model_dtype)
         return sync_step(z, x0_lat, sigma, sigma_next)
+
+    def to_host(x):
+        return None if x is None else x.cpu()
 
     bar = tqdm(total=T, desc=f"sampling ({s.sync})", disable=not s.progress, leave=False)
     i = 0
@@ -287,61 +318,56 @@ def sample(
                 run_m, run_p = r < Rm, r < Rp
                 for j in range(L):
                     sigma, sigma_next = float(sig[i + j]), float(sig[i + j + 1])
-                    xm, xp, vm, vp = estimates(run_m, run_p, sigma)
+                    lm, lp = velocities(run_m, run_p, sigma)
+                    dump = bool(s.dump_every) and (i + j) % s.dump_every == 0 and r == max(Rm, Rp) - 1
+                    # the synchronised blends need the decoded estimates; the generator alone (and an
+                    # unsynchronised last step) decodes nothing before the final image
+                    sync = views is not None and (s.sync_last_step or i + j < T - 1)
+                    xm = decode(lm) if sync or dump else None
+                    xp = decode(lp) if sync or dump else None
                     if run_m:
                         hist_m[j] = xm
                     if run_p:
                         hist_p[j] = xp
                     xm_use, xp_use = hist_m[j], hist_p[j] if use_pano else None
-                    t0 = time.perf_counter()
-                    if views is not None:
+                    sm = sp = None
+                    if sync:
+                        t0 = time.perf_counter()
                         gm, gp = views.gauss(xm_use), views.gauss(xp_use, wrap_x=True)
                         sm = views.blend_main(xm_use, xp_use, s, gm, gp) if run_m else None
                         sp = views.blend_pano(xp_use, xm_use, gp, gm) if run_p else None
-                    else:
-                        sm, sp = xm, xp
-                    clock.add("warp_blend", t0)
-                    t0 = time.perf_counter()
-                    lat_m = (
-                        gen.encode(sm)
-                        if run_m and views is not None
-                        else (euler_estimate(z_m, vm, sigma) if run_m else None)
-                    )
-                    lat_p = (
-                        gen.encode(sp)
-                        if run_p and views is not None
-                        else (euler_estimate(z_p, vp, sigma) if run_p else None)
-                    )
-                    clock.add("codec", t0)
+                        clock.add("warp_blend", t0)
+                        t0 = time.perf_counter()
+                        lm = gen.encode(sm) if run_m else None
+                        lp = gen.encode(sp) if run_p else None
+                        clock.add("codec", t0)
                     t0 = time.perf_counter()
                     if run_m:
-                        z_m = step(z_m, lat_m, sigma, sigma_next)
+                        z_m = step(z_m, lm, sigma, sigma_next)
                     if run_p:
-                        z_p = step(z_p, lat_p, sigma, sigma_next)
+                        z_p = step(z_p, lp, sigma, sigma_next)
                     clock.add("step", t0)
-                    if s.dump_every and (i + j) % s.dump_every == 0 and r == max(Rm, Rp) - 1:
+                    if dump:
                         dumps.append(
                             {
                                 "step": i + j,
                                 "sigma": sigma,
-                                "main_x0": xm_use,
-                                "main_sync": sm if run_m else None,
-                                "pano_x0": xp_use,
-                                "pano_sync": sp if run_p else None,
+                                "main_x0": to_host(xm_use),
+                                "main_sync": to_host(sm if sync else xm_use) if run_m else None,
+                                "pano_x0": to_host(xp_use),
+                                "pano_sync": to_host(sp if sync else xp_use) if run_p else None,
                             }
                         )
                 # travel back for the next repeat of each branch that repeats again
                 if r + 1 < Rm:
-                    z_m = renoise(z_m, float(sig[i + L]), float(sig[i]), g)
+                    z_m = keep(renoise(z_m, float(sig[i + L]), float(sig[i]), g))
                 if r + 1 < Rp:
-                    z_p = renoise(z_p, float(sig[i + L]), float(sig[i]), g)
+                    z_p = keep(renoise(z_p, float(sig[i + L]), float(sig[i]), g))
             i += L
             bar.update(L)
         bar.close()
-        t0 = time.perf_counter()
-        image = gen.decode(z_m)
-        pano = gen.decode(z_p) if use_pano else None
-        clock.add("codec", t0)
+        image = decode(z_m).cpu()  # only the final images (and dumps) come back from the device
+        pano = decode(z_p).cpu() if use_pano else None
     return SampleResult(
         image=image, panorama=pano, model_calls=calls, timings=dict(clock.t), dumps=dumps, decisions=decisions
     )

@@ -12,12 +12,69 @@ import math
 
 import torch
 
-__all__ = ["euler_estimate", "sync_step", "stochastic_step", "renoise"]
+__all__ = [
+    "euler_estimate",
+    "latent_rounding",
+    "pipeline_step",
+    "rounding_dtype",
+    "sync_step",
+    "stochastic_step",
+    "renoise",
+]
+
+
+def rounding_dtype(gen, mode: str = "float32") -> torch.dtype | None:
+    """The dtype a sampler rounds its latents to after every step, or ``None`` (no rounding).
+
+    ``mode="float32"`` keeps the latents float32 whatever the model's precision; ``mode="model"``
+    rounds them to the model's dtype (``gen.dtype``; float32 when absent), as ``FluxPipeline``
+    does by holding its latents in the transformer's dtype (bfloat16 on a GPU) between scheduler
+    steps. A float32 model needs no rounding either way.
+
+    Args:
+        gen: the generator (its ``dtype`` attribute is read).
+        mode: ``"float32"`` or ``"model"`` (config key ``sampler.latent_dtype``).
+
+    Raises:
+        ValueError: for an unknown mode.
+    """
+    if mode not in ("float32", "model"):
+        raise ValueError(f"sampler.latent_dtype={mode!r} is unknown; use 'float32' or 'model'")
+    dt = getattr(gen, "dtype", None) or torch.float32
+    return None if mode == "float32" or dt == torch.float32 else dt
+
+
+def latent_rounding(gen, mode: str = "float32"):
+    """``z -> z`` rounded to :func:`rounding_dtype` and back to float32 (the identity when there is
+    no rounding): applied to the initial noise, after stochastic steps and time travel."""
+    dt = rounding_dtype(gen, mode)
+    if dt is None:
+        return lambda z: z
+    return lambda z: z.to(dt).to(torch.float32)
 
 
 def euler_estimate(z: torch.Tensor, v: torch.Tensor, sigma: float) -> torch.Tensor:
     """Clean-latent estimate ``x0_hat = z - sigma v``."""
     return z - float(sigma) * v
+
+
+def pipeline_step(
+    z: torch.Tensor, x0: torch.Tensor, sigma: float, sigma_next: float, dtype: torch.dtype
+) -> torch.Tensor:
+    """:func:`sync_step` computed as ``FlowMatchEulerDiscreteScheduler.step`` does with latents held
+    in ``dtype`` (``FluxPipeline`` in bfloat16): ``z' = dtype(z + dtype((sigma' - sigma) v))`` with the
+    velocity ``v = (z - x0) / sigma`` rounded to ``dtype`` (the model's output), the sum in float32.
+    For ``dtype = float32`` it equals :func:`sync_step` up to float rounding.
+
+    Returns:
+        ``z'`` as float32 holding ``dtype`` values.
+    """
+    sigma, sigma_next = float(sigma), float(sigma_next)
+    if sigma <= 0.0:
+        raise ValueError("cannot step from sigma = 0")
+    v = ((z - x0) / sigma).to(dtype)
+    dt = torch.tensor(sigma_next - sigma, dtype=torch.float32, device=z.device)
+    return (z.float() + dt * v).to(dtype).to(torch.float32)
 
 
 def sync_step(z: torch.Tensor, x0: torch.Tensor, sigma: float, sigma_next: float) -> torch.Tensor:
