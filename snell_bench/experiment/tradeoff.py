@@ -442,6 +442,7 @@ def _run_setting(cell: Cell, shared: SharedCache, sweep: _Sweep) -> dict:
         "decisions": res.stats.get("decisions", {}),
         "metrics": metrics,
         "missing": missing,
+        "protocol": scored.get("protocol"),
     }
 
 

@@ -3,13 +3,18 @@
 Conventions:
     - Images: float tensors ``(B, 3, H, W)`` (``B == 1`` for the functional forms) or numpy
       ``(H, W, 3)``, sRGB-encoded, in [0, 1]. Masks: bool ``(H, W)`` or ``(B, 1, H, W)``.
-    - Protocol: grayscale ``0.299 R + 0.587 G + 0.114 B``; inside the mask the generated image's
-      histogram is matched to the reference's; PSNR ``= 10 log10(1 / MSE)`` and MAE over the mask;
-      LPIPS (VGG) averaged over the mask of its spatial map; CLIP score ``= 100 max(cos, 0)`` with
-      ViT-B/16 on the full prompt; ImageReward on the full prompt.
+    - Protocol (config key ``metrics.protocol``): ``"paper"`` (the paper's text, the default):
+      grayscale ``0.299 R + 0.587 G + 0.114 B``; inside the mask the generated image's histogram is
+      matched to the reference's; PSNR ``= 10 log10(1 / MSE)`` and MAE over the mask; LPIPS (VGG)
+      averaged over the mask of its spatial map. ``"authors"`` (the authors' released code): the
+      matched values rescaled linearly to the generated image's own masked range before PSNR / MAE;
+      LPIPS on the RGB images multiplied by the mask, averaged over the whole image. Both: CLIP score
+      ``= 100 max(cos, 0)`` with ViT-B/16 and ImageReward, on the text the caller passes (the full
+      prompt or the object phrase, config key ``metrics.clip_text``).
     - Every metric returns a ``float`` or raises :class:`MetricUnavailable` with a reason (empty
       mask; weights or program not configured, naming the config key). :func:`score_all` collects
-      them as ``{"metrics": {name: float | None}, "missing": {name: reason}}``.
+      them as ``{"metrics": {name: float | None}, "missing": {name: reason}}``; :func:`score_cell`
+      adds ``"protocol"``.
     - An experiment builds its scorers once with :func:`load_scorers` (a scorer that cannot be
       built is kept with its reason) and scores each cell with :func:`score_cell` (also without a
       reference, and against the true render).
@@ -27,19 +32,24 @@ from .alignment import (
 from .fidelity import (
     EMPTY_MASK_REASON,
     GRAY_WEIGHTS,
+    NON_FINITE_REASON,
+    PROTOCOL_CONFIG_KEY,
+    PROTOCOLS,
     MaskedLPIPS,
     MaskedMAE,
     MaskedPSNR,
     MetricUnavailable,
+    check_protocol,
     masked_mae,
     masked_psnr,
     match_histogram_masked,
     to_gray,
 )
-from .scoring import PROMPT_METRICS, REFERENCE_METRICS, SCORER_NAMES, Scorers, load_scorers, score_cell
+from .scoring import PROMPT_METRICS, REFERENCE_METRICS, SCORER_NAMES, CellScores, Scorers, load_scorers, score_cell
 
 __all__ = [
     "CLIPScore",
+    "CellScores",
     "EMPTY_MASK_REASON",
     "GRAY_WEIGHTS",
     "IMAGE_REWARD_WORKER",
@@ -49,11 +59,15 @@ __all__ = [
     "MaskedMAE",
     "MaskedPSNR",
     "MetricUnavailable",
+    "NON_FINITE_REASON",
     "PROMPT_METRICS",
+    "PROTOCOLS",
+    "PROTOCOL_CONFIG_KEY",
     "REFERENCE_METRICS",
     "SCORER_NAMES",
     "ScoreResult",
     "Scorers",
+    "check_protocol",
     "load_scorers",
     "masked_mae",
     "masked_psnr",

@@ -3,7 +3,8 @@
 Convention:
     - Images: torch float tensors ``(1, 3, H, W)`` / ``(3, H, W)`` or numpy ``(H, W, 3)``, sRGB in
       [0, 1] (``uint8`` read as ``value / 255``), a ``PIL.Image`` or an image file path. Both scores see
-      the FULL image and the FULL prompt (no mask).
+      the FULL image (no mask) and the text exactly as given: the caller picks the full prompt or the
+      object phrase (config key ``metrics.clip_text``).
     - CLIP score ``= 100 * max(cos(image embedding, text embedding), 0)`` with open_clip ViT-B/16 and
       the model's own evaluation preprocessing (resize the short side to 224, centre crop, normalise);
       prompts longer than the 77-token context are truncated by the tokenizer.
@@ -28,7 +29,7 @@ from typing import Any, TypedDict
 import numpy as np
 import torch
 
-from .fidelity import MaskedLPIPS, MetricUnavailable, masked_mae, masked_psnr
+from .fidelity import MaskedLPIPS, MetricUnavailable, check_protocol, masked_mae, masked_psnr
 
 __all__ = [
     "IMAGE_REWARD_WORKER",
@@ -379,20 +380,32 @@ def score_all(
     image_reward: ImageRewardScorer | MetricUnavailable | None = None,
     generated_path: str | os.PathLike | None = None,
     histogram_match: bool = True,
+    protocol: str = "paper",
 ) -> ScoreResult:
     """All metrics of one generated image: ``{"metrics": {...}, "missing": {...}}``.
 
     Convention:
-        - PSNR, MAE, LPIPS: masked, grayscale, histogram-matched (the protocol); CLIP and ImageReward:
-          full image against ``prompt`` (the full prompt, object phrase included).
+        - PSNR, MAE, LPIPS: masked, under ``protocol`` (``"paper"``: grayscale, histogram-matched,
+          LPIPS averaged over the mask; ``"authors"``: matched values rescaled to the generated range,
+          LPIPS on the masked RGB images averaged over the whole image; see
+          :func:`~snell_bench.metrics.fidelity.masked_psnr` and
+          :class:`~snell_bench.metrics.fidelity.MaskedLPIPS`). An unknown ``protocol`` raises
+          ``ValueError`` naming ``metrics.protocol``. The LPIPS scorer is called as
+          ``lpips(generated, reference, mask, histogram_match=...)`` under ``paper`` and as
+          ``lpips(generated, reference, mask, protocol="authors")`` under ``authors``.
+        - CLIP and ImageReward: the full image against ``prompt``, the text exactly as given (the
+          caller picks the full prompt or the object phrase, config key ``metrics.clip_text``).
         - A scorer given as ``None`` is missing with reason ``"not configured (set <config key>)"``;
           one given as a :class:`MetricUnavailable` (what its constructor raised) is missing with that
           reason. An empty mask makes PSNR, MAE and LPIPS missing. Other errors propagate.
         - ``generated_path``: the generated image's file, handed to ImageReward as is (else a
           temporary PNG of ``generated`` is written).
     """
+    check_protocol(protocol)
     metrics: dict[str, float | None] = {name: None for name in METRIC_NAMES}
     missing: dict[str, str] = {}
+    fidelity = dict(histogram_match=histogram_match, protocol=protocol)
+    lpips_kwargs = dict(histogram_match=histogram_match) if protocol == "paper" else dict(protocol=protocol)
 
     def run(name, fn):
         try:
@@ -408,14 +421,9 @@ def score_all(
         else:
             run(name, lambda: fn(scorer))
 
-    run("psnr", lambda: masked_psnr(generated, reference, mask, histogram_match=histogram_match))
-    run("mae", lambda: masked_mae(generated, reference, mask, histogram_match=histogram_match))
-    run_scorer(
-        "lpips",
-        lpips,
-        MaskedLPIPS.CONFIG_KEY,
-        lambda s: s(generated, reference, mask, histogram_match=histogram_match),
-    )
+    run("psnr", lambda: masked_psnr(generated, reference, mask, **fidelity))
+    run("mae", lambda: masked_mae(generated, reference, mask, **fidelity))
+    run_scorer("lpips", lpips, MaskedLPIPS.CONFIG_KEY, lambda s: s(generated, reference, mask, **lpips_kwargs))
     run_scorer("clip", clip, CLIPScore.CONFIG_KEY, lambda s: s(generated, prompt))
     run_scorer(
         "image_reward",

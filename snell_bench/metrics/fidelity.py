@@ -1,4 +1,5 @@
-"""Masked fidelity metrics: histogram-matched grayscale PSNR and MAE, and masked LPIPS.
+"""Masked fidelity metrics: histogram-matched grayscale PSNR and MAE, and masked LPIPS, under the
+paper's evaluation protocol or the authors' released one.
 
 Convention:
     - Images: torch float tensors ``(B, 3, H, W)`` or ``(3, H, W)``, or numpy arrays ``(H, W, 3)``;
@@ -17,12 +18,23 @@ Convention:
       histogram specification: the k-th smallest generated value (stable order) receives the k-th
       smallest reference value, so the matched values are a permutation of the reference's. Pixels
       outside the mask are never read by PSNR / MAE.
+    - Protocol (config key ``metrics.protocol``, see :data:`PROTOCOLS`):
+
+      * ``"paper"`` (the paper's text): PSNR / MAE on the matched values above; LPIPS on the matched
+        grayscale full images, its spatial map averaged over the mask.
+      * ``"authors"`` (the authors' released evaluation code): the matched values are rescaled
+        linearly to the generated image's own range inside the mask (:func:`match_histogram_masked`)
+        before PSNR / MAE; LPIPS on the RGB images (neither gray nor matched), both multiplied by the
+        mask (black outside it), averaged over the whole image.
+
     - PSNR ``= 10 log10(1 / MSE)`` over the masked pixels (``inf`` for identical pixels);
       MAE ``= mean |generated - reference|`` over the masked pixels.
     - LPIPS: the spatial LPIPS map (``spatial=True``) of the preprocessed full images, averaged over
-      the mask. Its value at a masked pixel also depends on the pixels of its receptive field.
-    - Results: a Python ``float``, or :class:`MetricUnavailable` with a ``reason`` (empty mask, weights
-      not on this machine). A metric is never replaced by a placeholder number.
+      the mask (``paper``), or the plain LPIPS value of the masked images (``authors``). Its value at a
+      masked pixel also depends on the pixels of its receptive field.
+    - Results: a Python ``float`` (never NaN), or :class:`MetricUnavailable` with a ``reason`` (empty
+      mask, non-finite pixel values, weights not on this machine). A metric is never replaced by a
+      placeholder number. An unknown protocol raises ``ValueError`` naming ``metrics.protocol``.
     - PSNR / MAE compute in float64 numpy on the CPU; no gradients anywhere.
 """
 
@@ -47,6 +59,10 @@ __all__ = [
     "MaskedMAE",
     "MaskedPSNR",
     "MetricUnavailable",
+    "NON_FINITE_REASON",
+    "PROTOCOLS",
+    "PROTOCOL_CONFIG_KEY",
+    "check_protocol",
     "masked_mae",
     "masked_psnr",
     "match_histogram_masked",
@@ -59,6 +75,15 @@ GRAY_WEIGHTS = (0.299, 0.587, 0.114)
 #: The reason reported for an empty mask.
 EMPTY_MASK_REASON = "empty mask: no object pixel refracts onto an observed surface"
 
+#: The reason reported when the scored pixels hold NaN or infinite values.
+NON_FINITE_REASON = "non-finite pixel values (NaN or inf) in the generated or reference image"
+
+#: The evaluation protocols: ``"paper"`` (the paper's text) and ``"authors"`` (the authors' code).
+PROTOCOLS = ("paper", "authors")
+
+#: The config key that selects the protocol.
+PROTOCOL_CONFIG_KEY = "metrics.protocol"
+
 
 class MetricUnavailable(Exception):
     """A metric cannot be computed; ``reason`` says why (and, for missing weights or programs, which
@@ -67,6 +92,19 @@ class MetricUnavailable(Exception):
     def __init__(self, reason: str):
         super().__init__(reason)
         self.reason = reason
+
+
+def check_protocol(protocol: Any) -> str:
+    """The protocol name, checked.
+
+    Convention:
+        ``protocol`` must be one of :data:`PROTOCOLS` (a ``str``); anything else raises ``ValueError``
+        naming the config key ``metrics.protocol`` and the allowed values.
+    """
+    if not isinstance(protocol, str) or protocol not in PROTOCOLS:
+        allowed = ", ".join(repr(p) for p in PROTOCOLS)
+        raise ValueError(f"unknown evaluation protocol {protocol!r}: set {PROTOCOL_CONFIG_KEY} to one of {allowed}")
+    return protocol
 
 
 # --------------------------------------------------------------------------------------------
@@ -174,6 +212,32 @@ def _match_values(src: np.ndarray, tmpl: np.ndarray, method: str) -> np.ndarray:
     raise ValueError(f"unknown histogram matching method {method!r} (use 'cdf' or 'rank')")
 
 
+def _rescale_to_range(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """Rescale the 1-D values linearly from their own range onto ``[lo, hi]`` (float64 out).
+
+    Convention:
+        :func:`skimage.exposure.rescale_intensity` with ``in_range="image"`` and
+        ``out_range=(lo, hi)``: ``lo + (v - min v) (hi - lo) / (max v - min v)``. Values of zero range
+        (all equal) cannot be stretched: they are clipped to ``[lo, hi]`` (skimage's rule), so they
+        stay constant and never divide by zero. Values whose range already is ``[lo, hi]`` are
+        returned unchanged (the identity map, without rounding).
+    """
+    from skimage.exposure import rescale_intensity
+
+    values = np.asarray(values, np.float64)
+    if values.min() == lo and values.max() == hi:
+        return values
+    return rescale_intensity(values, in_range="image", out_range=(float(lo), float(hi)))
+
+
+def _match_protocol(src: np.ndarray, tmpl: np.ndarray, method: str, protocol: str) -> np.ndarray:
+    """Histogram matching of the 1-D values ``src`` onto ``tmpl`` as ``protocol`` does it."""
+    matched = _match_values(src, tmpl, method)
+    if protocol == "authors":
+        matched = _rescale_to_range(matched, float(src.min()), float(src.max()))
+    return matched
+
+
 def _squeeze_hw(x: Any, name: str) -> np.ndarray:
     a = x.detach().cpu().to(torch.float64).numpy() if isinstance(x, torch.Tensor) else np.asarray(x, np.float64)
     while a.ndim > 2 and a.shape[0] == 1:
@@ -185,16 +249,28 @@ def _squeeze_hw(x: Any, name: str) -> np.ndarray:
     return a
 
 
-def match_histogram_masked(gen_gray, ref_gray, mask, *, method: str = "cdf"):
+def match_histogram_masked(gen_gray, ref_gray, mask, *, method: str = "cdf", protocol: str = "paper"):
     """Match the histogram of ``gen_gray`` to that of ``ref_gray`` inside ``mask``.
+
+    With ``g`` the masked values of ``gen_gray`` and ``r`` those of ``ref_gray``:
+
+    - ``protocol="paper"``: ``m = match(g, r)``, the generated values carried onto the reference's
+      values (``method="cdf"``: :func:`skimage.exposure.match_histograms`; ``"rank"``: exact
+      specification).
+    - ``protocol="authors"``: the histogram is matched in shape only: ``m`` as above, then rescaled
+      linearly onto the generated values' own range, ``min g + (m - min m) (max g - min g) /
+      (max m - min m)`` (:func:`skimage.exposure.rescale_intensity`). When ``m`` is constant
+      (``max m == min m``: a constant generated image, or a constant reference) the rescale cannot
+      stretch it and leaves a constant: ``m`` clipped to ``[min g, max g]``, i.e. the generated
+      constant itself for a constant generated image. No division by zero, no NaN.
 
     Convention:
         ``gen_gray`` / ``ref_gray``: one-channel images, ``(H, W)`` or with singleton leading dims
         (``(1, 1, H, W)``), numpy or torch. Returns ``gen_gray``'s type and shape (torch: same dtype and
-        device; numpy: float64) with the masked pixels remapped and the others unchanged. ``method``:
-        ``"cdf"`` (skimage's cumulative-CDF mapping) or ``"rank"`` (exact specification). An empty mask
-        returns an unchanged copy.
+        device; numpy: float64) with the masked pixels remapped and the others unchanged. An empty mask
+        returns an unchanged copy. An unknown ``protocol`` raises ``ValueError``.
     """
+    check_protocol(protocol)
     g = _squeeze_hw(gen_gray, "gen_gray")
     r = _squeeze_hw(ref_gray, "ref_gray")
     if g.shape != r.shape:
@@ -202,7 +278,7 @@ def match_histogram_masked(gen_gray, ref_gray, mask, *, method: str = "cdf"):
     m = _mask_hw(mask, g.shape)
     out = g.copy()
     if m.any():
-        out[m] = _match_values(g[m], r[m], method)
+        out[m] = _match_protocol(g[m], r[m], method, protocol)
     if isinstance(gen_gray, torch.Tensor):
         return torch.from_numpy(out).to(dtype=gen_gray.dtype, device=gen_gray.device).reshape(gen_gray.shape)
     return out.reshape(np.shape(gen_gray))
@@ -225,38 +301,77 @@ def _prepare_pair(generated, reference, mask, grayscale: bool):
     return g, r, _mask_hw(mask, g.shape[:2])
 
 
-def _masked_values(generated, reference, mask, histogram_match: bool, grayscale: bool, method: str):
+def _masked_values(
+    generated, reference, mask, histogram_match: bool, grayscale: bool, method: str, protocol: str = "paper"
+):
     """Masked (generated, reference) values, shape (N, C), after grayscale and matching."""
+    check_protocol(protocol)
     g, r, m = _prepare_pair(generated, reference, mask, grayscale)
     if not m.any():
         raise MetricUnavailable(EMPTY_MASK_REASON)
     gv, rv = g[m], r[m]
+    if not (np.isfinite(gv).all() and np.isfinite(rv).all()):
+        raise MetricUnavailable(NON_FINITE_REASON)
     if histogram_match:
-        gv = np.stack([_match_values(gv[:, c], rv[:, c], method) for c in range(gv.shape[1])], axis=1)
+        gv = np.stack([_match_protocol(gv[:, c], rv[:, c], method, protocol) for c in range(gv.shape[1])], axis=1)
     return gv, rv
 
 
 def masked_psnr(
-    generated, reference, mask, *, histogram_match: bool = True, grayscale: bool = True, method: str = "cdf"
+    generated,
+    reference,
+    mask,
+    *,
+    histogram_match: bool = True,
+    grayscale: bool = True,
+    method: str = "cdf",
+    protocol: str = "paper",
 ) -> float:
     """PSNR ``10 log10(1 / MSE)`` over the masked pixels (data range 1).
 
+    Steps, with ``g`` / ``r`` the masked grayscale (``0.299 R + 0.587 G + 0.114 B``) values of the
+    generated and reference images:
+
+    - ``protocol="paper"``: ``g' = match(g, r)`` (the generated histogram carried onto the reference's
+      values, see :func:`match_histogram_masked`), ``MSE = mean (g' - r)^2``. Invariant to any
+      increasing tone change of the generated image: it measures what no brightness, contrast or
+      tone-curve change can fix (the ordering of the intensities).
+    - ``protocol="authors"``: ``g' = min g + (m - min m) (max g - min g) / (max m - min m)`` with
+      ``m = match(g, r)`` (matched in shape, kept in the generated image's own range; a constant ``m``
+      is clipped to ``[min g, max g]``), ``MSE = mean (g' - r)^2``. Forgives the shape of the tone
+      curve but not the generated image's range: an affine change ``a r + b`` (``a > 0``) of the
+      reference scores like the unmatched pair.
+
     Convention:
-        Defaults follow the protocol: grayscale, then the generated image's masked histogram is matched
-        to the reference's. ``grayscale=False`` scores the RGB channels (matched per channel) and
-        averages the squared error over pixels and channels. Returns ``inf`` when the (matched) masked
-        pixels are identical. Raises :class:`MetricUnavailable` for an empty mask.
+        Defaults: grayscale, histogram-matched, ``paper``. ``grayscale=False`` scores the RGB channels
+        (matched, and under ``authors`` rescaled, per channel) and averages the squared error over
+        pixels and channels; ``histogram_match=False`` compares the values as they are (both protocols
+        then agree). Returns ``inf`` when the (matched) masked pixels are identical. Raises
+        :class:`MetricUnavailable` for an empty mask or non-finite masked values, ``ValueError`` for an
+        unknown ``protocol`` (naming ``metrics.protocol``).
     """
-    gv, rv = _masked_values(generated, reference, mask, histogram_match, grayscale, method)
+    gv, rv = _masked_values(generated, reference, mask, histogram_match, grayscale, method, protocol)
     mse = float(np.mean((gv - rv) ** 2))
     return math.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
 
 
 def masked_mae(
-    generated, reference, mask, *, histogram_match: bool = True, grayscale: bool = True, method: str = "cdf"
+    generated,
+    reference,
+    mask,
+    *,
+    histogram_match: bool = True,
+    grayscale: bool = True,
+    method: str = "cdf",
+    protocol: str = "paper",
 ) -> float:
-    """Mean absolute error over the masked pixels; same conventions as :func:`masked_psnr`."""
-    gv, rv = _masked_values(generated, reference, mask, histogram_match, grayscale, method)
+    """Mean absolute error ``mean |g' - r|`` over the masked pixels.
+
+    Convention:
+        ``g'`` and ``r`` as in :func:`masked_psnr` (same preprocessing for each ``protocol``, same
+        options and errors). Zero for identical (matched) masked pixels.
+    """
+    gv, rv = _masked_values(generated, reference, mask, histogram_match, grayscale, method, protocol)
     return float(np.mean(np.abs(gv - rv)))
 
 
@@ -276,28 +391,36 @@ def _iter_batch(generated, reference, mask):
 
 class _MaskedMean:
     """Accumulates a per-image masked metric over batches; ``compute()`` is the mean over images
-    with a non-empty mask (``missing`` counts the others)."""
+    with a value (``missing`` counts the others: empty mask, non-finite pixels). The options are those
+    of the functional form, ``protocol`` included."""
 
     _fn: Callable[..., float]
 
-    def __init__(self, *, histogram_match: bool = True, grayscale: bool = True, method: str = "cdf"):
-        self.kwargs = dict(histogram_match=histogram_match, grayscale=grayscale, method=method)
+    def __init__(
+        self, *, histogram_match: bool = True, grayscale: bool = True, method: str = "cdf", protocol: str = "paper"
+    ):
+        self.kwargs = dict(
+            histogram_match=histogram_match, grayscale=grayscale, method=method, protocol=check_protocol(protocol)
+        )
         self.reset()
 
     def reset(self) -> None:
         self.values: list[float] = []
         self.missing = 0
+        self._reasons: list[str] = []
 
     def update(self, generated, reference, mask) -> None:
         for g, r, m in _iter_batch(generated, reference, mask):
             try:
                 self.values.append(type(self)._fn(g, r, m, **self.kwargs))
-            except MetricUnavailable:
+            except MetricUnavailable as e:
                 self.missing += 1
+                if e.reason not in self._reasons:
+                    self._reasons.append(e.reason)
 
     def compute(self) -> float:
         if not self.values:
-            raise MetricUnavailable(EMPTY_MASK_REASON if self.missing else "no images scored")
+            raise MetricUnavailable("; ".join(self._reasons) if self.missing else "no images scored")
         return float(np.mean(self.values))
 
     def __call__(self, generated, reference, mask) -> float:
@@ -330,7 +453,18 @@ _BACKBONE_FILES = {
 
 
 class MaskedLPIPS(torch.nn.Module):
-    """LPIPS averaged over a mask of its spatial map.
+    """LPIPS (VGG) of a masked region, under the paper's protocol or the authors'.
+
+    - ``protocol="paper"``: both images converted to grayscale, the generated image's masked
+      histogram matched to the reference's (as for PSNR; pixels outside the mask keep their gray
+      values), the gray images repeated to 3 channels and scaled to [-1, 1]; the value is the mean of
+      the ``(H, W)`` spatial LPIPS map over the masked pixels.
+    - ``protocol="authors"``: both RGB images (neither gray nor matched) multiplied by the mask (zero,
+      i.e. black, outside it), scaled to [-1, 1], and given to LPIPS as they are: the value is what
+      ``lpips.LPIPS(net, spatial=False)(gen * mask, ref * mask, normalize=True)`` returns, each
+      layer's distance map averaged over the WHOLE image. Pixels outside the mask are black in both
+      inputs and add little distance, so the value shrinks with the mask's share of the image: it is
+      comparable only between images scored with the same mask.
 
     Convention:
         - Backbone weights (never downloaded): ``weights_path`` (config key ``metrics.lpips_weights``),
@@ -340,10 +474,12 @@ class MaskedLPIPS(torch.nn.Module):
           linear layers ship with the ``lpips`` package.
         - ``allow_random_backbone=True`` (with ``weights_path=None``) builds a randomly initialised
           backbone (seeded, no cache lookup) for plumbing tests only: its values are meaningless.
-        - Inputs follow the module's image/mask convention; by default they are converted to grayscale
-          and the generated image's masked histogram is matched to the reference's (as for PSNR), the
-          gray image is repeated to 3 channels, and both are scaled to [-1, 1].
-        - ``forward`` returns a float: the mean of the ``(H, W)`` LPIPS map over the mask.
+        - Inputs follow the module's image/mask convention. ``grayscale``, ``histogram_match`` and
+          ``method`` are options of the ``paper`` preprocessing (``False`` skips a step); ``authors``
+          fixes its own (RGB, unmatched) and does not read them.
+        - ``forward`` returns a float (see above); an empty mask or non-finite pixel values raise
+          :class:`MetricUnavailable`; an unknown ``protocol`` raises ``ValueError`` naming
+          ``metrics.protocol``.
     """
 
     CONFIG_KEY = "metrics.lpips_weights"
@@ -416,12 +552,20 @@ class MaskedLPIPS(torch.nn.Module):
         except RuntimeError as e:
             raise ValueError(f"{path} does not fit the LPIPS backbone: {e}") from e
 
-    def _inputs(self, generated, reference, mask, grayscale: bool, histogram_match: bool, method: str):
+    def _inputs(self, generated, reference, mask, grayscale: bool, histogram_match: bool, method: str, protocol: str):
+        """The LPIPS inputs ``(1, 3, H, W)`` in [-1, 1] of ``protocol`` and the bool mask ``(H, W)``."""
+        check_protocol(protocol)
+        if protocol == "authors":
+            grayscale, histogram_match = False, False
         g, r, m = _prepare_pair(generated, reference, mask, grayscale)
+        if not (np.isfinite(g).all() and np.isfinite(r).all()):
+            raise MetricUnavailable(NON_FINITE_REASON)
         if histogram_match and m.any():
             g = g.copy()
             for c in range(g.shape[-1]):
                 g[..., c][m] = _match_values(g[..., c][m], r[..., c][m], method)
+        if protocol == "authors":
+            g, r = g * m[..., None], r * m[..., None]
         device = next(self.model.parameters()).device
 
         def to_tensor(a: np.ndarray) -> torch.Tensor:
@@ -434,19 +578,51 @@ class MaskedLPIPS(torch.nn.Module):
 
     @torch.no_grad()
     def spatial_map(
-        self, generated, reference, mask, *, grayscale: bool = True, histogram_match: bool = True, method: str = "cdf"
+        self,
+        generated,
+        reference,
+        mask,
+        *,
+        grayscale: bool = True,
+        histogram_match: bool = True,
+        method: str = "cdf",
+        protocol: str = "paper",
     ) -> torch.Tensor:
-        """The LPIPS map ``(H, W)`` of the preprocessed pair (the mask drives the histogram matching)."""
-        g, r, _ = self._inputs(generated, reference, mask, grayscale, histogram_match, method)
+        """The spatial LPIPS map ``(H, W)`` of the pair preprocessed as ``protocol`` does.
+
+        Convention:
+            ``paper``: the mask drives the histogram matching; ``authors``: the map of the masked RGB
+            images (its mean is close to, not exactly, the ``authors`` value of :meth:`forward`).
+        """
+        g, r, _ = self._inputs(generated, reference, mask, grayscale, histogram_match, method, protocol)
         return self.model(g, r)[0, 0].cpu()
+
+    def _whole_image(self, g: torch.Tensor, r: torch.Tensor) -> float:
+        """``lpips.LPIPS`` with ``spatial=False``: each layer's map averaged over the whole image."""
+        spatial = self.model.spatial
+        self.model.spatial = False
+        try:
+            return float(self.model(g, r).reshape(()).double())
+        finally:
+            self.model.spatial = spatial
 
     @torch.no_grad()
     def forward(
-        self, generated, reference, mask, *, grayscale: bool = True, histogram_match: bool = True, method: str = "cdf"
+        self,
+        generated,
+        reference,
+        mask,
+        *,
+        grayscale: bool = True,
+        histogram_match: bool = True,
+        method: str = "cdf",
+        protocol: str = "paper",
     ) -> float:
-        """Mean of the LPIPS map over the mask; :class:`MetricUnavailable` for an empty mask."""
-        g, r, m = self._inputs(generated, reference, mask, grayscale, histogram_match, method)
+        """LPIPS of the pair under ``protocol`` (see the class); :class:`MetricUnavailable` for an empty mask."""
+        g, r, m = self._inputs(generated, reference, mask, grayscale, histogram_match, method, protocol)
         if not m.any():
             raise MetricUnavailable(EMPTY_MASK_REASON)
+        if protocol == "authors":
+            return self._whole_image(g, r)
         lp = self.model(g, r)[0, 0].cpu().to(torch.float64)
         return float(lp[torch.from_numpy(m)].mean())

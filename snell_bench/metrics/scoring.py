@@ -6,7 +6,9 @@ of one cell with the reason for each missing one.
   broken weights file), is kept as the :class:`~snell_bench.metrics.fidelity.MetricUnavailable`
   that says why: building never raises.
 - :func:`score_cell` scores one image: the metrics of :data:`METRIC_NAMES` against the reference
-  and the prompt, and ``psnr_true`` against the true render over the object mask.
+  and the prompt, and ``psnr_true`` against the true render over the object mask, under one
+  evaluation protocol (config key ``metrics.protocol``: ``"paper"`` or ``"authors"``, see
+  :mod:`snell_bench.metrics.fidelity`), recorded in its result.
 """
 
 from __future__ import annotations
@@ -22,9 +24,17 @@ import torch
 from snell_bench.utils.tensors import bchw_to_hwc
 
 from .alignment import METRIC_NAMES, CLIPScore, ImageRewardScorer, ScoreResult, score_all
-from .fidelity import MaskedLPIPS, MetricUnavailable, masked_psnr
+from .fidelity import MaskedLPIPS, MetricUnavailable, check_protocol, masked_psnr
 
-__all__ = ["PROMPT_METRICS", "REFERENCE_METRICS", "SCORER_NAMES", "Scorers", "load_scorers", "score_cell"]
+__all__ = [
+    "PROMPT_METRICS",
+    "REFERENCE_METRICS",
+    "SCORER_NAMES",
+    "CellScores",
+    "Scorers",
+    "load_scorers",
+    "score_cell",
+]
 
 #: The metrics of :data:`METRIC_NAMES` scored against the prompt alone (no reference needed).
 PROMPT_METRICS = ("clip", "image_reward")
@@ -34,6 +44,13 @@ REFERENCE_METRICS = tuple(name for name in METRIC_NAMES if name not in PROMPT_ME
 
 #: The metrics whose scorer needs weights or a program (built by :func:`load_scorers`).
 SCORER_NAMES = ("lpips", "clip", "image_reward")
+
+
+class CellScores(ScoreResult):
+    """What :func:`score_cell` returns: ``metrics`` and ``missing`` as in :class:`ScoreResult`, and
+    ``protocol``, the evaluation protocol the fidelity metrics were computed under."""
+
+    protocol: str
 
 
 class Scorers(dict):
@@ -82,10 +99,13 @@ def _build(factory: Callable[[], Any]) -> Any:
 def load_scorers(metrics_cfg: Any = None, *, device: str | torch.device = "cpu") -> Scorers:
     """Build the weight-backed scorers of a run, once.
 
+    The scorers are the same for every protocol; ``protocol`` is read only to reject an unknown one
+    before any cell runs (scoring takes it as :func:`score_cell`'s ``protocol`` argument).
+
     Args:
-        metrics_cfg: a config with ``lpips_weights``, ``clip_weights`` and ``image_reward_python``
-            (``MetricsConfig``, a DictConfig or a mapping; a missing key or ``None``: unset, and
-            the scorer looks in its default places).
+        metrics_cfg: a config with ``lpips_weights``, ``clip_weights``, ``image_reward_python`` and
+            ``protocol`` (``MetricsConfig``, a DictConfig or a mapping; a missing key or ``None``:
+            unset, and the scorer looks in its default places; the protocol defaults to ``"paper"``).
         device: where LPIPS and CLIP run.
 
     Returns:
@@ -94,6 +114,9 @@ def load_scorers(metrics_cfg: Any = None, *, device: str | torch.device = "cpu")
         (which names the config key to set), or ``"<exception type>: <message>"`` for any other
         error (e.g. a weights file that does not load). Never raises for a scorer that cannot be
         built.
+
+    Raises:
+        ValueError: an unknown ``protocol`` (the message names ``metrics.protocol``).
     """
 
     def get(key):
@@ -103,6 +126,8 @@ def load_scorers(metrics_cfg: Any = None, *, device: str | torch.device = "cpu")
             return metrics_cfg.get(key)
         return getattr(metrics_cfg, key, None)
 
+    protocol = get("protocol")
+    check_protocol("paper" if protocol is None else protocol)
     return Scorers(
         lpips=_build(lambda: MaskedLPIPS(get("lpips_weights"), device=device)),
         clip=_build(lambda: CLIPScore(get("clip_weights"), device=device)),
@@ -110,9 +135,14 @@ def load_scorers(metrics_cfg: Any = None, *, device: str | torch.device = "cpu")
     )
 
 
-def _finite(x):
-    """NaN and infinities (PSNR of identical pixels) are not table values: None."""
-    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
+def _is_finite(x) -> bool:
+    return not (isinstance(x, float) and not math.isfinite(x))
+
+
+def _non_finite_reason(name: str, x: float) -> str:
+    if name.startswith("psnr") and x == math.inf:
+        return "infinite PSNR: the masked pixels are identical after the protocol's preprocessing"
+    return f"not a finite value ({x!r})"
 
 
 def _hwc(image: Any) -> Any:
@@ -133,37 +163,50 @@ def score_cell(
     true_render: np.ndarray | None = None,
     object_mask: np.ndarray | None = None,
     generated_path: str | os.PathLike | None = None,
-) -> ScoreResult:
+    protocol: str = "paper",
+) -> CellScores:
     """Every metric of one generated image, each a float or None with the reason.
 
-    With a reference, the metrics of :data:`METRIC_NAMES` are those of :func:`score_all`
-    (PSNR, MAE, LPIPS: masked, grayscale, histogram-matched; CLIP and ImageReward: the full image
-    against ``prompt``). Without one (``reference is None``), PSNR, MAE and LPIPS are None with
-    ``reference_reason`` (default ``"no reference"``), CLIP is still scored, and ImageReward is
-    None. Then, for each scorer that could not be built, its reason replaces the recorded one
-    wherever its metric has no value. With ``true_render``, ``psnr_true`` is the masked PSNR
-    (same protocol) of the image against it over ``object_mask``. Last, NaN and infinite values
-    (e.g. the PSNR of identical pixels) become None.
+    With a reference, the metrics of :data:`METRIC_NAMES` are those of :func:`score_all` under
+    ``protocol`` (PSNR, MAE, LPIPS: masked; ``"paper"``: grayscale, histogram-matched, LPIPS
+    averaged over the mask; ``"authors"``: matched values rescaled to the generated image's masked
+    range, LPIPS on the RGB images multiplied by the mask and averaged over the whole image; CLIP
+    and ImageReward: the full image against ``prompt``). Without one (``reference is None``), PSNR,
+    MAE and LPIPS are None with ``reference_reason`` (default ``"no reference"``), CLIP is still
+    scored, and ImageReward is None. Then, for each scorer that could not be built, its reason
+    replaces the recorded one wherever its metric has no value. With ``true_render``,
+    ``psnr_true`` is the masked PSNR (same protocol) of the image against it over ``object_mask``.
+    Last, NaN and infinite values (e.g. the PSNR of identical pixels) become None, with a reason.
+
+    Convention:
+        Every metric is a finite float or None (never NaN or inf); a value turned into None gets its
+        reason in ``missing``. ``protocol`` is recorded in the result as given (reports show it); it changes PSNR, MAE,
+        LPIPS and ``psnr_true``, never CLIP or ImageReward.
 
     Args:
         generated: the image, numpy ``(H, W, 3)`` in [0, 1] or torch ``(1, 3, H, W)`` / ``(3, H, W)``.
         reference: the reference render ``(H, W, 3)``, or None when there is none.
         mask: the metric mask ``(H, W)`` of the reference.
-        prompt: the full prompt (object phrase included).
+        prompt: the text CLIP and ImageReward score the image against, as is: the caller picks the
+            full prompt or the object phrase (config key ``metrics.clip_text``).
         scorers: from :func:`load_scorers` (any mapping of metric name to scorer,
             :class:`MetricUnavailable` or None); None: no scorer is configured.
         reference_reason: why there is no reference, for PSNR, MAE and LPIPS.
         true_render: the true render ``(H, W, 3)``, if any.
         object_mask: the object's pixels ``(H, W)``, where ``psnr_true`` is scored.
         generated_path: the saved image, handed to ImageReward as is.
+        protocol: the evaluation protocol, ``"paper"`` or ``"authors"`` (config key
+            ``metrics.protocol``).
 
     Returns:
-        ``{"metrics": {name: float | None}, "missing": {name: reason}}``: the names of
-        :data:`METRIC_NAMES` in order, then ``psnr_true`` when ``true_render`` is given.
+        ``{"metrics": {name: float | None}, "missing": {name: reason}, "protocol": protocol}``: the
+        names of :data:`METRIC_NAMES` in order, then ``psnr_true`` when ``true_render`` is given.
 
     Raises:
-        ValueError: ``true_render`` without ``object_mask``.
+        ValueError: ``true_render`` without ``object_mask``; an unknown ``protocol`` (the message
+            names ``metrics.protocol`` and the allowed values).
     """
+    check_protocol(protocol)
     if true_render is not None and object_mask is None:
         raise ValueError("score_cell: true_render needs the object_mask it is scored over")
     scorers = scorers if isinstance(scorers, Scorers) else Scorers(scorers or {})
@@ -186,6 +229,7 @@ def score_cell(
             clip=scorers.clip,
             image_reward=scorers.image_reward,
             generated_path=generated_path,
+            protocol=protocol,
         )
         metrics, missing = out["metrics"], out["missing"]
     for name, reason in scorers.reasons.items():
@@ -193,8 +237,12 @@ def score_cell(
             missing[name] = reason
     if true_render is not None:
         try:
-            metrics["psnr_true"] = float(masked_psnr(gen, true_render, object_mask))
+            metrics["psnr_true"] = float(masked_psnr(gen, true_render, object_mask, protocol=protocol))
         except MetricUnavailable as e:
             metrics["psnr_true"] = None
             missing["psnr_true"] = e.reason
-    return {"metrics": {k: _finite(v) for k, v in metrics.items()}, "missing": missing}
+    for name, value in metrics.items():
+        if not _is_finite(value):
+            metrics[name] = None
+            missing.setdefault(name, _non_finite_reason(name, value))
+    return {"metrics": metrics, "missing": missing, "protocol": protocol}

@@ -163,3 +163,83 @@ def test_load_scorers_keeps_a_scorer_that_builds(tmp_path, monkeypatch):
     monkeypatch.setattr(scoring, "MaskedLPIPS", lambda weights, device: MaskedLPIPS(allow_random_backbone=True))
     scorers = load_scorers({"clip_weights": str(tmp_path / "no.bin")})
     assert isinstance(scorers.lpips, MaskedLPIPS) and "lpips" not in scorers.reasons
+
+
+# ------------------------------------------------------------------------------------------
+# The evaluation protocol
+# ------------------------------------------------------------------------------------------
+
+
+class RecordingLPIPS:
+    """A stand-in LPIPS scorer that records how it is called."""
+
+    def __init__(self):
+        self.calls = []
+
+    def __call__(self, generated, reference, mask, **kwargs):
+        self.calls.append(kwargs)
+        return fake_lpips(generated, reference, mask)
+
+
+def test_the_protocol_is_recorded_and_paper_is_the_default(cell, scorers):
+    gen, ref, mask, true, obj = cell
+    default = score_cell(gen, ref, mask, PROMPT, scorers, true_render=true, object_mask=obj)
+    assert default["protocol"] == "paper"
+    assert score_cell(gen, ref, mask, PROMPT, scorers, true_render=true, object_mask=obj, protocol="paper") == default
+    no_ref = score_cell(gen, None, None, PROMPT, scorers, protocol="authors")
+    assert no_ref["protocol"] == "authors"
+    json.dumps(no_ref)
+
+
+def test_authors_protocol_is_passed_down(cell):
+    gen, ref, mask, true, obj = cell
+    lp = RecordingLPIPS()
+    res = score_cell(
+        gen, ref, mask, PROMPT, Scorers(lpips=lp, clip=fake_clip), true_render=true, object_mask=obj, protocol="authors"
+    )
+    m = res["metrics"]
+    assert res["protocol"] == "authors"
+    assert m["psnr"] == masked_psnr(gen, ref, mask, protocol="authors") != masked_psnr(gen, ref, mask)
+    assert m["mae"] == masked_mae(gen, ref, mask, protocol="authors")
+    assert m["psnr_true"] == masked_psnr(gen, true, obj, protocol="authors")
+    assert lp.calls == [{"protocol": "authors"}]
+    assert m["clip"] == fake_clip(gen, PROMPT)  # the text scores do not depend on the protocol
+    # the paper protocol calls the LPIPS scorer as before
+    score_cell(gen, ref, mask, PROMPT, Scorers(lpips=lp))
+    assert lp.calls[-1] == {"histogram_match": True}
+
+
+def test_unknown_protocol_is_a_value_error_naming_the_config_key(cell, scorers):
+    gen, ref, mask, _, _ = cell
+    for protocol in ("author", "PAPER", "", None):
+        with pytest.raises(ValueError, match=r"metrics\.protocol") as exc:
+            score_cell(gen, ref, mask, PROMPT, scorers, protocol=protocol)
+        assert "'paper'" in str(exc.value) and "'authors'" in str(exc.value)
+    with pytest.raises(ValueError, match=r"metrics\.protocol"):  # also without a reference
+        score_cell(gen, None, None, PROMPT, scorers, protocol="author")
+
+
+def test_load_scorers_reads_the_protocol(tmp_path):
+    from snell_bench.config import MetricsConfig
+
+    cfg = OmegaConf.structured(MetricsConfig(clip_weights=str(tmp_path / "no.bin")))
+    assert set(load_scorers(cfg)) == set(SCORER_NAMES)
+    cfg.protocol = "authors"
+    assert set(load_scorers(cfg)) == set(SCORER_NAMES)
+    assert set(load_scorers({"protocol": None, "clip_weights": str(tmp_path / "no.bin")})) == set(SCORER_NAMES)
+    cfg.protocol = "author"
+    with pytest.raises(ValueError, match=r"metrics\.protocol.*'paper', 'authors'"):
+        load_scorers(cfg)
+
+
+@pytest.mark.parametrize("protocol", ["paper", "authors"])
+def test_identical_and_constant_images_never_give_nan(cell, protocol):
+    gen, ref, mask, _, obj = cell
+    res = score_cell(gen, gen.copy(), mask, PROMPT, None, true_render=gen.copy(), object_mask=obj, protocol=protocol)
+    assert res["metrics"]["psnr"] is None and res["metrics"]["psnr_true"] is None and res["metrics"]["mae"] == 0.0
+    assert res["missing"]["psnr"].startswith("infinite PSNR") and res["missing"]["psnr_true"].startswith("infinite")
+    flat = np.full_like(gen, 0.4)
+    res = score_cell(flat, ref, mask, PROMPT, None, protocol=protocol)
+    assert all(isinstance(res["metrics"][k], float) and math.isfinite(res["metrics"][k]) for k in ("psnr", "mae"))
+    for name, value in res["metrics"].items():
+        assert value is not None or name in res["missing"]
