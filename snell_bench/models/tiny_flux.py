@@ -122,16 +122,18 @@ def clip_tokenizer_from_open_clip_vocab():
     return CLIPTokenizer.from_pretrained(str(_clip_tokenizer_folder()), model_max_length=77)
 
 
-def build_tiny_flux_pipeline(seed: int = 0, *, fill: bool = False):
-    """A ``FluxPipeline`` (or ``FluxFillPipeline``) with FLUX.1-dev's architecture at toy size and
-    random weights.
+def build_tiny_flux_pipeline(seed: int = 0, *, fill: bool = False, kontext: bool = False):
+    """A ``FluxPipeline`` (or ``FluxFillPipeline``, or ``FluxKontextPipeline``) with FLUX.1-dev's
+    architecture at toy size and random weights.
 
     Convention:
         - Transformer: ``in_channels=64`` (16 latent channels x 2x2 patches), 1 double + 1 single
           block, 2 heads of 16, text width 32, pooled width 32, RoPE axes (4, 6, 6), guidance-embedded.
           The Fill variant (as FLUX.1-Fill-dev) reads ``in_channels = 64 + 64 + 256 = 384`` (the
           packed noisy latents, the packed latents of the masked image, and the 8x8 pixel mask per
-          latent pixel packed into 2x2 patches) and writes ``out_channels=64``.
+          latent pixel packed into 2x2 patches) and writes ``out_channels=64``. The Kontext variant
+          (as FLUX.1-Kontext-dev) has the plain 64-channel transformer: the packed latents of the
+          context image are concatenated to the noisy ones along the sequence, not the channels.
         - VAE: 16 latent channels, 4 blocks (downscale 8), channels (8, 16, 16, 16), 4 norm groups,
           no quant convs, scaling 0.3611 / shift 0.1159 (FLUX.1-dev's values).
         - Text: CLIP text model (width 32, projection 32, CLIP's 49408-token vocabulary, 77 tokens);
@@ -139,18 +141,27 @@ def build_tiny_flux_pipeline(seed: int = 0, *, fill: bool = False):
         - Scheduler: ``FlowMatchEulerDiscreteScheduler`` with FLUX.1-dev's dynamic shifting
           (sequence lengths 256 / 4096, shifts 0.5 / 1.15).
         - Weights are drawn from ``torch.manual_seed(seed)`` in a forked RNG; every module is in eval mode.
+          The plain and the Kontext variant of a seed share every weight (the same draws in the same
+          order); only the pipeline class differs.
 
     Args:
         seed: seeds the random weights.
         fill: build a ``FluxFillPipeline`` (inpainting) instead of a ``FluxPipeline``.
+        kontext: build a ``FluxKontextPipeline`` (image editing from a context image) instead.
 
     Returns:
         The pipeline, on the CPU in float32.
+
+    Raises:
+        ValueError: if both ``fill`` and ``kontext`` are set.
     """
+    if fill and kontext:
+        raise ValueError("build_tiny_flux_pipeline: choose fill=True or kontext=True, not both")
     from diffusers import (
         AutoencoderKL,
         FlowMatchEulerDiscreteScheduler,
         FluxFillPipeline,
+        FluxKontextPipeline,
         FluxPipeline,
         FluxTransformer2DModel,
     )
@@ -229,7 +240,8 @@ def build_tiny_flux_pipeline(seed: int = 0, *, fill: bool = False):
     )
     for module in (transformer, vae, text_encoder, text_encoder_2):
         module.eval().requires_grad_(False)
-    return (FluxFillPipeline if fill else FluxPipeline)(
+    pipeline_cls = FluxFillPipeline if fill else FluxKontextPipeline if kontext else FluxPipeline
+    return pipeline_cls(
         scheduler=scheduler,
         vae=vae,
         text_encoder=text_encoder,
@@ -250,8 +262,9 @@ class TinyFluxGenerator(FluxGenerator):
 
     Args:
         seed: seeds the random weights.
-        device: where the model runs.
-        dtype: a dtype or its name (:func:`~snell_bench.models.devices.parse_dtype`).
+        device: where the model runs (``None``: the CPU).
+        dtype: a dtype or its name (:func:`~snell_bench.models.devices.parse_dtype`); ``None``:
+            bfloat16 on CUDA, float32 elsewhere.
         guidance: the default guidance scale.
         max_sequence_length: the T5 token count.
         vae_tiling: see :class:`FluxGenerator`.
@@ -264,8 +277,8 @@ class TinyFluxGenerator(FluxGenerator):
         self,
         seed: int = 0,
         *,
-        device: str | torch.device = "cpu",
-        dtype: torch.dtype | str = torch.float32,
+        device: str | torch.device | None = "cpu",
+        dtype: torch.dtype | str | None = torch.float32,
         guidance: float = 3.5,
         max_sequence_length: int = 512,
         vae_tiling: bool = True,
@@ -273,7 +286,7 @@ class TinyFluxGenerator(FluxGenerator):
     ):
         super().__init__(
             build_tiny_flux_pipeline(seed),
-            device=device,
+            device="cpu" if device is None else device,
             dtype=dtype,
             guidance=guidance,
             max_sequence_length=max_sequence_length,
