@@ -72,6 +72,9 @@ class SceneConfig:
     prompt: str = "${prompts:${.text},full,${.prompt_llm}}"
     prompt_minus: str = "${prompts:${.text},minus,${.prompt_llm}}"
     pano_prompt: str = "${prompts:${.text},pano,${.prompt_llm}}"
+    #: The object phrase p_obj (``"a big glass {object}"``; relighting's prompt and
+    #: ``method.prompt=object`` use it, ``{object}`` replaced by the object's noun).
+    object_phrase: str = "${prompts:${.text},object_phrase,${.prompt_llm}}"
     #: A local text-generation model (folder or cached id) that marks the object phrase of a
     #: ``text`` written without ``[[...]]``; ``null``: the phrase must be marked.
     prompt_llm: Optional[str] = None
@@ -150,6 +153,13 @@ class ModelConfig:
     seed: int = 0
     #: Image sizes must be multiples of this (the generator's latent block: 8 analytic, 16 FLUX).
     multiple: int = 16
+    #: What builds the inpainting pipeline of ``method=inpaint`` (a ``_target_`` node: FLUX Fill from
+    #: local weights, or the tiny random one); ``null``: the CPU stand-in (the generator's image
+    #: pasted into the object region of I⁻, no optics).
+    fill: Any = None
+    #: What builds the relighter of a method with ``method.relight: true`` (a ``_target_`` node:
+    #: FLUX Kontext from local weights, the tiny random one, or the traced-shadow stand-in).
+    relighter: Any = None
 
 
 @dataclass
@@ -170,6 +180,18 @@ class MethodConfig:
     model_id: Optional[str] = None
     #: Overrides of the ``warps`` node for this method (e.g. ``infinity_tolerance_px``).
     warps: dict = field(default_factory=dict)
+    #: ``external`` and ``inpaint`` pipelines: inference steps and guidance; ``null``: the
+    #: pipeline's own default (the ``__call__`` signature's).
+    steps: Optional[int] = None
+    guidance: Optional[float] = None
+    #: The text a pipeline baseline sees: ``full`` (p) or ``object`` (p_obj, the object phrase).
+    prompt: str = "full"
+    #: ``inpaint``: the region repainted: ``object`` (the object's silhouette) or ``box`` (its
+    #: bounding box), grown by ``mask_dilate_px`` pixels.
+    mask: str = "object"
+    mask_dilate_px: int = 0
+    #: Relight the image after sampling (the ``relight`` node; the model's ``relighter``).
+    relight: bool = False
 
 
 @dataclass
@@ -206,7 +228,17 @@ class SegmentConfig:
 
 @dataclass
 class MetricsConfig:
-    """Scorers that need weights read them from these local files (never downloaded)."""
+    """How images are scored; scorers that need weights read them from these local files (never
+    downloaded)."""
+
+    #: ``paper`` (as the paper's text says: grayscale, the generated image's histogram matched onto
+    #: the reference's values inside the mask, masked PSNR / MAE / LPIPS on the matched grayscale) or
+    #: ``authors`` (as the authors' released evaluation does: the histogram matched in shape but
+    #: rescaled to the generated image's own range, LPIPS on RGB with both inputs multiplied by the
+    #: mask).
+    protocol: str = "paper"
+    #: The text CLIP and ImageReward score against: ``full`` (p) or ``object`` (p_obj).
+    clip_text: str = "full"
 
     #: torchvision VGG16 state dict for LPIPS (e.g. vgg16-397923af.pth).
     lpips_weights: Optional[str] = None
@@ -229,6 +261,24 @@ class ReferenceConfig:
     true_spp: int = 4
     #: Bounces of the true render; ``null``: ``warps.max_bounces`` (set it to compare bounce counts).
     true_max_bounces: Optional[int] = None
+
+
+@dataclass
+class RelightConfig:
+    """Relighting (the paper's last stage): N candidates from the model's relighter, the one with
+    the highest masked PSNR against the un-relit image inside the object's silhouette kept."""
+
+    #: Candidates N (the paper: 20; the authors' code: 3).
+    candidates: int = 20
+    #: The instruction; ``{object_phrase}`` is p_obj (``scene.object_phrase``).
+    prompt: str = "Create soft shadows and caustics under {object_phrase}"
+    #: Inference steps and guidance of the relighting pipeline; ``null``: its own default.
+    steps: Optional[int] = None
+    guidance: Optional[float] = None
+    #: A LoRA for the relighting pipeline (a local file or folder, or a Hugging Face id in the local
+    #: cache, e.g. the authors' ``relighting-kontext-dev-lora-v3``); ``null``: none.
+    lora: Optional[str] = None
+    lora_scale: float = 1.0
 
 
 @dataclass
@@ -284,6 +334,7 @@ class Config:
     depth: DepthConfig = field(default_factory=DepthConfig)
     segment: SegmentConfig = field(default_factory=SegmentConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+    relight: RelightConfig = field(default_factory=RelightConfig)
     grid: GridConfig = field(default_factory=GridConfig)
     tradeoff: TradeoffConfig = field(default_factory=TradeoffConfig)
     #: The experiment's name (its folder under runs/ and reports/).

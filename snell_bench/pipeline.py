@@ -15,7 +15,10 @@ these two functions and wires no stage itself::
 4. the reference render and its metric mask, by an independent renderer (:func:`render_reference`);
 5. the true render of the full procedural scene with the object (:func:`render_true_scene`);
 6. the generator, built from ``model.generator`` once per inputs (:func:`build_generator`);
-7. sampling with the method's settings (:func:`sample_method`);
+7. sampling with the method's settings (:func:`sample_method`): the synchronized sampler, the
+   generator alone, or a diffusers pipeline baseline (another text-to-image model, FLUX Fill);
+   7b. relighting (``method.relight``): N candidates from the model's relighter, the one closest to
+   the un-relit image inside the object kept (:func:`relight_image`);
 8. masked metrics against the reference (:func:`score`).
 
 Conventions: images handed between stages are ``(1, 3, H, W)`` float32 sRGB tensors in [0, 1]
@@ -23,7 +26,8 @@ Conventions: images handed between stages are ``(1, 3, H, W)`` float32 sRGB tens
 works in numpy (``SceneInputs.image``, references); depth is camera-frame z in metres (NaN: unknown);
 the camera frame is OpenCV's. Stage times are wall seconds in ``timings`` (one
 :class:`~snell_bench.utils.timing.Timer` per call), keyed ``scene``, ``warps``, ``reference``,
-``true_render`` (inputs) and ``generator``, ``sampling``, ``metrics`` (a method).
+``true_render`` (inputs) and ``generator``, ``sampling``, ``relighter``, ``relight``, ``metrics``
+(a method).
 """
 
 from __future__ import annotations
@@ -52,6 +56,8 @@ __all__ = [
     "Skip",
     "apply_method",
     "full_prompt",
+    "object_phrase",
+    "prompt_of",
     "cell_seed",
     "data_path",
     "load_scene",
@@ -63,6 +69,8 @@ __all__ = [
     "render_true_scene",
     "build_generator",
     "sample_method",
+    "relight_image",
+    "relight_prompt",
     "score",
     "prepare_inputs",
     "run_method",
@@ -106,6 +114,7 @@ class CellResult:
     scores: dict = field(default_factory=dict)  #: {"metrics": ..., "missing": ...} when scored
     timings: dict = field(default_factory=dict)
     warps: WarpSet | None = None  #: the warps the method used
+    unrelit: torch.Tensor | None = None  #: the image before relighting (``method.relight``)
 
 
 # ---------------------------------------------------------------------------- config helpers
@@ -128,6 +137,25 @@ def cell_seed(cfg: DictConfig) -> int:
 def full_prompt(cfg: DictConfig) -> str:
     """The full prompt p of a config, ``{object}`` replaced by the object's noun."""
     return str(cfg.scene.prompt).replace("{object}", str(cfg.object.noun))
+
+
+def object_phrase(cfg: DictConfig) -> str:
+    """The object phrase p_obj of a config (``"a big glass sphere"``), ``{object}`` replaced."""
+    return str(cfg.scene.object_phrase).replace("{object}", str(cfg.object.noun))
+
+
+#: What ``method.prompt`` and ``metrics.clip_text`` may name.
+PROMPT_KINDS = ("full", "object")
+
+
+def prompt_of(cfg: DictConfig, kind: str, key: str) -> str:
+    """The full prompt (``kind="full"``) or the object phrase (``"object"``); ``key`` names the
+    config key in the error for any other value."""
+    if kind == "full":
+        return full_prompt(cfg)
+    if kind == "object":
+        return object_phrase(cfg)
+    raise ValueError(f"{key}={kind!r} is unknown; use one of {PROMPT_KINDS}")
 
 
 def _plain(node) -> Any:
@@ -459,63 +487,164 @@ def cached_generator(model_cfg: DictConfig, generators: dict, build) -> tuple[An
 
 
 # ---------------------------------------------------------------------------- 7. sampling
-def _check_requirements(cfg: DictConfig) -> None:
-    if "gpu" in list(cfg.method.requires or []) and not torch.cuda.is_available():
-        raise Skip(f"{cfg.method.label} needs a CUDA GPU and its weights ({cfg.method.model_id}); none here")
+METHOD_KINDS = ("snellcaster", "t2i", "inpaint", "external")
+
+
+def inpaint_mask(cfg: DictConfig, warps: WarpSet) -> np.ndarray:
+    """The region ``method=inpaint`` repaints, boolean ``(H, W)``: the object's silhouette
+    (``method.mask=object``) or its bounding box (``box``), grown by ``method.mask_dilate_px``."""
+    from scipy.ndimage import binary_dilation
+
+    m = np.asarray(warps.object_mask, bool)
+    kind = str(cfg.method.mask)
+    if kind == "box":
+        ys, xs = np.nonzero(m)
+        box = np.zeros_like(m)
+        if ys.size:
+            box[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1] = True
+        m = box
+    elif kind != "object":
+        raise ValueError(f"method.mask={kind!r} is unknown; use 'object' or 'box'")
+    r = int(cfg.method.mask_dilate_px)
+    if r < 0:
+        raise ValueError(f"method.mask_dilate_px must be >= 0, got {r}")
+    if r:
+        yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
+        m = binary_dilation(m, structure=yy**2 + xx**2 <= r * r)
+    return m
+
+
+def _pipeline_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
+    """A baseline that is a diffusers pipeline: another text-to-image model (``external``, from
+    ``method.model_id``) or FLUX Fill (``inpaint``, from ``model.fill``), with the method's steps,
+    guidance and prompt, seeded with the cell's seed, on ``model.device``."""
+    from snell_bench.models.errors import DeviceNotAvailableError, WeightsNotFoundError
+    from snell_bench.models.external import generate_external, inpaint_external
+
+    kind = cfg.method.kind
+    text = prompt_of(cfg, str(cfg.method.prompt), "method.prompt")
+    steps = None if cfg.method.steps is None else int(cfg.method.steps)
+    guidance = None if cfg.method.guidance is None else float(cfg.method.guidance)
+    device, dtype = cfg.model.device, cfg.model.dtype
+    try:
+        with t("sampling"):  # loading the pipeline included
+            if kind == "external":
+                img, used = generate_external(
+                    cfg.method.model_id,
+                    text,
+                    warps.camera.shape,
+                    seed=cell_seed(cfg),
+                    steps=steps,
+                    guidance=guidance,
+                    device=device,
+                    dtype=dtype,
+                    return_settings=True,
+                )
+            else:
+                img, used = inpaint_external(
+                    _instantiate(cfg.model.fill),
+                    text,
+                    inputs.i_minus,
+                    inpaint_mask(cfg, warps),
+                    seed=cell_seed(cfg),
+                    steps=steps,
+                    guidance=guidance,
+                    return_settings=True,
+                )
+    except (WeightsNotFoundError, DeviceNotAvailableError) as e:
+        raise Skip(f"{cfg.method.label} cannot run here: {e}") from None
+    return CellResult(image=img, warps=warps, stats={"pipeline": {**used.as_dict(), "prompt": text}})
 
 
 def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
     """Stage 7: the method's image (``method.kind``: ``snellcaster``, ``t2i``, ``inpaint``,
-    ``external``). Raises :class:`Skip` for a method that cannot run here."""
+    ``external``). Raises :class:`Skip` for a method that cannot run here (no weights, no device)."""
     from snell_bench.sampler.settings import SamplerSettings
     from snell_bench.sampler.snellcaster import sample
 
-    _check_requirements(cfg)
-    kind, prompt = cfg.method.kind, full_prompt(cfg)
-    if kind not in ("snellcaster", "t2i", "inpaint", "external"):
-        raise ValueError(f"method.kind={kind!r} is unknown; use snellcaster, t2i, inpaint or external")
-    if kind == "external" or (kind == "inpaint" and cfg.model.name != "analytic"):
-        from snell_bench.models.errors import DeviceNotAvailableError, WeightsNotFoundError
-        from snell_bench.models.external import generate_external, inpaint_external
-
-        try:
-            with t("sampling"):  # loading the diffusers pipeline included
-                if kind == "external":
-                    img = generate_external(
-                        cfg.method.model_id,
-                        prompt,
-                        warps.camera.shape,
-                        seed=cell_seed(cfg),
-                        steps=int(cfg.sampler.steps),
-                    )
-                else:
-                    img = inpaint_external(
-                        cfg.method.model_id,
-                        prompt,
-                        inputs.i_minus,
-                        warps.object_mask,
-                        seed=cell_seed(cfg),
-                        steps=int(cfg.sampler.steps),
-                    )
-        except (WeightsNotFoundError, DeviceNotAvailableError) as e:
-            raise Skip(f"{cfg.method.label} cannot run here: {e}") from None
-        return CellResult(image=img, warps=warps)
+    kind = cfg.method.kind
+    if kind not in METHOD_KINDS:
+        raise ValueError(f"method.kind={kind!r} is unknown; use one of {METHOD_KINDS}")
+    if kind == "external" or (kind == "inpaint" and cfg.model.get("fill")):
+        return _pipeline_method(cfg, inputs, warps, t)
     gen, t.seconds["generator"] = cached_generator(
         cfg.model, inputs.generators, lambda: build_generator(cfg.model, inputs)
     )
     settings = OmegaConf.to_object(cfg.sampler)
     assert isinstance(settings, SamplerSettings)
+    prompt = full_prompt(cfg)
+    if kind == "inpaint":  # the CPU stand-in: the generator alone, pasted into the region
+        prompt = prompt_of(cfg, str(cfg.method.prompt), "method.prompt")
+        if cfg.method.steps is not None:
+            settings.steps = int(cfg.method.steps)
     with t("sampling"):
         res = sample(gen, warps, inputs.i_minus, prompt, str(cfg.scene.pano_prompt), settings, seed=cell_seed(cfg))
     img = res.image
-    if kind == "inpaint":  # CPU stand-in: the generator fills the object region of I⁻, no optics
-        img = torch.where(torch.from_numpy(warps.object_mask)[None, None], img, inputs.i_minus)
+    if kind == "inpaint":
+        img = torch.where(torch.from_numpy(inpaint_mask(cfg, warps))[None, None], img, inputs.i_minus)
     stats = {
         "model_calls": res.model_calls,
         "sampler_timings_s": {k: round(v, 3) for k, v in res.timings.items()},
         "decisions": res.decisions,
     }
     return CellResult(image=img, panorama=res.panorama, stats=stats, dumps=res.dumps, warps=warps)
+
+
+# ---------------------------------------------------------------------------- 7b. relighting
+#: One relighter kept between cells (FLUX Kontext is ~34 GB): its resolved config and itself.
+_RELIGHTER: dict = {}
+
+
+def relight_prompt(cfg: DictConfig) -> str:
+    """The relighting instruction ``relight.prompt`` with ``{object_phrase}`` replaced by p_obj."""
+    return str(cfg.relight.prompt).replace("{object_phrase}", object_phrase(cfg))
+
+
+def build_relighter(cfg: DictConfig) -> tuple[Any, float]:
+    """``instantiate(model.relighter)``, reused while that node is unchanged, and the seconds its
+    build took. Raises :class:`Skip` when the model has no relighter or it cannot load here."""
+    from snell_bench.models.errors import DeviceNotAvailableError, WeightsNotFoundError
+
+    node = cfg.model.get("relighter")
+    if not node:
+        raise Skip(f"model {cfg.model.name!r} has no relighter (model.relighter); {cfg.method.label} cannot run")
+    key = OmegaConf.to_yaml(node, resolve=True)
+    if _RELIGHTER.get("key") != key:
+        _RELIGHTER.clear()
+        t = Timer()
+        try:
+            with t("relighter"):
+                relighter = _instantiate(node)
+        except (WeightsNotFoundError, DeviceNotAvailableError) as e:
+            raise Skip(f"{cfg.method.label} cannot run here: {e}") from None
+        _RELIGHTER.update(key=key, relighter=relighter, seconds=t.seconds["relighter"])
+    return _RELIGHTER["relighter"], _RELIGHTER["seconds"]
+
+
+def relight_image(cfg: DictConfig, inputs: CellInputs, result: CellResult, t: Timer) -> CellResult:
+    """Stage 7b (``method.relight``): ``relight.candidates`` candidates from the model's relighter,
+    seeded from the cell's seed; the one with the highest PSNR against the un-relit image inside
+    the object's silhouette replaces the image. Every candidate's score and the choice go to
+    ``stats["relight"]`` (JSON-safe); the un-relit image is kept as ``result.unrelit``."""
+    from snell_bench.relight import candidate_seeds, relight
+
+    relighter, t.seconds["relighter"] = build_relighter(cfg)
+    warps = result.warps
+    with t("relight"):
+        res = relight(
+            result.image,
+            relighter=relighter,
+            prompt=relight_prompt(cfg),
+            seeds=candidate_seeds(cell_seed(cfg), int(cfg.relight.candidates)),
+            object_mask=warps.object_mask,
+            scene=inputs.scene,
+            obj=inputs.obj,
+            warps=warps,
+        )
+    result.unrelit = result.image
+    result.image = res.image
+    result.stats["relight"] = res.to_json()
+    return result
 
 
 # ---------------------------------------------------------------------------- 8. metrics
@@ -533,12 +662,13 @@ def score(
         bchw_to_hwc(image),
         None if ref is None else ref.image,
         None if ref is None else ref.mask,
-        full_prompt(cfg),
+        prompt_of(cfg, str(cfg.metrics.clip_text), "metrics.clip_text"),
         scorers,
         reference_reason=inputs.reference_reason,
         true_render=inputs.true_render if reference is None else None,
         object_mask=inputs.warps.object_mask,
         generated_path=image_path,
+        protocol=str(cfg.metrics.protocol),
     )
 
 
@@ -556,12 +686,17 @@ def run_method(cfg: DictConfig, inputs: CellInputs, *, scorers=None, image_path=
         with t("warps"):
             warps = trace_warps(inputs.scene, inputs.obj, cfg.warps)
     result = sample_method(cfg, inputs, warps, t)
+    if cfg.method.relight:
+        result = relight_image(cfg, inputs, result, t)
     if scorers is not None:
         if image_path is not None:
             from snell_bench.utils.io import save_png
             from snell_bench.utils.tensors import bchw_to_hwc
 
             save_png(image_path, bchw_to_hwc(result.image))
+            if result.unrelit is not None:
+                p = Path(image_path)
+                save_png(p.with_name(f"{p.stem}_unrelit{p.suffix}"), bchw_to_hwc(result.unrelit))
         with t("metrics"):
             result.scores = score(cfg, inputs, result.image, scorers, image_path=image_path)
     result.timings = {**t.seconds, **result.timings}

@@ -99,8 +99,28 @@ def test_run_method_applies_switches_and_shares_the_generator(inputs):
 def test_methods_that_cannot_run_here_are_skipped(inputs):
     if torch.cuda.is_available():
         pytest.skip("a CUDA machine runs external methods")
-    with pytest.raises(pipeline.Skip, match="GPU"):
+    with pytest.raises(pipeline.Skip, match="model.device=cpu"):
         pipeline.run_method(pipeline.apply_method(compose([*TINY, "method=flux2_dev"])), inputs)
+
+
+def test_an_external_baseline_runs_from_a_local_folder_on_the_cpu(tmp_path, inputs):
+    """``method.model_id`` a diffusers folder (tiny random SD3 here), ``model.device=cpu``: the
+    pipeline's image, seeded with the cell's seed, its settings recorded."""
+    from snell_bench.models.external import clear_pipeline_cache
+    from snell_bench.models.tiny_external import build_tiny_pipeline
+
+    build_tiny_pipeline("sd3", seed=0).save_pretrained(tmp_path / "sd3")
+    over = [*TINY, "method=sd35_large", f"method.model_id={tmp_path / 'sd3'}", "model.device=cpu", "method.steps=2"]
+    try:
+        res = pipeline.run_method(pipeline.apply_method(compose(over)), inputs)
+        again = pipeline.run_method(pipeline.apply_method(compose([*over, "seed=1"])), inputs)
+    finally:
+        clear_pipeline_cache()
+    assert res.image.shape == (1, 3, 64, 128) and 0 <= res.image.min() and res.image.max() <= 1
+    used = res.stats["pipeline"]
+    assert used["steps"] == 2 and used["guidance"] == 7.0  # the pipeline's own default guidance
+    assert used["prompt"] == pipeline.full_prompt(compose(over))
+    assert not torch.equal(res.image, again.image)
 
 
 def test_scores_against_the_reference_and_the_true_render(inputs):
@@ -143,11 +163,34 @@ def test_each_variation_has_its_own_seed(inputs):
     assert not torch.equal(a, pipeline.run_method(cfg1, inputs).image)
 
 
-def test_a_diffusers_method_without_its_device_or_weights_is_skipped(inputs):
+def test_flux_fill_without_its_device_or_weights_is_skipped(inputs):
     if torch.cuda.is_available():
         pytest.skip("a CUDA machine would try to load the weights")
     with pytest.raises(pipeline.Skip, match="cannot run here"):
-        pipeline.run_method(pipeline.apply_method(compose([*TINY, "model=tiny_flux", "method=inpaint"])), inputs)
+        pipeline.run_method(pipeline.apply_method(compose([*TINY, "model=flux_dev", "method=inpaint"])), inputs)
+
+
+def test_inpainting_runs_a_tiny_flux_fill_on_the_cpu(inputs):
+    """``model=tiny_flux``: a tiny random ``FluxFillPipeline`` repaints the object's silhouette from
+    the object phrase, with the authors' 30 steps and guidance 30."""
+    cfg = pipeline.apply_method(compose([*TINY, "model=tiny_flux", "method=inpaint", "method.steps=2"]))
+    res = pipeline.run_method(cfg, inputs)
+    m = torch.from_numpy(inputs.warps.object_mask)
+    assert res.stats["pipeline"]["steps"] == 2 and res.stats["pipeline"]["guidance"] == 30.0
+    assert res.stats["pipeline"]["prompt"] == pipeline.object_phrase(cfg) == "a big glass sphere"
+    assert float((res.image - inputs.i_minus).abs()[0].amax(0)[m].mean()) > 0.01
+
+
+def test_inpainting_masks():
+    from types import SimpleNamespace
+
+    cfg = compose([*TINY, "method=inpaint", "method.mask=box", "method.mask_dilate_px=1"])
+    m = np.zeros((8, 10), bool)
+    m[2, 3] = m[4, 6] = True
+    box = pipeline.inpaint_mask(cfg, SimpleNamespace(object_mask=m))
+    assert box.sum() == (3 + 2) * (4 + 2) - 4  # the 3 x 4 box grown by a disc of radius 1 (no corners)
+    with pytest.raises(ValueError, match="method.mask"):
+        pipeline.inpaint_mask(compose([*TINY, "method=inpaint", "method.mask=ellipse"]), SimpleNamespace(object_mask=m))
 
 
 def test_warps_traced_without_a_region_of_interest_are_cached_apart(tmp_path, inputs):
@@ -160,3 +203,26 @@ def test_warps_traced_without_a_region_of_interest_are_cached_apart(tmp_path, in
     assert full.stats["traced_primary_rays"] > roi.stats["traced_primary_rays"]
     np.testing.assert_array_equal(full.refraction, roi.refraction)
     assert len(list(tmp_path.glob("*.npz"))) == 2
+
+
+@pytest.mark.parametrize("model", ["analytic", "tiny_flux"])
+def test_relighting_keeps_the_best_of_n_candidates(inputs, model):
+    """``method=snellcaster_relit``: N candidates of the model's relighter (the traced shadow, the
+    tiny Kontext), seeded from the cell's seed; the one closest to the un-relit image inside the
+    object is kept, every score recorded."""
+    import json
+
+    from snell_bench.relight import candidate_seeds, masked_psnr
+
+    cfg = pipeline.apply_method(
+        compose([*TINY, f"model={model}", "method=snellcaster_relit", "relight.candidates=3", "relight.steps=2"])
+    )
+    res = pipeline.run_method(cfg, inputs)
+    rec = res.stats["relight"]
+    json.dumps(rec, allow_nan=False)
+    assert [c["seed"] for c in rec["candidates"]] == candidate_seeds(pipeline.cell_seed(cfg), 3)
+    scores = [c["psnr_db"] if c["psnr_db"] is not None else float("inf") for c in rec["candidates"]]
+    assert rec["chosen"] == int(np.argmax(scores))
+    assert masked_psnr(res.image, res.unrelit, inputs.warps.object_mask) == pytest.approx(scores[rec["chosen"]])
+    assert rec["prompt"] == "Create soft shadows and caustics under a big glass sphere"
+    assert "relight" in res.timings and not torch.equal(res.image, res.unrelit)

@@ -1,6 +1,7 @@
 """The generation job (``job=generate``): one scene, one object, one method.
 
-Writes ``image.png`` (the generated view), ``panorama.png`` (the panorama branch, if any),
+Writes ``image.png`` (the generated view; relit with ``method.relight``, ``image_unrelit.png``
+before relighting), ``panorama.png`` (the panorama branch, if any),
 ``I_minus.png``, ``mask.png``, the intermediate estimates of ``sampler.dump_every`` and
 ``summary.json`` (model calls, time per stage, the sampler's decisions, and the PSNR of the
 object region against π^R(I⁻), the part of the glass Snell's law fixes) under the run directory.
@@ -36,6 +37,8 @@ def run_generate(cfg: DictConfig) -> dict:
     save_png(out / "image.png", bchw_to_hwc(res.image))
     if res.panorama is not None:
         save_png(out / "panorama.png", bchw_to_hwc(res.panorama))
+    if res.unrelit is not None:
+        save_png(out / "image_unrelit.png", bchw_to_hwc(res.unrelit))
     save_png(out / "I_minus.png", inputs.scene.image)
     save_png(out / "mask.png", ws.object_mask.astype(np.float32))
     for d in res.dumps:
