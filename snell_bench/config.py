@@ -172,11 +172,12 @@ class MethodConfig:
     #: ``snellcaster`` (the synchronized sampler), ``t2i`` (the generator alone from p), ``inpaint``
     #: (fill the object region of I⁻; CPU stand-in without optics), ``external`` (another model).
     kind: str = "snellcaster"
-    #: What it needs to run (``gpu``, ``weights``); a method that cannot run is skipped with the reason.
+    #: What it needs (``gpu``, ``weights``), for the reader: a method whose pipeline cannot load
+    #: here (no CUDA and no ``model.device=cpu``, no weights) is skipped with the reason.
     requires: list = field(default_factory=list)
     #: Overrides of the ``sampler`` node for this method (the ablation switches).
     sampler: dict = field(default_factory=dict)
-    #: For ``external`` methods: the diffusers model id or local folder.
+    #: For ``external`` methods: the diffusers model id (in the Hugging Face cache) or a local folder.
     model_id: Optional[str] = None
     #: Overrides of the ``warps`` node for this method (e.g. ``infinity_tolerance_px``).
     warps: dict = field(default_factory=dict)

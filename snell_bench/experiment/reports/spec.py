@@ -74,6 +74,7 @@ ABLATION_ROWS: tuple[tuple[str, str], ...] = (
     ("no_dpa", "w/o DPA"),
     ("no_lpw", "w/o LPW"),
     ("no_tt", "w/o time travel"),
+    ("snellcaster_relit", "w/ relighting"),
 )
 """Ablation rows in the paper's order: (method name, row label)."""
 
