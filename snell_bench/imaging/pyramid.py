@@ -46,11 +46,12 @@ Warping through a pyramid:
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import torch
 import torch.nn.functional as F
-from kornia.geometry.transform import pyrdown, pyrup
+from kornia.filters import filter2d
 
 from snell_bench.imaging.remap import remap
 from snell_bench.utils.tensors import as_mask, as_tensor
@@ -73,6 +74,31 @@ def _circular_cols(img: torch.Tensor, pad: int) -> torch.Tensor:
     W = img.shape[-1]
     idx = torch.arange(-pad, W + pad, device=img.device) % W
     return img.index_select(-1, idx)
+
+
+@functools.lru_cache(maxsize=16)
+def _gauss5(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    """kornia's 5 x 5 pyramid kernel ``(1, 5, 5)`` (the outer product of ``[1, 4, 6, 4, 1] / 16``),
+    kept on each device: kornia's ``pyrdown`` / ``pyrup`` build it on the host at every call, a
+    host-to-device copy per level on a GPU."""
+    k = torch.tensor([1.0, 4.0, 6.0, 4.0, 1.0])
+    return (torch.outer(k, k)[None] / 256.0).to(device=device, dtype=dtype)
+
+
+def pyrdown(img: torch.Tensor) -> torch.Tensor:
+    """kornia's ``pyrdown`` (5-tap blur with reflected borders, then bilinear resampling to
+    ``floor(n / 2)``) with its kernel kept on ``img``'s device: the same numbers."""
+    h, w = img.shape[-2:]
+    blur = filter2d(img, _gauss5(img.device, img.dtype), "reflect")
+    return F.interpolate(blur, size=[int(float(h) / 2.0), int(float(w) / 2.0)], mode="bilinear", align_corners=False)
+
+
+def pyrup(img: torch.Tensor) -> torch.Tensor:
+    """kornia's ``pyrup`` (bilinear upsampling to ``2 n``, then the 5-tap blur with reflected
+    borders) with its kernel kept on ``img``'s device: the same numbers."""
+    h, w = img.shape[-2:]
+    up = F.interpolate(img, size=(h * 2, w * 2), mode="bilinear", align_corners=False)
+    return filter2d(up, _gauss5(img.device, img.dtype), "reflect")
 
 
 def _down(img: torch.Tensor, wrap_x: bool) -> torch.Tensor:

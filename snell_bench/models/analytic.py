@@ -241,7 +241,7 @@ class AnalyticGenerator:
         return (z - self.posterior_mean(z, sigma, cond)) / sig
 
     def _sigma(self, sigma, z: torch.Tensor) -> torch.Tensor:
-        s = torch.as_tensor(sigma, dtype=z.dtype)
+        s = torch.as_tensor(sigma, dtype=z.dtype, device=z.device)
         if s.ndim == 0:
             s = s.expand(z.shape[0])
         return s.view(-1, 1, 1, 1)

@@ -378,14 +378,17 @@ class FluxGenerator:
         self._check_latents(z)
         B, C, h, w = z.shape
         cond = self._match_batch(cond, B)
-        sig = torch.as_tensor(sigma, dtype=torch.float32).to(self.device).reshape(-1)
+        if isinstance(sigma, torch.Tensor):
+            sig = sigma.to(device=self.device, dtype=torch.float32).reshape(-1)
+        else:  # a fill on the device: no host-to-device copy per call
+            sig = torch.full((1,), float(sigma), dtype=torch.float32, device=self.device)
         if sig.numel() == 1:
             sig = sig.expand(B)
         if sig.numel() != B:
             raise ValueError(f"sigma has {sig.numel()} entries for a batch of {B}")
         pipe, dtype = self.pipe, self.dtype
         packed = pipe._pack_latents(z.to(device=self.device, dtype=dtype), B, C, h, w)
-        img_ids = pipe._prepare_latent_image_ids(B, h // 2, w // 2, self.device, dtype)
+        img_ids = self._image_ids(h // 2, w // 2)
         # as FluxPipeline: t = 1000 sigma in the model dtype, passed as t / 1000
         timestep = (sig * 1000).to(dtype) / 1000
         guidance = (
@@ -454,14 +457,27 @@ class FluxGenerator:
             and not any(cfg.get(k) for k in _SCHEDULER_OPTIONS_VIA_SET_TIMESTEPS)
         ):
             shifted = scheduler.time_shift(
-                mu, 1.0, torch.linspace(1.0, 1.0 / num_steps, num_steps, dtype=torch.float64)
+                mu, 1.0, torch.linspace(1.0, 1.0 / num_steps, num_steps, dtype=torch.float64, device="cpu")
             )
         else:  # exactly as FluxPipeline
             scheduler.set_timesteps(sigmas=np.linspace(1.0, 1 / num_steps, num_steps), mu=mu, device="cpu")
             shifted = scheduler.sigmas[:-1].to(torch.float64)
-        return torch.cat([shifted, torch.zeros(1, dtype=torch.float64)])
+        return torch.cat([shifted, torch.zeros(1, dtype=torch.float64, device="cpu")])
 
     # ------------------------------------------------------------------ internals
+
+    def _image_ids(self, h2: int, w2: int) -> torch.Tensor:
+        """``FluxPipeline._prepare_latent_image_ids`` for an ``h2 x w2`` patch grid, ``(h2 w2, 3)``
+        rows ``(0, row, col)`` in the model dtype, built on the device (diffusers builds them on
+        the host and copies them at every call) and kept per grid size."""
+        cache = self.__dict__.setdefault("_ids", {})
+        key = (h2, w2, self.dtype)
+        if key not in cache:
+            rows = torch.arange(h2, device=self.device, dtype=torch.float32)[:, None].expand(h2, w2)
+            cols = torch.arange(w2, device=self.device, dtype=torch.float32)[None, :].expand(h2, w2)
+            ids = torch.stack([torch.zeros_like(rows), rows, cols], -1).reshape(h2 * w2, 3)
+            cache[key] = ids.to(self.dtype)
+        return cache[key]
 
     def _check_latents(self, z: torch.Tensor) -> None:
         C = self.geometry.channels

@@ -53,7 +53,7 @@ def linear_sigmas(num_steps: int) -> torch.Tensor:
         ValueError: if ``num_steps`` is not a positive integer.
     """
     _check_steps(num_steps)
-    return torch.linspace(1.0, 0.0, num_steps + 1, dtype=torch.float64)
+    return torch.linspace(1.0, 0.0, num_steps + 1, dtype=torch.float64, device="cpu")
 
 
 def flux_sigmas(num_steps: int, image_seq_len: int, **shift_kwargs) -> torch.Tensor:
@@ -73,9 +73,9 @@ def flux_sigmas(num_steps: int, image_seq_len: int, **shift_kwargs) -> torch.Ten
     """
     _check_steps(num_steps)
     mu = flux_shift(image_seq_len, **shift_kwargs)
-    s = torch.linspace(1.0, 1.0 / num_steps, num_steps, dtype=torch.float64)
+    s = torch.linspace(1.0, 1.0 / num_steps, num_steps, dtype=torch.float64, device="cpu")
     shifted = math.exp(mu) / (math.exp(mu) + (1.0 / s - 1.0))
-    return torch.cat([shifted, torch.zeros(1, dtype=torch.float64)])
+    return torch.cat([shifted, torch.zeros(1, dtype=torch.float64, device="cpu")])
 
 
 def _check_steps(num_steps: int) -> None:

@@ -423,3 +423,15 @@ class TestPyramidWarpROI:
             b = laplacian_from_gaussian(gaussian_pyramid(img, 4, wrap_x=wrap), wrap_x=wrap)
             for x, y in zip(a, b):
                 assert torch.equal(x, y)
+
+
+@pytest.mark.parametrize("shape", [(1, 3, 37, 64), (2, 1, 16, 15), (1, 3, 90, 160)])
+def test_pyrdown_and_pyrup_are_kornias(shape):
+    """The pyramid's own pyrdown / pyrup (kernel kept on the image's device) give kornia's numbers."""
+    from kornia.geometry.transform import pyrdown as kornia_down
+    from kornia.geometry.transform import pyrup as kornia_up
+
+    from snell_bench.imaging.pyramid import pyrdown, pyrup
+
+    x = torch.rand(shape, generator=torch.Generator().manual_seed(0))
+    assert torch.equal(pyrdown(x), kornia_down(x)) and torch.equal(pyrup(x), kornia_up(x))

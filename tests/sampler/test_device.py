@@ -1,9 +1,12 @@
 """The sampler runs on the generator's device: every model input and output stays there, and only
 the final images and dumps come back to the CPU.
 
-On a CPU-only machine the device checks hold trivially for tensors (there is one device); the
-recording generator still checks every call's inputs and outputs, and the CUDA test (marked
-``gpu``) checks that no byte crosses the bus per step.
+On a CPU-only machine a second device is simulated where it matters: the loop runs with torch's
+default device set to ``meta`` (a device without data), so any tensor the loop or a library inside
+it creates without naming the generator's device lands there and the run fails; a loop that
+creates everything on its generator's device runs unchanged. The recording generator checks every
+call's inputs and outputs, and the CUDA test (marked ``gpu``) checks that no byte crosses the bus
+per step.
 """
 
 import numpy as np
@@ -107,6 +110,42 @@ def test_generator_alone_decodes_only_the_final_image(scene):
     decodes = [1 for what, where, _ in gen.seen if what == "decode" and where == "out"]
     assert len(decodes) == 1 and res.model_calls == {"main": 5, "pano": 0}
     assert not [1 for what, _, _ in gen.seen if what == "encode"]
+
+
+class Preconditioned:
+    """A generator whose text conditions are computed beforehand (tokenising runs on the host once
+    per run, outside the loop)."""
+
+    def __init__(self, gen, prompts):
+        self.gen, self.name, self.geometry = gen, gen.name, gen.geometry
+        self.device, self.dtype = generator_device(gen), getattr(gen, "dtype", torch.float32)
+        self.cache = {(tuple(p), tuple(v)): gen.condition(p, v) for p, v in prompts}
+
+    def condition(self, prompts, views):
+        return self.cache[(tuple(prompts), tuple(views))]
+
+    def __getattr__(self, name):
+        return getattr(self.gen, name)
+
+
+@pytest.mark.parametrize("backend", ["analytic", "tiny_flux"])
+def test_no_tensor_of_the_loop_is_created_off_the_generators_device(scene, backend):
+    """With ``meta`` as torch's default device the whole loop (both branches, time travel,
+    stochastic steps, reflection, dumps) gives the same image: every tensor it makes is made on the
+    generator's device (maps, masks, noise, pyramid kernels, schedule, model inputs)."""
+    from snell_bench.models.tiny_flux import TinyFluxGenerator
+
+    ws, i_minus, pano = scene
+    if backend == "analytic":
+        gen = AnalyticGenerator.from_scene(i_minus[0].permute(1, 2, 0).numpy(), ws.object_mask, pano)
+    else:
+        prompts = ((["a room"], ["main"]), (["a panorama"], ["pano"]), (["a room", "a panorama"], ["main", "pano"]))
+        gen = Preconditioned(TinyFluxGenerator(seed=0), prompts)
+    kw = dict(steps=3) if backend == "tiny_flux" else {}
+    ref = run(gen, scene, **kw)
+    with torch.device("meta"):
+        out = run(gen, scene, **kw)
+    assert torch.equal(out.image, ref.image) and torch.equal(out.panorama, ref.panorama)
 
 
 def test_no_bytes_cross_devices_on_one_device(scene):
