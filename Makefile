@@ -17,6 +17,8 @@ STAMP := $(VENV)/.installed-$(subst $(comma),-,$(EXTRAS))
 setup: $(STAMP)
 
 # Open3D's wheel links libusb-1.0 at import time; Debian/Ubuntu machines need the system package.
+# Mitsuba's LLVM variants (the reference renderer, ~3x faster than scalar_rgb) need an LLVM that
+# Dr.Jit can load: Debian's libllvm19 (optional: without it the renderer falls back to scalar_rgb).
 system-deps:
 	@if [ "$$(uname -s)" = "Linux" ] && command -v ldconfig >/dev/null && ! ldconfig -p | grep -q 'libusb-1.0.so.0'; then \
 	  echo "installing libusb-1.0-0 (needed by open3d)"; \
@@ -24,6 +26,14 @@ system-deps:
 	    SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 	    $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0; \
 	  else echo "please install libusb-1.0 with your system package manager" >&2; exit 1; fi; \
+	fi
+	@if [ "$$(uname -s)" = "Linux" ] && command -v ldconfig >/dev/null && ! ldconfig -p | grep -q 'libLLVM.so.19'; then \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  if command -v apt-get >/dev/null && { apt-cache show libllvm19 >/dev/null 2>&1 || \
+	      { $$SUDO apt-get update -qq && apt-cache show libllvm19 >/dev/null 2>&1; }; }; then \
+	    echo "installing libllvm19 (Mitsuba's LLVM variants for the reference renderer)"; \
+	    $$SUDO apt-get install -y -qq libllvm19 || echo "libllvm19 not installed: the reference renderer uses scalar_rgb"; \
+	  else echo "no libllvm19 package here: the reference renderer uses scalar_rgb"; fi; \
 	fi
 
 $(STAMP): pyproject.toml | system-deps
@@ -56,6 +66,7 @@ bench: setup
 	$(PY) benchmarks/bench_imaging.py
 	$(PY) benchmarks/bench_sampler.py
 	$(PY) benchmarks/bench_adaptive.py
+	$(PY) benchmarks/bench_reference.py
 
 clean:
 	rm -rf $(VENV) runs/ .pytest_cache

@@ -142,6 +142,14 @@ class ModelConfig:
     prior_std: float = 0.05
     #: analytic: the same inside the glass, the model's strength: smaller resists synchronisation more.
     glass_std: float = 0.1
+    #: The panorama a generator built from the scene starts from (``from_scene``): ``other`` (the
+    #: true panorama of another variation of the same procedural scene kind, seen from the same
+    #: pose: plausible and wrong, only synchronisation with I⁻ through π corrects it), ``blur``
+    #: (the true panorama blurred), ``truth`` (the true panorama: the ground truth of every surface
+    #: I⁻ does not show; for tests that need it) or ``observed`` (I⁻ seen through π, smoothly
+    #: filled where I⁻ does not look). Sources that cannot render a panorama (photos, generated
+    #: scenes) always use ``observed``.
+    pano_prior: str = "other"
     #: flux: a local folder with the diffusers layout, or a model id found in the Hugging Face cache.
     path: Optional[str] = None
     #: flux: ``cuda`` (default when available) or ``cpu``; dtype ``bfloat16`` on GPU by default.
@@ -254,7 +262,23 @@ class ReferenceConfig:
     """The independent reference render (Mitsuba 3)."""
 
     enabled: bool = True
-    spp: int = 16
+    #: Samples per pixel of the image pass (both halves together with ``self_noise``); rounded up,
+    #: with a warning, to a count the sampler takes: ``orthogonal`` halves are squares of primes, so
+    #: 2 p² (8, 18, 50, 98, 242, 338, 578, 1058, ...).
+    spp: int = 242
+    #: Mitsuba's sampler: ``orthogonal`` (the least noise per second here), ``stratified``,
+    #: ``multijitter``, ``ldsampler`` or ``independent``.
+    sampler: str = "orthogonal"
+    #: Samples per pixel of the unobserved pass (only the metric mask depends on it); ``null``: ``spp``.
+    unobserved_spp: Optional[int] = 25
+    #: Render only the object's rectangle (plus ``crop_margin_px``); the rest is the background seen
+    #: directly, pasted (the same as a full-frame render there).
+    crop: bool = True
+    crop_margin_px: int = 4
+    #: Render the image pass in two independent halves and record the reference's self-noise
+    #: (``self_noise_db``: the estimated PSNR of the reference against its noise-free limit, the
+    #: ceiling of every masked PSNR scored against it).
+    self_noise: bool = True
     #: A pixel counts for the metrics if less than this share of its light comes from unobserved space.
     unobserved_threshold: float = 0.05
     #: Also render the full procedural scene with the object (the unmasked second reference).
@@ -310,8 +334,8 @@ class TradeoffConfig:
     axes: dict = field(default_factory=dict)
     #: Also score every setting against a converged reference rendered with this many samples per
     #: pixel (one per scene, object and resolution, shared by all settings): fidelity that does not
-    #: move with ``reference.spp``; the Pareto front uses it. ``null``: off.
-    converged_spp: Optional[int] = 64
+    #: move with ``reference.spp`` (1058: the paper preset's count); the Pareto front uses it. ``null``: off.
+    converged_spp: Optional[int] = 1058
     #: The axes to run (names of ``axes``); ``null``: all of them.
     only: Optional[list] = None
     #: Presets (conf/preset/) measured as extra points of the sweep.

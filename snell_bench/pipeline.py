@@ -391,6 +391,11 @@ def render_reference(cfg: DictConfig, scene: SceneInputs, obj: GlassObject, *, s
             edge_threshold=float(cfg.warps.edge_threshold),
             seed=int(cfg.seed),
             unobserved_threshold=float(cfg.reference.unobserved_threshold),
+            sampler=str(cfg.reference.sampler),
+            crop=bool(cfg.reference.crop),
+            crop_margin_px=int(cfg.reference.crop_margin_px),
+            self_noise=bool(cfg.reference.self_noise),
+            unobserved_spp=None if cfg.reference.unobserved_spp is None else int(cfg.reference.unobserved_spp),
         )
     except ImportError as e:
         reason = f"reference renderer unavailable ({e}); install the render extra: make setup EXTRAS=test,render"
@@ -455,8 +460,8 @@ def prepare_inputs(cfg: DictConfig, *, references: bool = True) -> CellInputs:
 # ---------------------------------------------------------------------------- 6. generator
 def build_generator(model_cfg: DictConfig, inputs: CellInputs):
     """Stage 6: ``instantiate(model.generator)``; a generator built from the scene
-    (``model.from_scene``) also gets ``i_minus``, ``object_mask`` and a ``panorama``
-    (:func:`~snell_bench.scene.sources.panorama_prior`)."""
+    (``model.from_scene``) also gets ``i_minus``, ``object_mask`` and a ``panorama`` of the kind
+    ``model.pano_prior`` (:func:`~snell_bench.scene.sources.panorama_prior`)."""
     from hydra.utils import instantiate
 
     from snell_bench.scene.sources import panorama_prior
@@ -468,7 +473,7 @@ def build_generator(model_cfg: DictConfig, inputs: CellInputs):
         kwargs = {
             "i_minus": inputs.scene.image,
             "object_mask": inputs.warps.object_mask,
-            "panorama": panorama_prior(inputs.scene, inputs.warps, inputs.i_minus),
+            "panorama": panorama_prior(inputs.scene, inputs.warps, inputs.i_minus, str(model_cfg.pano_prior)),
         }
     return instantiate(model_cfg.generator, **kwargs)
 

@@ -226,3 +226,32 @@ def test_relighting_keeps_the_best_of_n_candidates(inputs, model):
     assert masked_psnr(res.image, res.unrelit, inputs.warps.object_mask) == pytest.approx(scores[rec["chosen"]])
     assert rec["prompt"] == "Create soft shadows and caustics under a big glass sphere"
     assert "relight" in res.timings and not torch.equal(res.image, res.unrelit)
+
+
+def test_the_panorama_prior_is_not_the_truth_unless_asked(inputs):
+    """``model.pano_prior``: ``other`` (default: another variation's panorama from the same pose),
+    ``blur``, ``truth``, ``observed``; the analytic backend starts from what it is given."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from snell_bench.scene.procedural import ProceduralScene
+    from snell_bench.scene.sources import OTHER_VARIATION_OFFSET, panorama_prior, scene_panorama
+
+    sc, ws = inputs.scene, inputs.warps
+    truth = scene_panorama(sc, ws.pano)
+    assert np.array_equal(panorama_prior(sc, ws, inputs.i_minus, "truth"), truth)
+    other = panorama_prior(sc, ws, inputs.i_minus, "other")
+    p = ws.pano
+    again = ProceduralScene(sc.source.kind, seed=sc.source.seed + OTHER_VARIATION_OFFSET).render_panorama(
+        center=p.center, height=p.height, up=-p.rotation[:, 1], forward=p.rotation[:, 2]
+    )
+    assert np.array_equal(other, again) and other.shape == truth.shape
+    assert -10 * np.log10(((other - truth) ** 2).mean()) < 25  # wrong, not the truth
+    blur = panorama_prior(sc, ws, inputs.i_minus, "blur")
+    s = truth.shape[0] / 32
+    ref = gaussian_filter1d(gaussian_filter1d(truth, s, axis=0, mode="nearest"), s, axis=1, mode="wrap")
+    np.testing.assert_allclose(blur, ref, atol=1e-6)
+    with pytest.raises(ValueError, match="model.pano_prior"):
+        panorama_prior(sc, ws, inputs.i_minus, "oracle")
+    for kind, expected in (("other", other), ("truth", truth)):
+        gen = pipeline.build_generator(compose([*TINY, f"model.pano_prior={kind}"]).model, inputs)
+        np.testing.assert_allclose(gen.prior_image("pano")[0].permute(1, 2, 0).numpy(), expected, atol=1e-6)

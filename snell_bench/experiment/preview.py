@@ -68,7 +68,7 @@ def run_preview(cfg: DictConfig) -> dict:
         if hasattr(inputs.scene.source, "render_panorama"):  # the source's true panorama
             panorama = scene_panorama(inputs.scene, ws.pano, supersample=int(cfg.scene.supersample))
         else:  # a photo or a generated scene: I⁻ through π, smoothly filled
-            panorama = panorama_prior(inputs.scene, ws, inputs.i_minus)
+            panorama = panorama_prior(inputs.scene, ws, inputs.i_minus, "observed")
     with t("composite"):
         composite = composite_refraction(image, panorama, ws)
         H, W = ws.camera.shape

@@ -6,6 +6,11 @@ Layout of an experiment ``E`` under ``runs/``::
     runs/E/<scene>-<variation>/<object>/<method>/    image.png reference.png mask.png metrics.json
                                                      config.yaml I_minus.png depth.npy camera.json object.ply
 
+- ``metrics.json`` holds the scores, the timings, the warps' statistics and, under ``reference``,
+  the reference's variant, sampler, sample counts, window and self-noise
+  (:meth:`~snell_bench.render.reference.ReferenceRender.summary`; ``self_noise_db`` is about the
+  highest masked PSNR an image can score against that reference).
+
 - Each cell's config is composed with Hydra from the run's overrides and the cell's choices
   (:mod:`snell_bench.experiment.plan`); every cell is composed, and every name checked, before
   any work.
@@ -112,6 +117,8 @@ def run_cell(cell: Cell, shared: SharedCache, scorers) -> dict:
     return {
         **({"scene_info": inputs.scene.info} if inputs.scene.info else {}),
         **res.scores,
+        # the reference's settings and self-noise: the ceiling of the cell's masked PSNR
+        **({"reference": inputs.reference.summary()} if inputs.reference is not None else {}),
         "timings_s": {k: round(v, 3) for k, v in {**inputs.timings, **res.timings}.items()},
         **res.stats,
         "warps": {k: res.warps.stats[k] for k in WARP_STATS if k in res.warps.stats},

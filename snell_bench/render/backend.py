@@ -20,8 +20,17 @@ Convention:
     - Emitters and BSDFs: surfaces that emit are ``area`` emitters, textured texel-exact
       (``filter_type = nearest``, ``raw``) or of one RGB colour; their BSDF is black (a zero conductor:
       delta, so no light sampling, and the path ends there).
-    - Randomness: Mitsuba's ``independent`` sampler seeded with ``seed``; the same inputs, ``spp``,
-      ``seed`` and variant give the same images.
+    - Randomness: one of Mitsuba's samplers (:data:`SAMPLERS`; the sensors here default to
+      ``independent``) seeded with ``seed``; the same inputs, sampler, ``spp``, ``seed``, render
+      window and variant give the same images (``llvm_*`` variants with several Dr.Jit threads: up
+      to float rounding, where a pixel's samples are summed by two threads in either order; on one
+      thread, ``drjit.set_thread_count(1)``, bit for bit). The stratified samplers accept only some
+      sample counts (see :func:`sample_count`).
+    - Windows: a render may cover only a window ``(x0, y0, x1, y1)`` of the image (end exclusive), a
+      crop window of the same film (``crop_offset`` / ``crop_size``): its pixels see exactly the rays
+      they see in the whole image, but draw other random numbers (the sampler's stream follows the
+      window's pixel order), so a window matches the whole image exactly only where a pixel's value
+      does not depend on which samples it draws.
 """
 
 from __future__ import annotations
@@ -41,6 +50,9 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "VARIANT_ENV",
+    "SAMPLERS",
+    "check_sampler",
+    "sample_count",
     "import_mitsuba",
     "mitsuba_variant",
     "set_variant",
@@ -66,6 +78,15 @@ _INSTALL_HINT = (
     "the reference renderer needs Mitsuba 3: install the render extra with "
     "`pip install snell_bench[render]` (or `make setup EXTRAS=test,render`)"
 )
+
+#: Mitsuba's samplers and the sample counts each accepts (it rounds any other count up).
+SAMPLERS = {
+    "independent": "any count",
+    "stratified": "a square (4, 9, 16, ...)",
+    "multijitter": "a count its stratification grid fills (x * y * y with y = floor(cbrt(n)))",
+    "orthogonal": "the square of a prime (4, 9, 25, 49, ...)",
+    "ldsampler": "a square power of two (4, 16, 64, 256, ...)",
+}
 
 _probed_variant: str | None = None
 _registered: set[str] = set()
@@ -124,7 +145,7 @@ def probe_render() -> None:
     T = np.eye(4)
     T[:3, 3] = (0.0, -0.5, 2.0)
     obj = GlassObject.sphere(subdivisions=1).transformed(T)
-    ref = render_reference(img, depth, cam, obj, spp=2)
+    ref = render_reference(img, depth, cam, obj, spp=2, sampler="independent", unobserved_spp=2)
     if not (np.isfinite(ref.image).all() and ref.image.max() > 0):
         raise RuntimeError("the probe render is empty or not finite")
     print(_PROBE_OK, flush=True)
@@ -169,6 +190,50 @@ def set_variant():
     mi.set_variant(mitsuba_variant())
     _register_plugins(mi)
     return mi
+
+
+def check_sampler(sampler) -> dict:
+    """The properties of the sampler ``sampler`` names, after checking it.
+
+    Args:
+        sampler: a name of :data:`SAMPLERS`, or a dict of Mitsuba sampler properties with such a
+            ``type`` (e.g. ``{"type": "stratified", "jitter": False}``); no ``sample_count``.
+
+    Returns:
+        A new dict of the sampler's properties, with its ``type``.
+
+    Raises:
+        ValueError: no such sampler (the message names ``reference.sampler`` and the choices), or
+            a dict that sets ``sample_count`` (the render's ``spp`` does).
+    """
+    props = dict(sampler) if isinstance(sampler, dict) else {"type": sampler}
+    if props.get("type") not in SAMPLERS:
+        raise ValueError(f"reference.sampler={props.get('type')!r} is not one of Mitsuba's samplers {list(SAMPLERS)}")
+    if "sample_count" in props:
+        raise ValueError("the sampler's sample_count is the render's spp; leave it out of the sampler")
+    return props
+
+
+def sample_count(mi, sampler, spp: int) -> int:
+    """The sample count Mitsuba's ``sampler`` renders when asked for ``spp`` (its own rounding, up
+    to the next count it accepts, see :data:`SAMPLERS`; Mitsuba's warning about it silenced).
+
+    Args:
+        mi: the ``mitsuba`` module, set to a variant.
+        sampler: as in :func:`check_sampler`.
+        spp: the requested samples per pixel (a positive integer).
+
+    Returns:
+        The count, ``>= spp``.
+    """
+    props = check_sampler(sampler)
+    logger = mi.logger()
+    level = logger.log_level()
+    logger.set_log_level(mi.LogLevel.Error)
+    try:
+        return int(mi.load_dict({**props, "sample_count": int(spp)}).sample_count())
+    finally:
+        logger.set_log_level(level)
 
 
 def _register_plugins(mi) -> None:
@@ -338,7 +403,7 @@ def square_pixels(camera: Camera) -> bool:
     return bool(K[0, 0] == K[1, 1] and K[0, 1] == 0.0 and K[1, 0] == 0.0)
 
 
-def sensor(mi, camera: Camera, spp: int, near_clip: float, far_clip: float, rect=None) -> dict:
+def sensor(mi, camera: Camera, spp: int, near_clip: float, far_clip: float, rect=None, sampler="independent") -> dict:
     """The sensor for ``camera``, any pinhole ``K``: :func:`perspective_sensor` for square pixels,
     else :func:`pinhole_sensor`.
 
@@ -372,16 +437,17 @@ def sensor(mi, camera: Camera, spp: int, near_clip: float, far_clip: float, rect
         near_clip, far_clip: the clip distances (along z).
         rect: ``(x0, y0, x1, y1)``, end exclusive: render only those pixels (a crop window of the
             same film); ``None``: the whole image.
+        sampler: the sampler, as in :func:`check_sampler`.
 
     Returns:
         The sensor's scene dict.
     """
     if square_pixels(camera):
-        return perspective_sensor(mi, camera, spp, near_clip, far_clip, rect)
-    return pinhole_sensor(mi, camera, spp, near_clip, far_clip, rect)
+        return perspective_sensor(mi, camera, spp, near_clip, far_clip, rect, sampler)
+    return pinhole_sensor(mi, camera, spp, near_clip, far_clip, rect, sampler)
 
 
-def _film_and_sampler(camera: Camera, spp: int, rect) -> dict:
+def _film_and_sampler(camera: Camera, spp: int, rect, sampler="independent") -> dict:
     """The film (box filter, float32 RGB, optional crop window) and sampler of a sensor dict."""
     H, W = camera.shape
     film = {
@@ -395,16 +461,18 @@ def _film_and_sampler(camera: Camera, spp: int, rect) -> dict:
     if rect is not None:
         x0, y0, x1, y1 = map(int, rect)
         film.update(crop_offset_x=x0, crop_offset_y=y0, crop_width=x1 - x0, crop_height=y1 - y0)
-    return {"film": film, "sampler": {"type": "independent", "sample_count": int(spp)}}
+    return {"film": film, "sampler": {**check_sampler(sampler), "sample_count": int(spp)}}
 
 
-def perspective_sensor(mi, camera: Camera, spp: int, near_clip: float, far_clip: float, rect=None) -> dict:
+def perspective_sensor(
+    mi, camera: Camera, spp: int, near_clip: float, far_clip: float, rect=None, sampler="independent"
+) -> dict:
     """Mitsuba's ``perspective`` sensor for ``camera`` (square pixels; see the module's conventions).
 
     Args:
         mi: the ``mitsuba`` module, set to a variant.
         camera: the camera; its ``fy`` and skew are ignored.
-        spp, near_clip, far_clip, rect: as in :func:`sensor`.
+        spp, near_clip, far_clip, rect, sampler: as in :func:`sensor`.
 
     Returns:
         The sensor's scene dict.
@@ -422,11 +490,13 @@ def perspective_sensor(mi, camera: Camera, spp: int, near_clip: float, far_clip:
         "near_clip": float(near_clip),
         "far_clip": float(far_clip),
     }
-    d.update(_film_and_sampler(camera, spp, rect))
+    d.update(_film_and_sampler(camera, spp, rect, sampler))
     return d
 
 
-def pinhole_sensor(mi, camera: Camera, spp: int, near_clip: float, far_clip: float, rect=None) -> dict:
+def pinhole_sensor(
+    mi, camera: Camera, spp: int, near_clip: float, far_clip: float, rect=None, sampler="independent"
+) -> dict:
     """The ``snell_pinhole`` sensor for ``camera``: any ``K`` (``fx != fy``, skew), exact.
 
     The film sample at Mitsuba film position ``(u, v)`` (pixel ``i`` covers ``[i, i + 1)``) is our
@@ -437,7 +507,7 @@ def pinhole_sensor(mi, camera: Camera, spp: int, near_clip: float, far_clip: flo
     Args:
         mi: the ``mitsuba`` module, set to a variant by :func:`set_variant`.
         camera: the camera.
-        spp, near_clip, far_clip, rect: as in :func:`sensor`.
+        spp, near_clip, far_clip, rect, sampler: as in :func:`sensor`.
 
     Returns:
         The sensor's scene dict.
@@ -445,7 +515,7 @@ def pinhole_sensor(mi, camera: Camera, spp: int, near_clip: float, far_clip: flo
     inv_k = np.linalg.inv(camera.K)  # the matrix of Camera.pixel_rays
     d = {"type": "snell_pinhole", "near_clip": float(near_clip), "far_clip": float(far_clip)}
     d.update({f"inv_k_{i}{j}": float(inv_k[i, j]) for i in range(2) for j in range(3)})
-    d.update(_film_and_sampler(camera, spp, rect))
+    d.update(_film_and_sampler(camera, spp, rect, sampler))
     return d
 
 
@@ -477,65 +547,101 @@ def texture_emitter(mi, bitmap):
 
 
 def render_linear(
-    mi, shapes: dict, camera: Camera, spp: int, seed: int, max_depth: int, clip: tuple, python_rect=None
-) -> np.ndarray:
-    """Render ``shapes`` with Mitsuba's path tracer.
+    mi,
+    shapes: dict,
+    camera: Camera,
+    spp: int,
+    seed,
+    max_depth: int,
+    clip: tuple,
+    python_rect=None,
+    *,
+    window=None,
+    sampler="independent",
+):
+    """Render ``shapes`` with Mitsuba's path tracer, once per seed, from one loaded scene.
 
     Python plugins hold the interpreter lock, so with several render threads they mostly wait for
-    each other: on CPU variants the window ``python_rect`` is rendered on one thread and the rest of
-    the image, tile by tile, on all threads; with the Python sensor of a non-square-pixel camera
-    (:func:`pinhole_sensor`) every ray starts in Python, and the whole image is rendered on one
-    thread.
+    each other: on CPU variants the part of the window inside ``python_rect`` is rendered on one
+    thread and the rest of the window, tile by tile, on all threads; with the Python sensor of a
+    non-square-pixel camera (:func:`pinhole_sensor`) every ray starts in Python, and the whole window
+    is rendered on one thread.
 
     Args:
         mi: the ``mitsuba`` module, set to a variant.
         shapes: the scene's shapes by name.
         camera: the camera.
-        spp: samples per pixel.
-        seed: seed of the sampler.
+        spp: samples per pixel (a count ``sampler`` accepts, see :func:`sample_count`), or one per
+            seed.
+        seed: seed of the sampler, or a sequence of seeds: one render each, of the same scene.
         max_depth: longest light path (surface interactions, the emitter hit included); no Russian
             roulette.
         clip: ``(near_clip, far_clip)``.
         python_rect: ``(x0, y0, x1, y1)``, end exclusive: the only pixels whose rays can reach a
             BSDF written in Python (the object's footprint); ``None``: no such BSDF.
+        window: ``(x0, y0, x1, y1)``, end exclusive: render only these pixels (a crop window of
+            the film, see the module's conventions); ``None``: the whole image.
+        sampler: the sampler, as in :func:`check_sampler`.
 
     Returns:
-        The linear ``(H, W, 3)`` float32 image.
+        The linear float32 image of the window, ``(y1 - y0, x1 - x0, 3)`` (``(H, W, 3)`` without a
+        window); a list of them, one per seed, when ``seed`` is a sequence.
     """
+    H, W = camera.shape
+    many = isinstance(seed, (list, tuple))
+    seeds = [int(s) for s in seed] if many else [int(seed)]
+    counts = [int(n) for n in spp] if isinstance(spp, (list, tuple)) else [int(spp)] * len(seeds)
+    if len(counts) != len(seeds):
+        raise ValueError(f"{len(counts)} sample counts for {len(seeds)} seeds")
+    wx0, wy0, wx1, wy1 = (0, 0, W, H) if window is None else tuple(map(int, window))
+    if not (0 <= wx0 < wx1 <= W and 0 <= wy0 < wy1 <= H):
+        raise ValueError(f"window {window} is empty or not inside the {W}x{H} image")
+    full = (wx0, wy0, wx1, wy1) == (0, 0, W, H)
     scene_dict = {
         "type": "scene",
         # no Russian roulette: paths end at emitters (black BSDFs) or after max_depth interactions
         "integrator": {"type": "path", "max_depth": int(max_depth), "rr_depth": int(max_depth) + 1},
-        "sensor": sensor(mi, camera, spp, *clip),
+        "sensor": sensor(mi, camera, counts[0], *clip, rect=None if full else (wx0, wy0, wx1, wy1), sampler=sampler),
     }
     scene_dict.update(shapes)
     scene = mi.load_dict(scene_dict)
 
-    def render(rect):
-        s = mi.load_dict(sensor(mi, camera, spp, *clip, rect=rect))
-        return np.array(mi.render(scene, sensor=s, spp=int(spp), seed=int(seed)), dtype=np.float32)[..., :3]
+    def render(rect, s, n):
+        if rect == (wx0, wy0, wx1, wy1):
+            sen = scene.sensors()[0]
+        else:
+            sen = mi.load_dict(sensor(mi, camera, n, *clip, rect=rect, sampler=sampler))
+        return np.array(mi.render(scene, sensor=sen, spp=n, seed=s), dtype=np.float32)[..., :3]
 
-    H, W = camera.shape
-    python_sensor = not square_pixels(camera)
-    if not mi.variant().startswith("scalar") or (python_rect is None and not python_sensor):
-        return render(None)
-    import drjit as dr
+    def one_thread(rect, s, n):
+        import drjit as dr
 
-    def one_thread(rect):
         threads = dr.thread_count()
         dr.set_thread_count(1)
         try:
-            return render(rect)
+            return render(rect, s, n)
         finally:
             dr.set_thread_count(threads)
 
-    if python_sensor:
-        return one_thread(None)
-    x0, y0, x1, y1 = python_rect
-    out = np.zeros((H, W, 3), np.float32)
-    for rx0, ry0, rx1, ry1 in ((0, 0, W, y0), (0, y1, W, H), (0, y0, x0, y1), (x1, y0, W, y1)):
-        if rx1 > rx0 and ry1 > ry0:
-            out[ry0:ry1, rx0:rx1] = render((rx0, ry0, rx1, ry1))
-    if x1 > x0 and y1 > y0:
-        out[y0:y1, x0:x1] = one_thread(python_rect)
-    return out
+    python_sensor = not square_pixels(camera)
+
+    def render_window(s, n):
+        if not mi.variant().startswith("scalar") or (python_rect is None and not python_sensor):
+            return render((wx0, wy0, wx1, wy1), s, n)
+        if python_sensor:
+            return one_thread((wx0, wy0, wx1, wy1), s, n)
+        # the Python BSDF's pixels (clipped to the window) on one thread, the rest tile by tile
+        x0, y0, x1, y1 = python_rect
+        x0, x1 = min(max(x0, wx0), wx1), min(max(x1, wx0), wx1)
+        y0, y1 = min(max(y0, wy0), wy1), min(max(y1, wy0), wy1)
+        out = np.zeros((wy1 - wy0, wx1 - wx0, 3), np.float32)
+        tiles = ((wx0, wy0, wx1, y0), (wx0, y1, wx1, wy1), (wx0, y0, x0, y1), (x1, y0, wx1, y1))
+        for rx0, ry0, rx1, ry1 in tiles:
+            if rx1 > rx0 and ry1 > ry0:
+                out[ry0 - wy0 : ry1 - wy0, rx0 - wx0 : rx1 - wx0] = render((rx0, ry0, rx1, ry1), s, n)
+        if x1 > x0 and y1 > y0:
+            out[y0 - wy0 : y1 - wy0, x0 - wx0 : x1 - wx0] = one_thread((x0, y0, x1, y1), s, n)
+        return out
+
+    images = [render_window(s, n) for s, n in zip(seeds, counts)]
+    return images if many else images[0]

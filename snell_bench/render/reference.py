@@ -24,18 +24,65 @@ Convention:
       the ray tracer, count for neither). Outer-surface reflections do not count: they mostly see the
       space behind the camera and would otherwise exclude every pixel whose Fresnel reflectance
       exceeds the threshold.
+    - Window (``crop=True``): both passes render only the object's rectangle
+      (:func:`~snell_bench.render.geometry.object_rect`: every pixel whose footprint can overlap the
+      object's projection) grown by ``crop_margin_px``, a crop window of the full film, so each pixel
+      in it sees the rays it sees in a full-frame render (other random numbers, though: see
+      :mod:`snell_bench.render.backend`). Outside it no camera ray meets the object, so a full-frame
+      render there shows the background seen directly, and that is pasted: a pixel with a valid depth
+      shows its own texel (``linear`` = I⁻ decoded to linear RGB, ``unobserved`` = 0), a pixel
+      without one shows nothing (``linear`` = 0, ``unobserved`` = 1: its ray leaves through the hole
+      in the depth mesh and ends on the unobserved box). A full-frame render agrees with that to
+      float rounding except at the pixels where a sample slips through a crack between two
+      background triangles (the ray tracer is not watertight: 0.1 to 0.6 % of the pixels, each
+      darker by the share of its samples lost), which the paste does not have. An object with a
+      vertex closer than the near clip plane (or behind the camera) has no bounded projection, and
+      one outside the image nothing to crop to: then the whole frame is rendered.
+    - Sampler: one of Mitsuba's (:data:`~snell_bench.render.backend.SAMPLERS`); all but
+      ``independent`` accept only some sample counts and round any other up (logged, see below).
+    - Self-noise (``self_noise=True``): the image pass is two independent renders A and B (seeds
+      ``2 seed`` and ``2 seed + 1``) of ``n1`` and ``n2`` samples per pixel, ``n1 + n2 = spp``, and
+      ``linear`` is their sample-weighted mean ``F = (n1 A + n2 B) / spp``. ``n1 = n2 = spp / 2``,
+      rounded up to a count the sampler accepts (so ``spp`` becomes ``2 n1``, logged), except for
+      ``independent``, which splits any ``spp >= 2`` as ``n1 = spp // 2``, ``n2 = spp - n1``. With
+      A and B independent and unbiased, of per-pixel noise variances ``v_A`` and ``v_B``,
+      ``E (A - B)^2 = v_A + v_B`` and ``Var F = (n1^2 v_A + n2^2 v_B) / spp^2``; for equal halves
+      (``v_A = v_B``, any sampler) and for the independent sampler (``v ∝ 1 / n``) both give
+      ``Var F = E (A - B)^2 n1 n2 / spp^2``: a quarter of the halves' mean squared difference for
+      equal halves, not a half (F has half the variance of one half, and A - B twice it). So
+      ``self_noise_db = self_noise_halves_db + 10 log10(spp^2 / (n1 n2))`` (+6.02 dB for equal halves)
+      estimates the PSNR of ``image`` against its noise-free limit, where ``self_noise_halves_db =
+      10 log10(1 / mean (a - b)^2)`` is the PSNR between the halves' sRGB images ``a`` and ``b``
+      inside ``mask``, on the metrics' grayscale ``0.299 R + 0.587 G + 0.114 B``
+      (:func:`~snell_bench.metrics.masked_psnr`) without histogram matching; ``self_noise_rgb_db``
+      is the same estimate on the RGB channels. In sRGB the estimate is first order (the encoding is
+      smooth where the noise is small). It is about the highest masked PSNR an image can score
+      against this reference: the noise-free render itself scores about that. ``None`` with
+      ``spp = 1`` (no halves) or an empty mask; ``inf`` where the halves agree exactly.
+      ``self_noise=False`` renders the image pass once, with ``seed``, and measures nothing.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear
-from snell_bench.render.backend import black_bsdf, mesh, render_linear, rgb_emitter, set_variant, texture_emitter
+from snell_bench.render.backend import (
+    SAMPLERS,
+    black_bsdf,
+    check_sampler,
+    mesh,
+    render_linear,
+    rgb_emitter,
+    sample_count,
+    set_variant,
+    texture_emitter,
+)
 from snell_bench.render.geometry import (
     background_geometry,
     flaps,
@@ -51,10 +98,12 @@ from snell_bench.scene.objects import GlassObject
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ReferenceRender", "render_reference"]
+__all__ = ["ReferenceRender", "halves_self_noise", "render_reference"]
 
 #: The back sides of the background sit this far (relative to their distance) behind the front.
 _BACK_OFFSET = 1e-4
+#: Luma weights (R, G, B) of the metrics' grayscale.
+_LUMA = np.array([0.299, 0.587, 0.114], np.float64)
 
 
 @dataclass
@@ -71,9 +120,19 @@ class ReferenceRender:
             mask.
         unobserved_threshold: the threshold of ``mask``.
         variant: the Mitsuba variant it was rendered with.
-        spp: samples per pixel of each pass.
+        spp: samples per pixel of the image pass (both halves together; after the sampler's
+            rounding).
         seed: seed of Mitsuba's sampler.
         timings: seconds per stage (``geometry``, ``image``, ``unobserved``).
+        sampler: Mitsuba's sampler.
+        unobserved_spp: samples per pixel of the unobserved pass.
+        window: ``(x0, y0, x1, y1)``, end exclusive: the pixels rendered (``(0, 0, W, H)``: the
+            whole frame); the rest is the background seen directly (see the module's conventions).
+        self_noise_db: estimated PSNR (dB, grayscale, inside ``mask``) of ``image`` against its
+            noise-free limit; ``None`` where not measured.
+        self_noise_rgb_db: the same on the RGB channels.
+        self_noise_halves_db: PSNR (dB, grayscale, inside ``mask``) between the two halves.
+        halves: ``(n1, n2)``, the samples per pixel of the two halves; ``None``: one render.
     """
 
     image: np.ndarray
@@ -86,6 +145,32 @@ class ReferenceRender:
     spp: int
     seed: int
     timings: dict = field(default_factory=dict)
+    sampler: str = "independent"
+    unobserved_spp: int = 0
+    window: tuple = ()
+    self_noise_db: float | None = None
+    self_noise_rgb_db: float | None = None
+    self_noise_halves_db: float | None = None
+    halves: tuple | None = None
+
+    def summary(self) -> dict:
+        """What a results file records about this reference: variant, sampler, counts, window and
+        self-noise (dB, ``None`` where not measured; see the module's conventions)."""
+
+        def db(v):
+            return None if v is None else round(float(v), 3)
+
+        return {
+            "variant": self.variant,
+            "sampler": self.sampler,
+            "spp": int(self.spp),
+            "unobserved_spp": int(self.unobserved_spp),
+            "window": [int(v) for v in self.window],
+            "halves": None if self.halves is None else [int(n) for n in self.halves],
+            "self_noise_db": db(self.self_noise_db),
+            "self_noise_rgb_db": db(self.self_noise_rgb_db),
+            "self_noise_halves_db": db(self.self_noise_halves_db),
+        }
 
 
 def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject, spp: int) -> tuple[np.ndarray, np.ndarray]:
@@ -117,25 +202,103 @@ def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject, spp: int) ->
     return img, depth
 
 
+def halves_self_noise(a: np.ndarray, b: np.ndarray, mask: np.ndarray, n1: int, n2: int) -> tuple[float, float, float]:
+    """The self-noise of a reference from its two halves (see the module's conventions).
+
+    Args:
+        a, b: ``(h, w, 3)`` sRGB images of the two halves.
+        mask: ``(h, w)`` bool, the pixels scored.
+        n1, n2: their samples per pixel.
+
+    Returns:
+        ``(self_noise_db, self_noise_rgb_db, self_noise_halves_db)``: the estimated PSNR of the
+        full reference (grayscale, RGB) and the PSNR between the halves (grayscale); ``inf`` where
+        the halves agree exactly.
+
+    Raises:
+        ValueError: ``mask`` is empty, or ``n1`` or ``n2`` is not positive.
+    """
+    if not mask.any():
+        raise ValueError("the mask is empty")
+    if min(n1, n2) < 1:
+        raise ValueError(f"both halves need samples, got {n1} and {n2}")
+    d = a[mask].astype(np.float64) - b[mask].astype(np.float64)
+    gain = 10.0 * math.log10((n1 + n2) ** 2 / (n1 * n2))
+
+    def db(mse: float) -> float:
+        return math.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
+
+    halves = db(float(np.mean((d @ _LUMA) ** 2)))
+    return halves + gain, db(float(np.mean(d**2))) + gain, halves
+
+
+def _image_counts(mi, sampler, spp: int, halves: bool) -> tuple[int, ...]:
+    """Samples per pixel of the image pass's renders: ``(n,)`` or the halves ``(n1, n2)``, in counts
+    the sampler accepts (see the module's conventions); a rounding is logged."""
+    name = check_sampler(sampler)["type"]
+    if not halves or spp < 2:
+        counts = (sample_count(mi, sampler, spp),)
+    elif name == "independent":
+        counts = (spp // 2, spp - spp // 2)
+    else:
+        n = sample_count(mi, sampler, -(-spp // 2))
+        counts = (n, n)
+    if sum(counts) != spp:
+        log.warning(
+            "reference: the %s sampler takes %s; spp=%d rendered as %s = %d samples per pixel",
+            name,
+            SAMPLERS[name],
+            spp,
+            " + ".join(map(str, counts)),
+            sum(counts),
+        )
+    return counts
+
+
+def _window(camera: Camera, obj: GlassObject, rect, margin: int, near_clip: float, crop: bool) -> tuple:
+    """The pixels to render: ``rect`` grown by ``margin`` and clipped to the image, or the whole
+    image (``crop=False``, an object reaching in front of the near clip plane, or one outside the
+    image)."""
+    H, W = camera.shape
+    if not crop:
+        return (0, 0, W, H)
+    if not (np.asarray(obj.vertices)[:, 2] > near_clip).all():
+        log.info("reference: the object reaches in front of the near clip plane; rendering the whole frame")
+        return (0, 0, W, H)
+    x0, y0, x1, y1 = rect
+    m = int(margin)
+    x0, y0, x1, y1 = max(0, x0 - m), max(0, y0 - m), min(W, x1 + m), min(H, y1 + m)
+    if x1 <= x0 or y1 <= y0:  # the object is outside the image: nothing to crop to
+        return (0, 0, W, H)
+    return (x0, y0, x1, y1)
+
+
 def render_reference(
     i_minus: np.ndarray,
     depth: np.ndarray,
     camera: Camera,
     obj: GlassObject,
     *,
-    spp: int = 16,
+    spp: int = 242,
     edge_threshold: float = 0.05,
     seed: int = 0,
     unobserved_threshold: float = 0.05,
     max_depth: int = 16,
     fresnel: bool = True,
+    sampler="orthogonal",
+    crop: bool = True,
+    crop_margin_px: int = 4,
+    self_noise: bool = True,
+    unobserved_spp: int | None = 25,
 ) -> ReferenceRender:
     """Render ``obj`` placed in the scene of I⁻ with Mitsuba 3.
 
     Camera frame and pixel centres of :mod:`snell_bench.scene.camera`; images ``(H, W, 3)`` float32,
-    sRGB in [0, 1] in and out (rendering is in linear RGB); masks ``(H, W)`` bool. Two passes of
-    ``spp`` samples per pixel: the image (observed surfaces emit I⁻, the object is a dielectric) and
-    the unobserved share (refraction path only). See the module's docstring for the scene.
+    sRGB in [0, 1] in and out (rendering is in linear RGB); masks ``(H, W)`` bool. Two passes: the
+    image (observed surfaces emit I⁻, the object is a dielectric; ``spp`` samples per pixel, in two
+    halves with ``self_noise``) and the unobserved share (refraction path only; ``unobserved_spp``).
+    With ``crop`` only the object's window is rendered, the rest pasted. See the module's docstring
+    for the scene, the window and the self-noise.
 
     Args:
         i_minus: ``(H, W, 3)`` sRGB image in [0, 1] of the object-free scene.
@@ -143,7 +306,7 @@ def render_reference(
         camera: the camera of I⁻, any pinhole ``K`` (``fx != fy`` and skew included; see
             :func:`~snell_bench.render.backend.sensor`).
         obj: the glass object in camera coordinates.
-        spp: samples per pixel of each of the two passes.
+        spp: samples per pixel of the image pass (rounded up to a count ``sampler`` accepts).
         edge_threshold: relative depth jump at which the depth mesh is cut (as in ``compute_warps``).
         seed: seed of Mitsuba's sampler.
         unobserved_threshold: object pixels whose unobserved share is below this form ``mask``.
@@ -153,22 +316,36 @@ def render_reference(
             refraction path (refraction at each interface, reflection only under total internal
             reflection) with weight 1, so ``image`` shows what our self-warp π^R predicts, without
             Fresnel reflection or loss: a purely geometric render, for cross-checks.
+        sampler: Mitsuba's sampler: a name of :data:`~snell_bench.render.backend.SAMPLERS`, or a
+            dict of its properties (see :func:`~snell_bench.render.backend.check_sampler`).
+        crop: render only the object's window (see the module's conventions); ``False``: the
+            whole frame.
+        crop_margin_px: pixels added on each side of the object's rectangle.
+        self_noise: render the image pass in two independent halves and measure the self-noise.
+        unobserved_spp: samples per pixel of the unobserved pass; ``None``: ``spp``.
 
     Returns:
         The :class:`ReferenceRender`.
 
     Raises:
         ImportError: Mitsuba is not installed (the message names the ``render`` extra).
-        ValueError: invalid inputs (shapes, an object not placed, ``spp`` or ``unobserved_threshold``
-            out of range).
+        ValueError: invalid inputs (shapes, an object not placed, ``spp``, ``unobserved_spp``,
+            ``crop_margin_px`` or ``unobserved_threshold`` out of range, an unknown sampler).
     """
     img, depth = _check_inputs(i_minus, depth, camera, obj, spp)
     if not (0.0 < unobserved_threshold <= 1.0):
         raise ValueError(f"unobserved_threshold must be in (0, 1], got {unobserved_threshold}")
+    if unobserved_spp is not None and (int(unobserved_spp) != unobserved_spp or unobserved_spp < 1):
+        raise ValueError(f"unobserved_spp must be a positive integer or None, got {unobserved_spp!r}")
+    if int(crop_margin_px) != crop_margin_px or crop_margin_px < 0:
+        raise ValueError(f"crop_margin_px must be a non-negative integer, got {crop_margin_px!r}")
+    sampler_name = check_sampler(sampler)["type"]
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     mi = set_variant()
     variant = mi.variant()
+    counts = _image_counts(mi, sampler, int(spp), bool(self_noise))
+    u_spp = sample_count(mi, sampler, int(spp if unobserved_spp is None else unobserved_spp))
 
     lo, hi = obj.mesh.bounds
     bg = build_background(depth, camera, edge_threshold, extra_points=np.stack([lo, hi]))
@@ -183,11 +360,16 @@ def render_reference(
     box_faces = inward_box(bg.box_vertices, bg.box_faces)
     ov, of, on = object_arrays(obj)
     # clip planes well inside the nearest geometry and beyond the farthest
+    valid = valid_depth_mask(depth)
     front = ov[:, 2][ov[:, 2] > 0]
-    zmin = min([float(np.min(depth[valid_depth_mask(depth)]))] + ([float(front.min())] if len(front) else []))
+    zmin = min([float(np.min(depth[valid]))] + ([float(front.min())] if len(front) else []))
     clip = (1e-3 * zmin, 10.0 * float(np.linalg.norm(np.abs(bg.box_vertices).max(axis=0))))
-    texture = mi.Bitmap(np.ascontiguousarray(srgb_to_linear(np.clip(img, 0.0, 1.0)), dtype=np.float32))
+    tex = np.ascontiguousarray(srgb_to_linear(np.clip(img, 0.0, 1.0)), dtype=np.float32)
+    texture = mi.Bitmap(tex)
     rect = object_rect(camera, obj)
+    window = _window(camera, obj, rect, crop_margin_px, clip[0], crop)
+    x0, y0, x1, y1 = window
+    render_opts = dict(window=window, sampler=sampler)
     timings["geometry"] = time.perf_counter() - t0
 
     def dielectric(kind: str):
@@ -204,7 +386,10 @@ def render_reference(
         ),
         "object": object_shape(dielectric("dielectric" if fresnel else "snell_refraction_path")),
     }
-    linear = render_linear(mi, shapes, camera, spp, seed, max_depth, clip, None if fresnel else rect)
+    python_rect = None if fresnel else rect
+    seeds = [int(seed)] if len(counts) == 1 else [2 * int(seed), 2 * int(seed) + 1]
+    parts = render_linear(mi, shapes, camera, list(counts), seeds, max_depth, clip, python_rect, **render_opts)
+    win = sum(n * p for n, p in zip(counts, parts)) / float(sum(counts))
     timings["image"] = time.perf_counter() - t0
 
     # ---- (b) observed surfaces emit green, unobserved ones red; the refraction path
@@ -216,23 +401,41 @@ def render_reference(
         "box": mesh(mi, "box", bg.box_vertices, box_faces, bsdf=black_bsdf(mi), emitter=rgb_emitter(mi, red)),
         "object": object_shape(dielectric("snell_refraction_path")),
     }
-    share = render_linear(mi, shapes, camera, spp, seed, max_depth, clip, rect)
+    share = render_linear(mi, shapes, camera, u_spp, seed, max_depth, clip, rect, **render_opts)
     timings["unobserved"] = time.perf_counter() - t0
 
+    # outside the window: the background seen directly (see the module's conventions)
+    linear = np.where(valid[..., None], tex, np.float32(0.0)).astype(np.float32)
+    linear[y0:y1, x0:x1] = win
     u, o = np.clip(share[..., 0], 0.0, None), np.clip(share[..., 1], 0.0, None)
     total = u + o
     with np.errstate(divide="ignore", invalid="ignore"):
-        unobserved = np.where(total > 1e-6, u / total, 1.0)
-    unobserved = np.clip(unobserved, 0.0, 1.0).astype(np.float32)
+        u_win = np.where(total > 1e-6, u / total, 1.0)
+    unobserved = np.where(valid, np.float32(0.0), np.float32(1.0)).astype(np.float32)
+    unobserved[y0:y1, x0:x1] = np.clip(u_win, 0.0, 1.0)
     obj_mask = object_mask(depth, camera, obj)
     mask = obj_mask & (unobserved < unobserved_threshold)
     image = linear_to_srgb(np.clip(linear, 0.0, 1.0)).astype(np.float32)
+
+    noise: tuple = (None, None, None)
+    win_mask = mask[y0:y1, x0:x1]
+    if len(parts) == 2 and win_mask.any():
+        a, b = (linear_to_srgb(np.clip(p, 0.0, 1.0)) for p in parts)
+        noise = halves_self_noise(a, b, win_mask, *counts)
+    elif self_noise:
+        log.info("reference: no self-noise (%s)", "spp=1 has no halves" if len(parts) == 1 else "empty mask")
     log.info(
-        "reference (%s, %d spp): %d object pixels, %d in the mask; %s",
+        "reference (%s, %s, %s spp in %dx%d px; unobserved %d spp): %d object pixels, %d in the mask; "
+        "self-noise %s dB; %s",
         variant,
-        spp,
+        sampler_name,
+        "+".join(map(str, counts)),
+        x1 - x0,
+        y1 - y0,
+        u_spp,
         int(obj_mask.sum()),
         int(mask.sum()),
+        "n/a" if noise[0] is None else f"{noise[0]:.1f}",
         {k: round(v, 2) for k, v in timings.items()},
     )
     return ReferenceRender(
@@ -243,7 +446,14 @@ def render_reference(
         mask=mask,
         unobserved_threshold=float(unobserved_threshold),
         variant=variant,
-        spp=int(spp),
+        spp=int(sum(counts)),
         seed=int(seed),
         timings=timings,
+        sampler=sampler_name,
+        unobserved_spp=int(u_spp),
+        window=tuple(int(v) for v in window),
+        self_noise_db=noise[0],
+        self_noise_rgb_db=noise[1],
+        self_noise_halves_db=noise[2],
+        halves=tuple(int(n) for n in counts) if len(counts) == 2 else None,
     )

@@ -177,19 +177,54 @@ def scene_panorama(scene: SceneInputs, pano, supersample: int = 1) -> np.ndarray
     )
 
 
-def panorama_prior(scene: SceneInputs, warps, i_minus) -> np.ndarray:
-    """The panorama a generator built from the scene starts from, ``(Hp, 2 Hp, 3)`` sRGB: the
-    source's true panorama where the source can render one (procedural scenes), else I⁻ seen from
-    the object through π where I⁻ observes the panorama's rays, smoothly filled elsewhere
-    (:func:`~snell_bench.imaging.fill.push_pull_fill`): nothing but I⁻ is used.
+#: The kinds of panorama prior :func:`panorama_prior` builds (config key ``model.pano_prior``).
+PANO_PRIORS = ("other", "blur", "truth", "observed")
+#: ``pano_prior="other"``: the procedural seed of the other variation is the scene's plus this.
+OTHER_VARIATION_OFFSET = 1000
+
+
+def panorama_prior(scene: SceneInputs, warps, i_minus, kind: str = "other") -> np.ndarray:
+    """The panorama a generator built from the scene starts from, ``(Hp, 2 Hp, 3)`` sRGB.
+
+    Kinds (config key ``model.pano_prior``):
+        - ``other``: the true panorama of another variation of the same procedural scene kind
+          (seed + :data:`OTHER_VARIATION_OFFSET`), seen from the same pose: a plausible room that
+          is wrong everywhere, which only synchronisation with I⁻ through π corrects;
+        - ``blur``: the scene's true panorama blurred (a Gaussian of ``Hp / 32`` pixels, periodic
+          in x): right in colour and layout, wrong in detail;
+        - ``truth``: the scene's true panorama (the ground truth of every surface I⁻ does not show);
+        - ``observed``: I⁻ seen from the object through π where I⁻ observes the panorama's rays,
+          smoothly filled elsewhere (:func:`~snell_bench.imaging.fill.push_pull_fill`): nothing but
+          I⁻ is used. Sources that cannot render a panorama (photos, RGB-D frames, generated
+          scenes) always get this one.
 
     Args:
         scene: the scene's inputs.
         warps: its :class:`~snell_bench.optics.warps.WarpSet` (π and the panorama camera).
         i_minus: I⁻ as a ``(1, 3, H, W)`` tensor.
+        kind: one of :data:`PANO_PRIORS`.
+
+    Raises:
+        ValueError: for an unknown kind.
     """
-    if hasattr(scene.source, "render_panorama"):
-        return scene_panorama(scene, warps.pano)
+    if kind not in PANO_PRIORS:
+        raise ValueError(f"model.pano_prior={kind!r} is unknown; use one of {PANO_PRIORS}")
+    if kind != "observed" and hasattr(scene.source, "render_panorama"):
+        if kind == "other":
+            src = scene.source
+            other = type(src)(kind=src.kind, seed=int(src.seed) + OTHER_VARIATION_OFFSET)
+            pano = warps.pano
+            return other.render_panorama(
+                center=pano.center, height=pano.height, up=-pano.rotation[:, 1], forward=pano.rotation[:, 2]
+            )
+        true = scene_panorama(scene, warps.pano)
+        if kind == "blur":
+            from scipy.ndimage import gaussian_filter1d
+
+            sigma = true.shape[0] / 32
+            out = gaussian_filter1d(true, sigma, axis=0, mode="nearest")
+            return gaussian_filter1d(out, sigma, axis=1, mode="wrap").astype(np.float32)
+        return true
     import torch
 
     from snell_bench.imaging.fill import push_pull_fill

@@ -115,5 +115,5 @@ def test_presets_and_experiments_compose_in_order():
     assert (paper.scene.width, paper.scene.height, paper.warps.pano_height) == (1280, 720, 1024)
     assert paper.grid.methods[0] == "snellcaster"  # the experiment's grid is kept
     fast = make_cfg(["preset=fast", "sampler.steps=6", "output_dir=/tmp/x"])
-    assert (fast.sampler.steps, fast.sampler.levels, fast.warps.pano_height, fast.reference.spp) == (6, 3, 256, 4)
+    assert (fast.sampler.steps, fast.sampler.levels, fast.warps.pano_height, fast.reference.spp) == (6, 3, 256, 98)
     assert make_cfg(["output_dir=/tmp/x"]).scene.width == 1280  # no preset: the schema's paper size

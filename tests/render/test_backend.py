@@ -107,3 +107,35 @@ class TestSensor:
         np.testing.assert_allclose(o[:, 2], 0.01, rtol=1e-6)
         np.testing.assert_allclose(o, d * (0.01 / d[:, 2:]), atol=1e-8)
         np.testing.assert_allclose((o + t[:, None] * d)[:, 2], 100.0, rtol=1e-5)
+
+
+class TestFallback:
+    """Without a working LLVM back end (no libLLVM, or one that aborts the process), the probe
+    fails and ``scalar_rgb`` renders; the probe is mocked here, or run on a variant that fails."""
+
+    @pytest.fixture
+    def unprobed(self, monkeypatch):
+        monkeypatch.delenv(VARIANT_ENV, raising=False)
+        monkeypatch.setattr(backend, "_probed_variant", None)
+
+    def test_failed_probe_falls_back_to_scalar(self, unprobed, monkeypatch):
+        tried = []
+        monkeypatch.setattr(backend, "_probe", lambda v: tried.append(v) or False)
+        assert mitsuba_variant() == "scalar_rgb" and tried == ["llvm_ad_rgb"]
+        assert mitsuba_variant() == "scalar_rgb" and tried == ["llvm_ad_rgb"]  # memoized
+
+    def test_working_probe_picks_llvm(self, unprobed, monkeypatch):
+        monkeypatch.setattr(backend, "_probe", lambda v: True)
+        assert mitsuba_variant() == "llvm_ad_rgb"
+
+    def test_build_without_llvm_falls_back_without_probing(self, unprobed, monkeypatch):
+        def no_probe(v):
+            raise AssertionError("no LLVM variant to probe")
+
+        monkeypatch.setattr(backend, "_probe", no_probe)
+        monkeypatch.setattr(mi, "variants", lambda: ["scalar_rgb", "scalar_spectral"])
+        assert mitsuba_variant() == "scalar_rgb"
+
+    def test_probe_of_a_failing_variant_is_false(self):
+        """The probe's subprocess exits with an error (here: no such variant); this process goes on."""
+        assert backend._probe("no_such_variant") is False

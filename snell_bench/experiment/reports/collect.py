@@ -19,7 +19,7 @@ import pandas as pd
 
 from .spec import METRICS, MODEL_DESCRIPTIONS, metric_spec
 
-__all__ = ["collect", "BASE_COLUMNS", "provenance_line", "cell_notes"]
+__all__ = ["collect", "BASE_COLUMNS", "provenance_line", "cell_notes", "reference_noise_note"]
 
 BASE_COLUMNS = (
     "experiment",
@@ -36,7 +36,7 @@ BASE_COLUMNS = (
 """The identity columns of :func:`collect`, first and in this order."""
 
 _CELL_DIR_RE = re.compile(r"^(?P<scene>.+)-(?P<variation>\d+)$")
-_FLAT_GROUPS = ("decisions", "warps")  # nested records flattened to dotted columns
+_FLAT_GROUPS = ("decisions", "warps", "reference")  # nested records flattened to dotted columns
 _OWN_GROUPS = ("metrics", "missing", "timings_s")  # flattened with their own conversions
 
 
@@ -125,6 +125,7 @@ def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
         ``scene_source``); one column per metric (``psnr``, ``lpips``, ...; NaN where null); the
         reason a metric is missing as ``missing.<metric>``; stage timings as
         ``timings_s.<stage>``; what the cell modelled as ``decisions.<...>`` and ``warps.<...>``;
+        the reference's settings and self-noise as ``reference.<...>`` (``reference.self_noise_db``);
         other scalar fields of the record under their own name; and ``cell_dir``, the cell's
         folder relative to ``run_dir``. Rows are sorted by scene, variation, object, method and
         folder. Empty (with the identity columns) when there is no cell.
@@ -257,3 +258,32 @@ def cell_notes(df: pd.DataFrame, metrics: Iterable[str] = ()) -> list[str]:
             by = ", ".join(f"{meth} ×{per[meth]}" for meth in sorted(per))
             notes.append(f"{metric_spec(m).label}: no value in {k} of {len(ok)} ok cells ({by}) — {why}")
     return notes
+
+
+def reference_noise_note(df: pd.DataFrame) -> str | None:
+    """A note line on the references' self-noise, the ceiling of every masked PSNR in ``df``.
+
+    Args:
+        df: cells from ``collect``.
+
+    Returns:
+        E.g. ``"reference self-noise: mean 47.6 dB (min 45.1 dB) over 2 references, about the
+        highest PSNR an image can score against them"``: over the distinct references (scene,
+        variation, object) of the ``ok`` cells that record a finite ``reference.self_noise_db``;
+        None when none does.
+    """
+    col = "reference.self_noise_db"
+    if col not in df.columns or df.empty:
+        return None
+    ok = df[(df["status"] == "ok") & df[col].map(lambda v: not _is_missing(v))].copy()
+    ok[col] = ok[col].astype(float)
+    ok = ok[ok[col].map(math.isfinite)]
+    if ok.empty:
+        return None
+    per_ref = ok.groupby(["scene", "variation", "object"], dropna=False)[col].first()
+    n = len(per_ref)
+    return (
+        f"reference self-noise: mean {per_ref.mean():.1f} dB (min {per_ref.min():.1f} dB) over {n} "
+        f"reference{'s' if n != 1 else ''}, about the highest PSNR an image can score against "
+        f"{'them' if n != 1 else 'it'}"
+    )

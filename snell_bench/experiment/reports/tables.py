@@ -17,7 +17,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 import pandas as pd
 
-from .collect import cell_notes, provenance_line
+from .collect import cell_notes, provenance_line, reference_noise_note
 from .spec import ABLATION_METRICS, ABLATION_ROWS, METRICS, TABLE1_METRICS, Metric, metric_spec
 
 __all__ = [
@@ -99,7 +99,8 @@ def method_table(
     Returns:
         One row per method, labelled by ``method_label`` (``index.name`` ``"Method"``), with the
         ``metrics`` and ``n``, the number of ``ok`` cells (0 for a method whose cells all failed;
-        its values are NaN).
+        its values are NaN). The notes end with the references' self-noise where the cells record
+        it (:func:`~snell_bench.experiment.reports.collect.reference_noise_note`).
 
     Raises:
         ValueError: ``df`` has no ``method`` or ``status`` column.
@@ -110,9 +111,10 @@ def method_table(
     labels = method_labels(df)
     table.index = [labels[m] for m in methods]
     table.index.name = "Method"
+    noise = reference_noise_note(df)
     table.attrs.update(
         provenance=provenance_line(df),
-        notes=cell_notes(df, metrics),
+        notes=cell_notes(df, metrics) + ([noise] if noise else []),
         caption="Means over cells with status ok; n = cells averaged.",
         highlight="columns",
         methods=list(methods),
