@@ -61,7 +61,7 @@ Layout of an experiment ``E`` under ``runs/``::
 Reference convergence and the converged reference:
     For an axis that varies only ``reference.spp``, ``reference_psnr_vs_max_spp`` is the masked PSNR
     of each setting's reference against the highest-spp one of that axis (computed after each
-    scene and again by the report). With ``tradeoff.converged_spp`` (default 64) each setting is
+    scene and again by the report). With ``tradeoff.converged_spp`` (default 1058) each setting is
     also scored against a converged reference of its scene, object and resolution, rendered once
     and shared (``psnr_converged``, ``mae_converged``, ``lpips_converged``): fidelity that does
     not move with ``reference.spp``; the Pareto front uses it. The report
@@ -436,6 +436,7 @@ def _run_setting(cell: Cell, shared: SharedCache, sweep: _Sweep) -> dict:
     return {
         "inputs_reused_from": shared.computed_by[cell.shares] if reused else None,
         "converged_reference": None if converged is None else {"spp": converged.spp, "key": converged.key},
+        "reference": None if inputs.reference is None else inputs.reference.summary(),
         "timings_s": {k: t.get(k) for k in STAGES + ("total",)},
         "sampler_timings_s": res.stats.get("sampler_timings_s", {}),
         "model_calls": res.stats.get("model_calls", {}),

@@ -127,11 +127,11 @@ def test_axes_formats_labels_and_presets(tmp_path):
     assert s[1].override_values() == {"scene.width": 320, "scene.height": 180}
     assert s[2].value == 256 and s[3].slug == "preset-fast" and s[3].overrides == ("preset=fast",)
     assert [x.label for x in build_settings(make_cfg(tmp_path))] == SETTINGS
-    # the experiment file itself: 1 + 5 + 4 + 3 + 4 + 5 + 3 + 3 + 3 + 3 settings
+    # the experiment file itself: 1 + 5 + 4 + 3 + 4 + 5 + 3 + 3 + 6 + 3 settings
     full = compose(["+experiment=tradeoff", "output_dir=/tmp/x"])
     labels = [x.label for x in build_settings(full)]
-    assert len(labels) == 34 and "resolution=1280x720-ss2" in labels and labels[-1] == "preset:paper"
-    assert full.scene.width == 640 and full.sampler.steps == 20 and full.reference.spp == 16
+    assert len(labels) == 37 and "resolution=1280x720-ss2" in labels and labels[-1] == "preset:paper"
+    assert full.scene.width == 640 and full.sampler.steps == 20 and full.reference.spp == 242
 
 
 @pytest.mark.parametrize(
@@ -319,13 +319,18 @@ def test_report_tables_and_pareto_flags(sweep):
     for line in md.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         name = cells[0].strip("*")
-        if name in SETTINGS and len(cells) == 15:
+        if name in SETTINGS and len(cells) == 16:
             rows[name] = cells
     assert sorted(rows) == sorted(SETTINGS)
     assert {k: "★" in v[-1] for k, v in rows.items()} == expect
     assert any(expect.values())
     assert rows["preset:tiny"][0] == "**preset:tiny**" and rows["baseline"][0] == "baseline"
     assert all("missing" in v[12] for v in rows.values())  # LPIPS column
+    # the reference's self-noise (two halves): a number wherever the tiny preset renders spp >= 2
+    own = df.groupby("setting")["reference_self_noise_db"].mean()
+    for name, cells in rows.items():
+        assert cells[13].strip("*") == ("—" if np.isnan(own[name]) else f"{own[name]:.2f}"), (name, cells[13])
+    assert own.notna().any()
     assert "lpips_weights" in md and "Reference convergence" in md
     # a pure function of the run folder: rebuilding elsewhere gives the same table
     again = build_tradeoff_report(tmp / "runs" / "tradeoff", tmp / "rebuilt")

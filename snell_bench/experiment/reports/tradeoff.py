@@ -229,7 +229,8 @@ def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
         (``timings_s.<stage>``), sampler breakdown (``sampler_s.<part>``), model calls
         (``model_calls.<branch>``), the :data:`RECORD_METRICS` with their ``missing.<metric>``
         reasons, ``reference_psnr_vs_max_spp`` (recomputed from the saved references),
-        ``converged_spp`` and ``dir``; sorted by scene, then the setting's order in the sweep.
+        ``converged_spp``, ``reference_self_noise_db`` (the setting's reference against its own
+        noise-free limit, from its two halves; NaN without halves) and ``dir``; sorted by scene, then the setting's order in the sweep.
         Empty when there is no ``result.json``.
     """
     root = Path(root)
@@ -265,6 +266,7 @@ def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
             row[f"missing.{k}"] = (r.get("missing") or {}).get(k)
         row["reference_psnr_vs_max_spp"] = _float(conv.get(r["_dir"], r.get("reference_psnr_vs_max_spp")))
         row["converged_spp"] = (r.get("converged_reference") or {}).get("spp")
+        row["reference_self_noise_db"] = _float((r.get("reference") or {}).get("self_noise_db"))
         row["dir"] = r["_dir"]
         rows.append(row)
     df = pd.DataFrame(rows)
@@ -283,7 +285,8 @@ def tradeoff_table(df: pd.DataFrame) -> pd.DataFrame:
     Returns:
         One row per setting (index ``setting``, in sweep order): ``axis``, ``n`` (ok scenes),
         ``n_scenes``, the mean of every stage time, ``psnr``, ``psnr_true``, ``lpips``, ``mae``,
-        the ``*_converged`` metrics and ``reference_psnr_vs_max_spp``; ``lpips_missing`` (the
+        the ``*_converged`` metrics, ``reference_psnr_vs_max_spp`` and ``reference_self_noise_db``
+        (a mean in dB); ``lpips_missing`` (the
         reasons, when LPIPS has no value) and ``pareto``: on the front of (mean total time ↓, mean
         :func:`fidelity_column` ↑) among the settings that succeeded on every scene.
 
@@ -303,6 +306,7 @@ def tradeoff_table(df: pd.DataFrame) -> pd.DataFrame:
         "mae_converged",
         "lpips_converged",
         "reference_psnr_vs_max_spp",
+        "reference_self_noise_db",
     ]
     order = df.groupby("setting", sort=False)["order"].min().sort_values(kind="mergesort")
     rows = []

@@ -287,7 +287,9 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
         f"Times in seconds; {TOTAL_NOTE}. PSNR: masked, vs the setting's own reference render (so it also "
         "moves with reference.spp, see the reference convergence below); PSNR (conv.): vs a converged reference "
         f"of the same scene, object and resolution ({conv_text}); PSNR (true): vs the true render, traced with "
-        "reference.true_max_bounces (the setting's warps.max_bounces where that is null). "
+        "reference.true_max_bounces (the setting's warps.max_bounces where that is null); ref. self-noise: the "
+        "PSNR of the setting's reference against its own noise-free limit, estimated from two independent "
+        "halves of its samples (the ceiling of its PSNR column). "
         f"**pareto**: on the front of (mean total ↓, mean {fid_text} ↑) among the settings that succeeded on "
         "every scene. Presets in bold.",
         "",
@@ -306,6 +308,7 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
         "PSNR (conv.)",
         "PSNR (true)",
         "LPIPS",
+        "ref. self-noise",
         "n",
         "pareto",
     ]
@@ -322,6 +325,7 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
             _fmt(r["psnr_converged"]),
             _fmt(r["psnr_true"]),
             lp,
+            _fmt(r.get("reference_self_noise_db", float("nan"))),
             f"{int(r['n'])}/{int(r['n_scenes'])}",
             "★" if r["pareto"] else "",
         ]
@@ -345,14 +349,18 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
             n = int(g["knob.spp"].iloc[0]) if "knob.spp" in g and g["knob.spp"].notna().any() else None
             top = n is not None and n == spp.loc[spp["axis"] == axis, "knob.spp"].max()
             v = table.loc[setting, "reference_psnr_vs_max_spp"] if setting in table.index else float("nan")
+            own = table.loc[setting, "reference_self_noise_db"] if setting in table.index else float("nan")
             rows.append(
                 [
                     str(setting),
                     str(n) if n is not None else "—",
                     "(highest spp: the comparison reference)" if top else _fmt(v),
+                    _fmt(own),
                 ]
             )
-        lines += pipe_table(["setting", "spp", "PSNR vs max spp"], rows, [None, "right", "right"])
+        lines += pipe_table(
+            ["setting", "spp", "PSNR vs max spp", "self-noise (two halves)"], rows, [None, "right", "right", "right"]
+        )
     notes = []
     for _, r in df[df["status"] != "ok"].iterrows():
         notes.append(f"{r['status']}: {r['scene']} / {r['setting']} — {' '.join(str(r['reason']).split())}")
