@@ -41,6 +41,7 @@ _REGISTRY: dict[str, str] = {
     "flux_dev": "snell_bench.models:_build_flux",
     "tiny_flux": "snell_bench.models.tiny_flux:TinyFluxGenerator",
     "analytic": "snell_bench.models.analytic:AnalyticGenerator",
+    "mixture": "snell_bench.models.mixture:scene_mixture",
 }
 
 
