@@ -27,6 +27,7 @@ __all__ = [
     "save_png",
     "link_or_copy",
     "json_default",
+    "json_safe",
 ]
 
 
@@ -79,9 +80,29 @@ def json_default(o: Any) -> Any:
     raise TypeError(f"{type(o).__name__} is not JSON serialisable")
 
 
+def json_safe(obj: Any) -> Any:
+    """``obj`` with every non-finite float (NaN, ±Infinity, Python or numpy) replaced by ``None``
+    and numpy values converted, recursively through dicts, lists and tuples: what strict JSON
+    parsers accept (``json.dumps`` would write the non-standard ``NaN`` / ``Infinity``). Callers
+    that drop a value this way record the reason beside it (as the metrics' ``missing`` does)."""
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        obj = obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
 def write_json(path: str | os.PathLike, obj: Any) -> Path:
-    """Write ``obj`` as indented JSON (numpy values converted) to ``path`` atomically."""
-    return atomic_write_bytes(path, json.dumps(obj, indent=2, default=json_default).encode())
+    """Write ``obj`` as indented, strict JSON to ``path`` atomically: numpy values converted,
+    non-finite floats written as ``null`` (:func:`json_safe`), never ``NaN`` or ``Infinity``."""
+    text = json.dumps(json_safe(obj), indent=2, default=json_default, allow_nan=False)
+    return atomic_write_bytes(path, text.encode())
 
 
 def save_npy(path: str | os.PathLike, arr: np.ndarray) -> Path:
