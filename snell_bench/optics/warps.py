@@ -293,7 +293,9 @@ def _cache_lookup(cache_dir: str | os.PathLike | None, key: str) -> tuple[Path |
 
     Returns:
         ``(path or None, cached WarpSet or None)``: ``path`` is ``<cache_dir>/<key>.npz``; the
-        :class:`WarpSet` is loaded when that file exists.
+        :class:`WarpSet` is loaded when that file exists. An entry that cannot be read (truncated,
+        corrupt, of another version or layout) is a miss: it is logged with its path and the
+        reason, deleted, and the warps are recomputed, never an error.
     """
     if cache_dir is None:
         return None, None
@@ -301,7 +303,14 @@ def _cache_lookup(cache_dir: str | os.PathLike | None, key: str) -> tuple[Path |
     if not path.is_file():
         return path, None
     log.info("warps: loading cached %s", path)
-    return path, WarpSet.load(path)
+    try:
+        return path, WarpSet.load(path)
+    except Exception as e:  # noqa: BLE001 - any unreadable entry is a miss; the recomputation overwrites it
+        log.warning(
+            "warps: cache entry %s cannot be read (%s: %s); deleting it and recomputing", path, type(e).__name__, e
+        )
+        path.unlink(missing_ok=True)
+        return path, None
 
 
 def _check_object_in_view(obj: GlassObject, camera: Camera) -> None:

@@ -335,6 +335,22 @@ class TestPersistence:
         c = compute_warps(plane_depth, cam, obj.with_ior(1.4), pano_height=16, cache_dir=tmp_path)
         assert c.input_hash != a.input_hash and len(list(tmp_path.glob("*.npz"))) == 2
 
+    @pytest.mark.parametrize("damage", ["truncate", "garbage", "empty"])
+    def test_unreadable_cache_entry_is_a_miss(self, cam, plane_depth, tmp_path, caplog, damage):
+        """A damaged cache file is logged with its path, deleted and recomputed; the new entry
+        reads back."""
+        obj = sphere_at(CENTER, RADIUS, subdivisions=3)
+        a = compute_warps(plane_depth, cam, obj, pano_height=16, cache_dir=tmp_path)
+        (f,) = tmp_path.glob("*.npz")
+        data = f.read_bytes()
+        f.write_bytes({"truncate": data[: len(data) // 2], "garbage": b"not a zip" * 100, "empty": b""}[damage])
+        with caplog.at_level(logging.WARNING, logger="snell_bench.optics.warps"):
+            b = compute_warps(plane_depth, cam, obj, pano_height=16, cache_dir=tmp_path)
+        assert str(f) in caplog.text and "recomputing" in caplog.text
+        np.testing.assert_array_equal(a.refraction, b.refraction)
+        np.testing.assert_array_equal(WarpSet.load(f).refraction, a.refraction)  # rewritten whole
+        assert sorted(p.name for p in tmp_path.iterdir()) == [f.name]  # no temporaries
+
     def test_deterministic(self, cam, plane_depth):
         obj = sphere_at(CENTER, RADIUS, subdivisions=3)
         a = compute_warps(plane_depth, cam, obj, pano_height=16)
