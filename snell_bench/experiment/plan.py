@@ -61,6 +61,23 @@ def check_names(group: str, names: Sequence[str], key: str) -> None:
             raise ValueError(f"{key}: unknown {group} {str(n)!r}; choose from {options} (snell_bench/conf/{group}/)")
 
 
+def check_unique(values: Sequence, key: str, name=str) -> None:
+    """Raise ``ValueError`` naming ``key`` and the repeated entries if two entries of a list name
+    the same thing (``name`` maps an entry to what identifies it: its folder, for objects)."""
+    seen: dict[str, object] = {}
+    repeated = []
+    for v in values:
+        k = name(v)
+        if k in seen and k not in repeated:
+            repeated.append(k)
+        seen.setdefault(k, v)
+    if repeated:
+        raise ValueError(
+            f"{key} lists {', '.join(repr(r) for r in repeated)} more than once ({list(values)}); "
+            "each entry is one set of cells: remove the repeats"
+        )
+
+
 def _comparable(cfg: DictConfig) -> dict:
     d = OmegaConf.to_container(cfg, resolve=False)
     for k in _NOT_RESULTS:

@@ -39,6 +39,7 @@ from snell_bench.experiment.files import save_inputs
 from snell_bench.experiment.plan import (
     check_names,
     check_reproducible,
+    check_unique,
     compose_cell,
     object_dir_name,
     object_overrides,
@@ -67,6 +68,10 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
     check_names("method", g.methods, "grid.methods")
     check_names("scene", g.scenes, "grid.scenes")
     check_names("object", [parse_object_spec(o)[0] for o in g.objects], "grid.objects")
+    check_unique(list(g.methods), "grid.methods")
+    check_unique(list(g.scenes), "grid.scenes")
+    check_unique(list(g.variations), "grid.variations")
+    check_unique([str(o) for o in g.objects], "grid.objects", name=object_dir_name)
     root = Path(cfg.runs_dir) / str(cfg.experiment_name)
     cells = []
     for scene, variation, obj_spec in itertools.product(g.scenes, g.variations, g.objects):

@@ -152,6 +152,23 @@ def test_unknown_names_fail_before_any_work(tmp_path):
         run_grid(make_cfg(tmp_path, ["grid.methods=[snellcaster,magic]"]))
 
 
+@pytest.mark.parametrize(
+    "override, key",
+    [
+        ("grid.methods=[t2i,t2i]", "grid.methods"),
+        ("grid.scenes=[living_room,living_room]", "grid.scenes"),
+        ("grid.variations=[0,0]", "grid.variations"),
+        ("grid.objects=[sphere:1.5,sphere:1.5]", "grid.objects"),
+    ],
+)
+def test_repeated_grid_entries_fail_before_any_work(tmp_path, override, key):
+    from snell_bench.experiment.runner import run_grid
+
+    with pytest.raises(ValueError, match=rf"{key} lists .* more than once"):
+        run_grid(make_cfg(tmp_path, [override]))
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").rglob("metrics.json"))
+
+
 def test_ior_spec_and_cell_config():
     from omegaconf import OmegaConf
 
