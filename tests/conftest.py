@@ -53,3 +53,16 @@ def analytic_sphere_plane(dirs, center, radius, ior, plane_z):
 @pytest.fixture
 def small_camera() -> Camera:
     return Camera.from_fov(160, 96, 60.0)
+
+
+def integrate_flow(gen, z, cond, steps: int = 400):
+    """Euler-integrate ``gen``'s exact velocity from ``sigma = 1`` on a linear schedule of ``steps``
+    steps, the last step replaced by the posterior mean (the velocity is undefined at 0)."""
+    from snell_bench.sampler import linear_sigmas
+
+    sig = linear_sigmas(steps)
+    for a, b in zip(sig[:-1], sig[1:]):
+        if b == 0:
+            return gen.posterior_mean(z, float(a), cond)
+        z = z + (float(b) - float(a)) * gen.velocity(z, float(a), cond)
+    return z

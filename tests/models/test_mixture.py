@@ -4,6 +4,7 @@ posterior, and what that changes for the sampler (time travel)."""
 import numpy as np
 import pytest
 import torch
+from conftest import integrate_flow
 
 from snell_bench.models import build_generator
 from snell_bench.models.analytic import AnalyticGenerator
@@ -144,18 +145,11 @@ def test_ode_transports_noise_to_the_mixture():
     """The exact velocity's ODE turns N(0, 1) into the mixture: 6000 independent blocks, each with
     its own three component means; every endpoint lies near one of its block's means, the
     components are hit as often as their weights say, and each cluster has its component's spread."""
-    from snell_bench.sampler import linear_sigmas
-
     g = tiny(K=3, f=1, h=60, w=100, stds=(0.04, 0.06, 0.02))  # 6000 blocks of 3 coordinates, pi = 1:2:3
     mu, s2, logw, _ = g._mixtures["main"]  # (N, K, C), (N, K), (K,)
     cond = g.condition(["p"], ["main"])
     z = torch.randn((1, 3, 60, 100), generator=torch.Generator().manual_seed(1))
-    sig = linear_sigmas(400)
-    for a, b in zip(sig[:-1], sig[1:]):
-        if b == 0:
-            z = g.posterior_mean(z, float(a), cond)
-            break
-        z = z + (float(b) - float(a)) * g.velocity(z, float(a), cond)
+    z = integrate_flow(g, z, cond)
     x = z[0].reshape(3, -1).T.double()  # (N, C)
     n = x.shape[0]
     k = ((x[:, None] - mu) ** 2).sum(2).argmin(1)  # the nearest of each block's own means
