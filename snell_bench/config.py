@@ -96,6 +96,11 @@ class ObjectConfig:
     path: Optional[str] = None
     #: The mesh file's up axis (``y``, ``z``, ``-z``, ...).
     up_axis: str = "y"
+    #: Mesh files: fill simple holes of a mesh that is not watertight (trimesh's ``fill_holes``).
+    repair: bool = False
+    #: Mesh files: trace a mesh that stays open anyway (rays may leak through its holes); else an
+    #: open mesh is an error.
+    allow_open: bool = False
     #: A material name (glass, water, acrylic, diamond, ...) or a number.
     ior: Any = "glass"
     #: Largest bounding-box side in scene units; ``null``: ``relative_size`` x distance.
@@ -316,6 +321,10 @@ class GridConfig:
     methods: list = field(default_factory=lambda: ["snellcaster", "t2i"])
     #: Recompute cells that already finished (else they are skipped).
     recompute: bool = False
+    #: A finished cell whose recorded settings differ from this run's (``sampler.steps``,
+    #: ``scene.width``, ...): ``error`` (stop before any work, naming the changed keys) or
+    #: ``recompute`` (redo those cells with this run's settings).
+    on_change: str = "error"
     #: Build the report tables after the sweep.
     report: bool = True
 
@@ -342,6 +351,8 @@ class TradeoffConfig:
     presets: list = field(default_factory=lambda: ["fast", "balanced", "paper"])
     #: Recompute settings that already finished (else they are reused).
     recompute: bool = False
+    #: A finished setting whose recorded config differs from this run's: ``error`` or ``recompute``.
+    on_change: str = "error"
 
 
 @dataclass

@@ -169,6 +169,12 @@ def data_path(value: str, key: str, what: str = "file") -> str:
     path = Path(str(value))
     if not path.is_absolute() and not path.exists():
         path = _CHECKOUT / path
+    if path.is_dir():
+        inside = sorted(p.name for p in path.iterdir() if p.is_file() and not p.name.startswith("."))[:5]
+        raise IsADirectoryError(
+            f"{key}={str(value)!r} is a folder, not a {what}; set {key} to a file"
+            + (f" (it holds {', '.join(inside)}{', ...' if len(inside) == 5 else ''})" if inside else "")
+        )
     if not path.is_file():
         raise FileNotFoundError(f"{key}={str(value)!r}: no such {what}; set {key} to an existing {what}")
     return str(path)
@@ -285,7 +291,9 @@ def build_object(obj_cfg: DictConfig) -> GlassObject:
         return instantiate(factory, **kwargs)
     except InstantiationException as e:
         cause = e.__cause__
-        if isinstance(cause, (ValueError, FileNotFoundError)):
+        if isinstance(cause, (ValueError, OSError)) and "path" in kwargs:
+            raise type(cause)(f"object {obj_cfg.name!r} (object.path={str(obj_cfg.path)!r}): {cause}") from None
+        if isinstance(cause, (ValueError, OSError)):
             raise cause from None
         raise ValueError(f"object.factory._target_={factory['_target_']!r} failed: {cause or e}") from None
 
@@ -437,6 +445,12 @@ def prepare_inputs(cfg: DictConfig, *, references: bool = True) -> CellInputs:
     t.seconds["scene"] -= sum(seconds for _, seconds in generators.values())
     with t("warps"):
         ws = trace_warps(scene, obj, cfg.warps)
+    if not ws.stats.get("object_pixels", 1):
+        raise ValueError(
+            f"object {cfg.object.name!r} covers no pixel of the {scene.camera.width}x{scene.camera.height} image "
+            f"(object.size={cfg.object.size}, object.relative_size={cfg.object.relative_size}): nothing to trace or "
+            "score; make it larger (object.size, object.relative_size) or the image larger (scene.width, scene.height)"
+        )
     reference, reason, true = None, "not rendered", None
     if references:
         with t("reference"):

@@ -43,6 +43,10 @@ MATERIALS: dict[str, float] = {
 }
 
 
+#: Mesh file suffixes trimesh reads that the bundled objects use.
+MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
+
+
 def resolve_ior(material: str | float | int) -> float:
     """Index of refraction from a material name in :data:`MATERIALS` or a number.
 
@@ -93,13 +97,14 @@ def _clean_mesh(mesh: trimesh.Trimesh, *, allow_open: bool, repair: bool, what: 
     if not mesh.is_watertight:
         if not allow_open:
             hint = (
-                "repair=True could not close it: repair the mesh in a mesh editor"
+                "object.repair=true (repair=True) could not close it: repair the mesh in a mesh editor"
                 if repair
-                else "repair it (repair=True fills simple holes)"
+                else "set object.repair=true (repair=True in Python) to fill simple holes"
             )
             raise ValueError(
                 f"{what}: the mesh is not watertight (it has boundary edges), so refraction through it is "
-                f"undefined; {hint}, or pass allow_open=True to trace it anyway (rays may leak through the holes)"
+                f"undefined; {hint}, or set object.allow_open=true (allow_open=True) to trace it anyway (rays may "
+                "leak through the holes)"
             )
         log.warning("%s: tracing a mesh that is not watertight (allow_open=True)", what)
     else:
@@ -191,14 +196,27 @@ class GlassObject:
         ``up_axis`` names the file's up axis (``y``, ``z``, ``-y``, ...).
         """
         path = Path(path)
+        if path.is_dir():
+            meshes = sorted(p.name for p in path.iterdir() if p.suffix.lower() in MESH_SUFFIXES)[:5]
+            raise IsADirectoryError(
+                f"{path} is a folder, not a mesh file; give a file"
+                + (f" (it holds {', '.join(meshes)})" if meshes else f" ({', '.join(MESH_SUFFIXES)})")
+            )
         if not path.is_file():
             raise FileNotFoundError(f"mesh file not found: {path}")
         try:
             loaded = trimesh.load(path, force="mesh", process=False)
         except Exception as e:  # trimesh raises many kinds
-            raise ValueError(f"could not read mesh {path}: {e}") from e
-        if not isinstance(loaded, trimesh.Trimesh):
-            raise ValueError(f"{path} holds no triangle mesh")
+            first = str(e).strip().splitlines()[0][:160] if str(e).strip() else type(e).__name__
+            raise ValueError(
+                f"{path} could not be read as a mesh ({type(e).__name__}: {first}); the file is damaged or not a "
+                f"{path.suffix or 'mesh'} file: re-export it from a mesh editor or choose another file"
+            ) from e
+        if not isinstance(loaded, trimesh.Trimesh) or len(getattr(loaded, "faces", [])) == 0:
+            raise ValueError(
+                f"{path} holds no triangle mesh (0 faces read); the file is empty, damaged or holds only points or "
+                "lines: re-export it with faces"
+            )
         mesh = _clean_mesh(loaded, allow_open=allow_open, repair=repair, what=str(path))
         mesh.apply_transform(_up_axis_transform(up_axis))
         return cls(mesh=_canonicalize(mesh), ior=ior, name=path.stem)

@@ -210,6 +210,46 @@ def placement_transform(size: float, point: np.ndarray, up: np.ndarray, yaw_deg:
     return T
 
 
+#: Smallest projected extent (pixels) an object must span to be traced and scored.
+MIN_EXTENT_PX = 4.0
+
+
+def _size_keys(size: float, dist: float) -> str:
+    return f"object.size={size:.3g} (or object.relative_size={size / dist:.3g} x the distance {dist:.3g})"
+
+
+def _check_fits(obj, camera: Camera, plane: SupportPlane, *, size: float, lift: float, yaw_deg: float, dist: float):
+    """Raise ``ValueError`` naming the size keys and the size that works if the object placed at
+    ``size`` reaches behind the camera or spans fewer than :data:`MIN_EXTENT_PX` pixels."""
+    # a vertex v of the canonical object lands at p + s (lift n + R v): linear in the size s
+    R = placement_transform(1.0, np.zeros(3), plane.normal, yaw_deg)[:3, :3]
+    coef = obj.vertices @ R.T + lift * plane.normal
+    p = np.asarray(plane.point, np.float64)
+    z = p[2] + size * coef[:, 2]
+    near = 1e-3 * dist
+    if float(z.min()) <= near:
+        behind = coef[:, 2] < 0
+        largest = 0.9 * float(np.min((p[2] - near) / -coef[behind, 2]))
+        raise ValueError(
+            f"{obj.name}: at {_size_keys(size, dist)} it reaches behind the camera, since it stands "
+            f"{p[2]:.3g} in front of it; the largest size that fits in front of the camera is about "
+            f"{_size_keys(largest, dist)}: set object.size or object.relative_size at most that"
+        )
+    pix, _ = camera.project(p + size * coef)
+    lo = np.clip(np.nanmin(pix, axis=0), -0.5, [camera.width - 0.5, camera.height - 0.5])
+    hi = np.clip(np.nanmax(pix, axis=0), -0.5, [camera.width - 0.5, camera.height - 0.5])
+    extent = float(np.min(hi - lo))
+    if extent < MIN_EXTENT_PX:
+        full = float(np.min(np.nanmax(pix, axis=0) - np.nanmin(pix, axis=0)))
+        smallest = size * MIN_EXTENT_PX / max(full, 1e-12) * 1.1
+        raise ValueError(
+            f"{obj.name}: at {_size_keys(size, dist)} it spans only {extent:.2g} pixels of the "
+            f"{camera.width}x{camera.height} image, too few to trace and score (at least {MIN_EXTENT_PX:g}): set "
+            f"object.size to at least {smallest:.3g} (object.relative_size "
+            f"{smallest / dist:.3g}), or null to use object.relative_size"
+        )
+
+
 def place_object(
     obj: GlassObject,
     depth: np.ndarray,
@@ -262,6 +302,7 @@ def place_object(
         raise ValueError(f"size must be finite and > 0, got {size}")
     point = plane.point + lift * size * plane.normal
     T = placement_transform(size, point, plane.normal, yaw_deg)
+    _check_fits(obj, camera, plane, size=size, lift=lift, yaw_deg=yaw_deg, dist=dist)
     placed = obj.transformed(T, up=plane.normal)
     log.info(
         "placed %s (size %.3g) at %s on a plane with normal %s",

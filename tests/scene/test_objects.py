@@ -98,3 +98,23 @@ def test_creased_normals_keep_sharp_edges():
     caps = np.abs(fn[:, 1]) > 0.999
     np.testing.assert_allclose(cn[caps], np.repeat(fn[caps][:, None], 3, 1), atol=1e-9)  # flat caps
     assert np.abs(cn[~caps][..., 1]).max() < 1e-9  # side normals stay horizontal at the rim
+
+
+def test_a_damaged_file_or_a_folder_is_a_clear_error(tmp_path):
+    bad = tmp_path / "bad.obj"
+    bad.write_bytes(b"v 0 0 0\nv 1 0 nan_garbage\nf 1 2 3 4\n\x00\x01")
+    with pytest.raises(ValueError, match=r"bad.obj (could not be read as a mesh|holds no triangle mesh).*re-export"):
+        GlassObject.from_file(bad)
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "cup.obj").write_text("")
+    with pytest.raises(IsADirectoryError, match=r"is a folder, not a mesh file; give a file \(it holds cup.obj\)"):
+        GlassObject.from_file(tmp_path / "meshes")
+
+
+def test_an_open_mesh_names_the_config_keys():
+    import trimesh
+
+    box = trimesh.creation.box()
+    box.update_faces(box.face_normals[:, 2] < 0.5)
+    with pytest.raises(ValueError, match=r"object.repair=true.*object.allow_open=true"):
+        GlassObject.from_mesh(box.vertices, box.faces)

@@ -62,6 +62,33 @@ def test_place_object_stands_on_the_plane():
         place_object(GlassObject.sphere(subdivisions=1), depth, cam, size=-1.0)
 
 
+def test_a_size_that_does_not_fit_names_the_keys_and_the_largest_size_that_fits():
+    cam = Camera.from_fov(160, 120, 70)
+    depth, _ = table_scene(cam)
+    sphere = GlassObject.sphere(subdivisions=3)
+    with pytest.raises(ValueError, match=r"object.size=100 .*reaches behind the camera.*largest size") as e:
+        place_object(sphere, depth, cam, size=100.0)
+    largest = float(str(e.value).split("about object.size=")[1].split(" ")[0])
+    placed = place_object(sphere, depth, cam, size=largest)  # the size it names fits
+    assert placed.vertices[:, 2].min() > 0
+    with pytest.raises(ValueError, match=r"behind the camera") as e:
+        place_object(sphere, depth, cam, size=1.2 * largest / 0.9)
+    with pytest.raises(ValueError, match=r"object.relative_size=100 x the distance"):
+        place_object(sphere, depth, cam, relative_size=100.0)
+
+
+def test_a_size_that_covers_no_pixel_names_the_keys_and_the_smallest_size():
+    cam = Camera.from_fov(160, 120, 70)
+    depth, _ = table_scene(cam)
+    sphere = GlassObject.sphere(subdivisions=3)
+    with pytest.raises(ValueError, match=r"spans only .* pixels .*too few to trace and score") as e:
+        place_object(sphere, depth, cam, size=1e-6)
+    smallest = float(str(e.value).split("object.size to at least ")[1].split(" ")[0])
+    placed = place_object(sphere, depth, cam, size=smallest)  # the size it names is large enough
+    pix, _ = cam.project(placed.vertices)
+    assert np.min(np.ptp(pix, axis=0)) >= 4.0
+
+
 def test_deterministic():
     """The same seed gives the same plane (every field) and the same placed object, bit for bit."""
     cam = Camera.from_fov(160, 120, 70)

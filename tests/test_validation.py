@@ -1,0 +1,121 @@
+"""Config checks before any work: unknown keys and unusable values name the key, the value and the fix."""
+
+import pytest
+
+from snell_bench.config import compose
+from snell_bench.validation import ConfigError, check_config, max_levels, unknown_keys
+
+
+@pytest.mark.parametrize(
+    "override,expected",
+    [
+        ("+warps.max_bounce=1", "warps.max_bounce: no setting has this name (did you mean warps.max_bounces?)"),
+        ("+object.iorr=3", "object.iorr: no setting has this name (did you mean object.ior?)"),
+        ("+sampler.stepz=3", "did you mean sampler.steps?"),
+        (
+            "+method.sampler.dpaa=false",
+            "method.sampler.dpaa: no setting has this name (did you mean method.sampler.dpa?)",
+        ),
+        ("+method.warps.roii=false", "did you mean method.warps.roi?"),
+        ("+banana=1", "banana: no setting has this name"),
+    ],
+)
+def test_a_key_no_schema_knows_is_an_error(override, expected):
+    cfg = compose([override])
+    assert any(expected in line for line in unknown_keys(cfg)), unknown_keys(cfg)
+    with pytest.raises(ConfigError, match="no setting has this name"):
+        check_config(cfg)
+
+
+def test_free_form_nodes_and_every_shipped_config_pass():
+    from snell_bench.config import group_options
+
+    for ov in (
+        [],
+        ["+experiment=smoke"],
+        ["+experiment=ablation"],
+        ["+experiment=tradeoff"],
+        ["+experiment=photo"],
+        ["model=flux_dev"],
+        ["+object.factory.subdivisions=4"],  # a _target_ node takes any argument
+    ):
+        check_config(compose(ov))
+    for group in ("method", "object", "scene", "model", "depth", "segment", "preset"):
+        for name in group_options(group):
+            assert not unknown_keys(compose([f"{group}={name}"])), (group, name)
+
+
+@pytest.mark.parametrize(
+    "overrides,expected",
+    [
+        (["scene.width=0"], "scene.width=0: must be a positive multiple of model.multiple=8"),
+        (["scene.width=170"], "use scene.width=168 or scene.width=176"),
+        (["model=tiny_flux", "scene.height=100"], "model.multiple=16; use scene.height=96 or scene.height=112"),
+        (["seed=-1"], "seed=-1: must be an integer >= 0"),
+        (["scene.variation=-1"], "scene.variation=-1: must be an integer >= 0"),
+        (["object.yaw_deg=nan"], "object.yaw_deg=nan: must be a finite number"),
+        (["object.size=-1"], "object.size=-1.0: must be a finite number > 0 or null"),
+        (["object.relative_size=0"], "object.relative_size=0.0: must be a finite number > 0"),
+        (["object.ior=abc"], "object.ior='abc': unknown material 'abc'"),
+        (["sampler.levels=20"], "sampler.levels=20: a 720x1280 image has at most 9 pyramid levels"),
+        (["sampler.steps=0"], "sampler.steps must be an integer >= 1, got 0"),
+        (["sampler.sync=maybe"], "sampler.sync='maybe' is unknown"),
+        (["warps.max_bounces=0"], "warps.max_bounces=0: must be an integer >= 1"),
+        (["reference.sampler=sobol"], "reference.sampler='sobol' is unknown"),
+        (["model.pano_prior=nope"], "model.pano_prior='nope' is unknown"),
+        (["grid.on_change=ignore"], "grid.on_change='ignore' is unknown; use one of ['error', 'recompute']"),
+        (["object=spot", "object.path=/nonexistent.obj"], "object.path='/nonexistent.obj': no such mesh file"),
+        (["object=spot", "object.path=datasets"], "object.path='datasets' is a folder, not a mesh file"),
+    ],
+)
+def test_unusable_values_name_the_key_the_value_and_the_fix(overrides, expected):
+    with pytest.raises(ConfigError) as e:
+        check_config(compose(overrides))
+    assert expected in str(e.value), str(e.value)
+
+
+def test_every_problem_is_reported_at_once():
+    with pytest.raises(ConfigError) as e:
+        check_config(compose(["seed=-1", "scene.width=0", "object.yaw_deg=nan"]))
+    assert len(e.value.problems) == 3 and str(e.value).startswith("3 settings are unusable")
+
+
+def test_a_method_switch_is_checked_with_the_method_applied():
+    check_config(compose(["method=no_lpw", "sampler.levels=20"]))  # no LPW: one level whatever levels says
+
+
+@pytest.mark.parametrize(
+    "overrides,expected",
+    [
+        (["grid.objects=[sphere:abc]"], "grid.objects: entry 'sphere:abc': 'abc' is neither a number"),
+        (["grid.variations=[abc]"], "grid.variations: entry 'abc' is not an integer >= 0"),
+        (["grid.variations=[-1]"], "grid.variations: entry -1 is not an integer >= 0"),
+        (["grid.methods=[t2i,t2i]"], "grid.methods lists 't2i' more than once"),
+        (["grid.methods=[magic]"], "grid.methods: unknown method 'magic'"),
+        (["grid.scenes=[]"], "grid.scenes=[]: must be a non-empty list"),
+    ],
+)
+def test_grid_entries_are_checked(overrides, expected):
+    with pytest.raises(ConfigError) as e:
+        check_config(compose(["+experiment=smoke", *overrides]))
+    assert expected in str(e.value), str(e.value)
+
+
+def test_material_names_are_accepted_in_grid_objects():
+    check_config(compose(["+experiment=smoke", "grid.objects=[sphere:water,sphere:1.45,sphere]"]))
+
+
+def test_max_levels_is_what_the_pyramid_warp_takes():
+    import torch
+
+    from snell_bench.imaging.pyramid import pyramid_warp
+
+    for h, w in ((96, 160), (20, 20), (9, 64)):
+        L = max_levels(h, w)
+        ys, xs = torch.meshgrid(
+            torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij"
+        )
+        coords = torch.stack([xs, ys], -1)[None]
+        pyramid_warp(torch.rand(1, 3, h, w), coords, levels=L, collapse=False)
+        with pytest.raises((RuntimeError, ValueError)):
+            pyramid_warp(torch.rand(1, 3, h, w), coords, levels=L + 1, collapse=False)
