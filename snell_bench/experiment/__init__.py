@@ -45,6 +45,9 @@ def _report(cfg: DictConfig) -> None:
 
         paths = build_tradeoff_report(root, out)
     else:
+        from snell_bench.experiment.runner import check_same_settings
+
+        check_same_settings(root)
         paths = build_reports(root, out, name)
     print(f"reports: {out} ({len(paths)} files)")
 
@@ -53,7 +56,12 @@ JOBS = {"preview": _preview, "generate": _generate, "grid": _grid, "tradeoff": _
 
 
 def run_job(cfg: DictConfig) -> None:
+    """Run ``cfg.job`` after checking every key and value of ``cfg``
+    (:func:`snell_bench.validation.check_config`)."""
+    from snell_bench.validation import check_config
+
     job = cfg.job
     if job not in JOBS:
         raise ValueError(f"unknown job {job!r}; set job= one of {sorted(JOBS)}")
+    check_config(cfg)
     JOBS[job](cfg)

@@ -3,8 +3,17 @@
 A *cell* is one unit of work with its own folder (a grid cell: scene x variation x object x
 method; a sweep setting: scene x setting). :func:`run_cells` runs a list of them:
 
-- a cell whose record file (``metrics.json`` or ``result.json``) says ``ok`` or ``skipped`` is
-  done and skipped, unless ``recompute``;
+- a cell is identified by its folder (a grid cell by scene, variation, object and method); it is
+  done, and skipped, when its record file (``metrics.json`` or ``result.json``) says ``ok`` or
+  ``skipped``, every file the record lists (``files``: size and SHA-256) is there unchanged, and
+  the record's ``settings_hash`` (of :func:`~snell_bench.experiment.plan.result_settings`: every
+  resolved key that can change the result) equals the hash of the cell's config now; a missing or
+  changed file makes it unfinished again; other settings stop the run before any work with an
+  error naming the changed keys (:class:`SettingsChanged`), or, with ``on_change="recompute"``,
+  redo it; ``recompute`` redoes every cell;
+- a process claims a cell with a lock file (:func:`claim`, ``fcntl.flock``) before computing it,
+  so sweeps running at once into one folder compute each cell once; the kernel frees the lock of
+  a process that dies;
 - ``fn(cell, shared)`` computes one cell and returns its record's fields; it raises
   :class:`~snell_bench.pipeline.Skip` for a method that cannot run here (``skipped`` with the
   reason) and any other exception for a failure (``failed`` with the reason and traceback); the
@@ -13,17 +22,23 @@ method; a sweep setting: scene x setting). :func:`run_cells` runs a list of them
   (the inputs of a scene and object) and drops it after the last of them; a value whose
   computation failed fails every cell that needs it, with that error;
 - each cell's ``config.yaml`` and then its record are written atomically, the record last, so a
-  cell with a record is complete and an interrupted sweep loses no finished cell;
+  cell with a record is complete and an interrupted sweep loses no finished cell; a cell whose
+  folder cannot be written fails alone;
 - ``summary.json`` of the run and a progress bar (tqdm) report the counts and the failures.
 """
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import json
 import logging
+import os
+import socket
 import traceback
 from collections import Counter
-from collections.abc import Callable, Hashable, Iterable, Sequence
+from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,12 +46,13 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
+from snell_bench.experiment.plan import settings_diff
 from snell_bench.pipeline import Skip
-from snell_bench.utils.io import write_json, write_text
+from snell_bench.utils.io import _umask_mode, write_json, write_text
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Cell", "SharedCache", "run_cells", "record_done"]
+__all__ = ["Cell", "SharedCache", "run_cells", "record_done", "claim", "cell_files", "files_problem", "SettingsChanged"]
 
 DONE = ("ok", "skipped")
 
@@ -88,10 +104,154 @@ class SharedCache:
 
 def record_done(path: Path) -> bool:
     """Whether a record file exists and says ``ok`` or ``skipped``."""
+    return (_read_record(path) or {}).get("status") in DONE
+
+
+def _read_record(path: Path) -> dict | None:
     try:
-        return json.loads(path.read_text()).get("status") in DONE
-    except (OSError, ValueError, AttributeError):
-        return False
+        record = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) else None
+
+
+# ---------------------------------------------------------------------------- files of a cell
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def cell_files(folder: Path, record_name: str) -> dict[str, dict]:
+    """``{relative path: {"bytes": size, "sha256": hash}}`` of every file of a cell folder (hidden
+    files, such as the lock and temporaries, and the record itself left out)."""
+    out = {}
+    for path in sorted(folder.rglob("*")):
+        rel = path.relative_to(folder)
+        if path.is_file() and rel.as_posix() != record_name and not any(p.startswith(".") for p in rel.parts):
+            out[rel.as_posix()] = {"bytes": path.stat().st_size, "sha256": _sha256(path)}
+    return out
+
+
+def files_problem(folder: Path, record: dict) -> str | None:
+    """Why the files ``record["files"]`` lists do not match the folder (a file missing, or of
+    another size or content), or ``None``."""
+    for rel, want in (record.get("files") or {}).items():
+        path = folder / rel
+        if not path.is_file():
+            return f"{rel} is missing"
+        if path.stat().st_size != want.get("bytes") or _sha256(path) != want.get("sha256"):
+            return f"{rel} has changed since the cell finished"
+    return None
+
+
+# ---------------------------------------------------------------------------- settings of a cell
+def _saved_settings(folder: Path) -> dict | None:
+    from snell_bench.experiment.plan import result_settings
+
+    try:
+        return result_settings(OmegaConf.load(folder / "config.yaml"))
+    except Exception:  # noqa: BLE001 - missing or unreadable: the settings are unknown
+        return None
+
+
+@dataclass
+class ChangedCell:
+    """A finished cell whose recorded settings differ from the run's."""
+
+    cell: Cell
+    diff: dict  #: ``{key: (recorded value, this run's value)}``; empty if the old ones are unknown
+
+
+class SettingsChanged(ValueError):
+    """Finished cells were computed with other settings than the run's (see :func:`run_cells`)."""
+
+    def __init__(self, changed: Sequence[ChangedCell], *, on_change_key: str, recompute_key: str) -> None:
+        self.changed = list(changed)
+        keys: dict[str, list] = {}
+        unknown = 0
+        for c in self.changed:
+            if not c.diff:
+                unknown += 1
+            for k, (old, new) in c.diff.items():
+                keys.setdefault(k, [old, new, 0])[2] += 1
+        lines = [
+            f"  {k}: {old!r} -> {new!r} ({n} cell{'s' if n > 1 else ''})"
+            for k, (old, new, n) in list(keys.items())[:12]
+        ]
+        if len(keys) > 12:
+            lines.append(f"  ... and {len(keys) - 12} more keys")
+        if unknown:
+            lines.append(f"  {unknown} cell(s) without a readable config.yaml: their settings are unknown")
+        names = ", ".join(c.cell.name for c in self.changed[:4]) + (" ..." if len(self.changed) > 4 else "")
+        super().__init__(
+            f"{len(self.changed)} finished cell(s) ({names}) were computed with other settings than this run's:\n"
+            + "\n".join(lines)
+            + f"\nNothing was run. Choose: {on_change_key}=recompute (redo these cells with this run's settings), "
+            f"{recompute_key}=true (redo every cell), or another experiment_name=... (keep both)"
+        )
+
+
+def _changed(cell: Cell, record: dict, current: dict, current_hash: str) -> ChangedCell | None:
+    if record.get("settings_hash") == current_hash:
+        return None
+    old = _saved_settings(cell.folder)
+    if old is None:
+        return ChangedCell(cell, {})
+    diff = settings_diff(old, current)
+    return ChangedCell(cell, diff) if diff or "settings_hash" in record else None
+
+
+# ---------------------------------------------------------------------------- claiming a cell
+LOCK_NAME = ".lock"
+
+
+@contextmanager
+def claim(folder: Path) -> Iterator[bool]:
+    """Hold ``folder/.lock`` (``fcntl.flock``, exclusive, non-blocking) for the block: ``True``
+    when this process has the cell, ``False`` when another one holds it. The kernel drops the
+    lock when its process dies, so a lock left by a killed sweep is free again; the lock file
+    is removed when the block ends."""
+    path = folder / LOCK_NAME
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, _umask_mode())
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            yield False
+            return
+        try:  # the file may have been removed (and another made) while we waited: lock the one at path
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()} {socket.gethostname()}\n".encode())
+        yield True
+    finally:
+        try:
+            os.unlink(path)
+        finally:
+            os.close(fd)
+
+
+# ---------------------------------------------------------------------------- the loop
+def _write_record(cell: Cell, record: dict, record_name: str) -> None:
+    cfg = cell.config.copy()
+    cfg.output_dir = str(cell.folder)
+    try:
+        text = OmegaConf.to_yaml(cfg, resolve=True)
+    except Exception:  # noqa: BLE001 - a value that cannot resolve (the cell's failure says why)
+        text = OmegaConf.to_yaml(cfg, resolve=False)
+    write_text(cell.folder / "config.yaml", text)
+    record["files"] = cell_files(cell.folder, record_name)
+    write_json(cell.folder / record_name, record)  # last: marks the cell complete
 
 
 def run_cells(
@@ -101,6 +261,9 @@ def run_cells(
     root: Path,
     record_name: str = "metrics.json",
     recompute: bool = False,
+    on_change: str = "error",
+    on_change_key: str = "grid.on_change",
+    recompute_key: str = "grid.recompute",
     desc: str = "",
     after: Callable[[Cell], None] | None = None,
 ) -> dict:
@@ -112,44 +275,70 @@ def run_cells(
         root: the run folder (``summary.json`` goes there).
         record_name: the record file of a cell, written last.
         recompute: redo cells that are done.
+        on_change: a finished cell whose recorded settings differ from its config's: ``error``
+            (raise :class:`SettingsChanged` before any work) or ``recompute`` (redo it).
+        on_change_key, recompute_key: the config keys named in that error.
         desc: the progress bar's label.
         after: called after each cell's record is written (also for failed cells).
 
     Returns:
-        The summary: ``cells``, counts of ``ok``, ``failed``, ``skipped``, ``cached``, and
+        The summary: ``cells``, counts of ``ok``, ``failed``, ``skipped``, ``cached`` (finished
+        before), ``busy`` (claimed by another process running at the same time), and
         ``failures`` as ``[cell folder, reason]`` pairs.
     """
-    todo = [c for c in cells if recompute or not record_done(c.folder / record_name)]
-    counts = Counter({"ok": 0, "failed": 0, "skipped": 0, "cached": len(cells) - len(todo)})
+    from snell_bench.experiment.plan import result_settings, settings_hash
+
+    if on_change not in ("error", "recompute"):
+        raise ValueError(f"{on_change_key}={on_change!r} is unknown; use error or recompute")
+    settings = {id(c): result_settings(c.config) for c in cells}
+    hashes = {k: settings_hash(v) for k, v in settings.items()}
+
+    def status(cell: Cell) -> str:
+        """``todo``, ``done`` or ``changed`` (finished, with other settings)."""
+        record = _read_record(cell.folder / record_name)
+        if recompute or record is None or record.get("status") not in DONE:
+            return "todo"
+        problem = files_problem(cell.folder, record)
+        if problem is not None:
+            log.warning("cell %s: %s; computing it again", cell.name, problem)
+            return "todo"
+        return "changed" if _changed(cell, record, settings[id(cell)], hashes[id(cell)]) else "done"
+
+    states = {id(c): status(c) for c in cells}
+    changed = [c for c in cells if states[id(c)] == "changed"]
+    if changed and on_change == "error":
+        raise SettingsChanged(
+            [_changed(c, _read_record(c.folder / record_name), settings[id(c)], hashes[id(c)]) for c in changed],
+            on_change_key=on_change_key,
+            recompute_key=recompute_key,
+        )
+    for c in changed:
+        log.info("cell %s: settings changed; computing it again (%s=recompute)", c.name, on_change_key)
+    todo = [c for c in cells if states[id(c)] != "done"]
+    counts = Counter({"ok": 0, "failed": 0, "skipped": 0, "busy": 0, "cached": len(cells) - len(todo)})
     failures: list[tuple[str, str]] = []
     shared = SharedCache(c.shares for c in todo)
     root.mkdir(parents=True, exist_ok=True)
     bar = tqdm(total=len(cells), desc=desc, unit="cell", initial=counts["cached"])
     for cell in todo:
         bar.set_postfix_str(cell.name)
-        cell.folder.mkdir(parents=True, exist_ok=True)
-        record = {**cell.record, "status": "ok", "reason": None}
         try:
-            record.update(fn(cell, shared))
-        except Skip as e:
-            record.update(status="skipped", reason=str(e))
-        except KeyboardInterrupt:
-            raise
-        except Exception as e:  # noqa: BLE001 - recorded; the sweep goes on
-            record.update(status="failed", reason=f"{type(e).__name__}: {e}", traceback=traceback.format_exc())
-            failures.append((str(cell.folder), record["reason"]))
-            log.error("cell %s failed: %s", cell.folder, record["reason"])
+            cell.folder.mkdir(parents=True, exist_ok=True)
+            with claim(cell.folder) as mine:
+                if not mine:
+                    counts["busy"] += 1
+                    log.info("cell %s is being computed by another process; left to it", cell.name)
+                elif states[id(cell)] == "todo" and status(cell) == "done" and not recompute:
+                    counts["cached"] += 1  # another process finished it meanwhile
+                else:
+                    counts[_run_one(cell, fn, shared, record_name, settings, hashes, failures)] += 1
+        except OSError as e:  # the cell's folder cannot be written: it fails alone
+            reason = f"{type(e).__name__}: {e} (the cell's folder {cell.folder} cannot be written)"
+            failures.append((str(cell.folder), reason))
+            counts["failed"] += 1
+            log.error("cell %s failed: %s", cell.folder, reason)
         finally:
             shared.release(cell.shares)
-        cfg = cell.config.copy()
-        cfg.output_dir = str(cell.folder)
-        try:
-            text = OmegaConf.to_yaml(cfg, resolve=True)
-        except Exception:  # noqa: BLE001 - a value that cannot resolve (the cell's failure says why)
-            text = OmegaConf.to_yaml(cfg, resolve=False)
-        write_text(cell.folder / "config.yaml", text)
-        write_json(cell.folder / record_name, record)  # last: marks the cell complete
-        counts[record["status"]] += 1
         bar.update(1)
         if after is not None:
             after(cell)
@@ -157,3 +346,20 @@ def run_cells(
     summary = {"cells": len(cells), **counts, "failures": failures}
     write_json(root / "summary.json", summary)
     return summary
+
+
+def _run_one(cell, fn, shared, record_name, settings, hashes, failures) -> str:
+    record = {**cell.record, "status": "ok", "reason": None}
+    try:
+        record.update(fn(cell, shared))
+    except Skip as e:
+        record.update(status="skipped", reason=str(e))
+    except KeyboardInterrupt:
+        raise
+    except Exception as e:  # noqa: BLE001 - recorded; the sweep goes on
+        record.update(status="failed", reason=f"{type(e).__name__}: {e}", traceback=traceback.format_exc())
+        failures.append((str(cell.folder), record["reason"]))
+        log.error("cell %s failed: %s", cell.folder, record["reason"])
+    record["settings_hash"] = hashes[id(cell)]
+    _write_record(cell, record, record_name)
+    return record["status"]

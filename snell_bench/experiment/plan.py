@@ -9,7 +9,10 @@ schema is kept, and later overrides win. The method's switches are then applied
 
 from __future__ import annotations
 
+import hashlib
+import json
 from collections.abc import Sequence
+from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -22,10 +25,81 @@ __all__ = [
     "check_names",
     "check_reproducible",
     "compose_cell",
+    "NOT_RESULT_KEYS",
+    "result_settings",
+    "settings_hash",
+    "settings_diff",
 ]
 
 #: Keys that do not change a cell's result (left out when comparing configs).
 _NOT_RESULTS = ("output_dir", "overrides")
+
+#: Keys that do not change a cell's result, left out of its settings (:func:`result_settings`):
+#: where it is written, which cells the sweep lists, how progress is shown, caches, labels.
+NOT_RESULT_KEYS = (
+    "hydra",
+    "job",
+    "output_dir",
+    "overrides",
+    "experiment_name",
+    "runs_dir",
+    "reports_dir",
+    "grid",
+    "tradeoff",
+    "sampler.progress",
+    "sampler.dump_every",
+    "warps.cache_dir",
+    "scene.cache_dir",
+    "method.label",
+)
+
+
+def result_settings(cfg: DictConfig) -> dict[str, Any]:
+    """Every setting of ``cfg`` that can change a cell's result, resolved and flattened to
+    ``{"sampler.steps": 20, "scene.width": 1280, ...}`` (lists kept as values); the keys of
+    :data:`NOT_RESULT_KEYS` left out. A cell's identity is its folder; these are what it was
+    computed with (:func:`settings_hash`)."""
+    plain = OmegaConf.to_container(cfg, resolve=False)  # typed nodes cannot drop keys
+    for key in NOT_RESULT_KEYS:
+        *parents, leaf = key.split(".")
+        node = plain
+        for p in parents:
+            node = node.get(p) if isinstance(node, dict) else None
+        if isinstance(node, dict):
+            node.pop(leaf, None)
+    c = OmegaConf.create(plain)
+    flat: dict[str, Any] = {}
+
+    def walk(d, prefix):
+        for k, v in d.items():
+            if isinstance(v, dict) and v:
+                walk(v, f"{prefix}{k}.")
+            else:
+                flat[f"{prefix}{k}"] = v
+
+    try:
+        values = OmegaConf.to_container(c, resolve=True)
+    except Exception:  # noqa: BLE001 - a value that cannot resolve fails its cell, which says why
+        values = OmegaConf.to_container(c, resolve=False)
+    walk(values, "")
+    return flat
+
+
+def settings_hash(settings: dict[str, Any]) -> str:
+    """A short content hash of :func:`result_settings` (order-independent)."""
+    blob = json.dumps(settings, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def settings_diff(old: dict[str, Any], new: dict[str, Any]) -> dict[str, tuple[Any, Any]]:
+    """``{key: (old value, new value)}`` of every key whose value differs (``<absent>`` for a key
+    only one side has)."""
+    absent = "<absent>"
+    return {
+        k: (old.get(k, absent), new.get(k, absent))
+        for k in sorted(set(old) | set(new))
+        if old.get(k, absent) != new.get(k, absent)
+    }
 
 
 def parse_object_spec(spec: str) -> tuple[str, float | str | None]:
@@ -112,7 +186,12 @@ def compose_cell(cfg: DictConfig, overrides: Sequence[str], *, method: bool = Tr
     """The config of one cell: ``cfg.overrides`` then ``overrides``, composed; with ``method``
     the method's switches applied."""
     from snell_bench.pipeline import apply_method
+    from snell_bench.validation import ConfigError, check_config
 
     with config_context():
         c = compose([*cfg.overrides, *overrides])
+    try:
+        check_config(c, grid=False)  # every cell's settings checked before any work
+    except ConfigError as e:
+        raise ConfigError([f"cell {' '.join(map(str, overrides))}: {p}" for p in e.problems]) from None
     return apply_method(c) if method else c

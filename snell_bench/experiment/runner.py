@@ -50,7 +50,7 @@ from snell_bench.utils.io import link_or_copy, write_json
 
 log = logging.getLogger(__name__)
 
-__all__ = ["run_grid", "plan_grid", "cell_overrides"]
+__all__ = ["run_grid", "plan_grid", "cell_overrides", "check_same_settings"]
 
 #: Warp statistics recorded per cell.
 WARP_STATS = ("roi", "traced_primary_rays", "far_background")
@@ -84,6 +84,7 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
                 "scene": str(scene),
                 "variation": int(variation),
                 "object": object_dir_name(obj_spec),
+                "object_spec": str(obj_spec),
                 "method": str(m),
                 "method_label": str(c.method.label),
                 "model": str(c.model.name),
@@ -130,6 +131,59 @@ def run_cell(cell: Cell, shared: SharedCache, scorers) -> dict:
     }
 
 
+def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") -> None:
+    """Raise ``ValueError`` if the finished cells under ``root`` were computed with different
+    settings, so that no report averages them.
+
+    A cell's own settings are its recorded ``config.yaml``; the run's are where it differs from
+    what the cell's identity alone (scene, variation, object, method) composes. Every cell must
+    agree on every key any run changed."""
+    import json
+
+    from omegaconf import OmegaConf
+
+    from snell_bench.config import compose
+    from snell_bench.experiment.plan import result_settings
+
+    stored: dict[str, dict] = {}
+    changed: set[str] = set()
+    for path in sorted(root.rglob("metrics.json")):
+        try:
+            rec = json.loads(path.read_text())
+            if rec.get("status") != "ok" or not (path.parent / "config.yaml").is_file():
+                continue
+            name, sep, ior = str(rec["object"]).partition("-ior")
+            spec = rec.get("object_spec") or (f"{name}:{ior}" if sep else name)
+            mine = result_settings(OmegaConf.load(path.parent / "config.yaml"))
+            base = result_settings(
+                apply_method(compose(cell_overrides(rec["scene"], rec["variation"], spec, rec["method"])))
+            )
+        except Exception as e:  # noqa: BLE001 - a cell of an older layout or a removed entry: not compared
+            log.debug("not comparing %s: %s", path.parent, e)
+            continue
+        cell = str(path.parent.relative_to(root))
+        stored[cell] = mine
+        changed |= {k for k, v in mine.items() if base.get(k, "<absent>") != v}
+    conflicts = []
+    for key in sorted(changed):
+        by_value: dict[str, list[str]] = {}
+        for cell, mine in stored.items():
+            by_value.setdefault(repr(mine.get(key, "<absent>")), []).append(cell)
+        if len(by_value) > 1:
+            parts = [
+                f"{v} in {len(c)} cell{'s' if len(c) > 1 else ''} ({', '.join(c[:2])}{', ...' if len(c) > 2 else ''})"
+                for v, c in by_value.items()
+            ]
+            conflicts.append(f"  {key}: " + "; ".join(parts))
+    if conflicts:
+        raise ValueError(
+            f"the cells under {root} were computed with different settings, so a report would average them:\n"
+            + "\n".join(conflicts[:12])
+            + f"\nRun the grid again with one set of settings and {on_change_key}=recompute (or grid.recompute=true), "
+            "or keep each set under its own experiment_name"
+        )
+
+
 def run_grid(cfg: DictConfig) -> dict:
     """Run the grid of ``cfg`` (see the module docs), then build its report (``grid.report``)."""
     from snell_bench.metrics import load_scorers
@@ -141,18 +195,26 @@ def run_grid(cfg: DictConfig) -> dict:
     n_groups = len(g.scenes) * len(g.variations) * len(g.objects)
     print(f"experiment {exp}: {n_groups} scene/object groups x {len(g.methods)} methods = {len(cells)} cells -> {root}")
     scorers = load_scorers(cfg.metrics)
-    summary = run_cells(cells, lambda c, s: run_cell(c, s, scorers), root=root, recompute=bool(g.recompute), desc=exp)
+    summary = run_cells(
+        cells,
+        lambda c, s: run_cell(c, s, scorers),
+        root=root,
+        recompute=bool(g.recompute),
+        on_change=str(g.on_change),
+        desc=exp,
+    )
     summary = {"experiment": exp, **summary}
     write_json(root / "summary.json", summary)
     print(
         f"{exp}: {summary['ok']} ok, {summary['cached']} already done, {summary['skipped']} skipped, "
-        f"{summary['failed']} failed"
+        f"{summary['failed']} failed" + (f", {summary['busy']} left to another process" if summary["busy"] else "")
     )
     for cdir, reason in summary["failures"]:
         print(f"  FAILED {cdir}: {reason}")
     if g.report:
         from snell_bench.experiment.reports import build_reports
 
+        check_same_settings(root)
         out = Path(cfg.reports_dir) / exp
         paths = build_reports(root, out, exp)
         print(f"reports: {out} ({len(paths)} files)")

@@ -484,6 +484,9 @@ def run_tradeoff(cfg: DictConfig) -> dict:
         root=root,
         record_name="result.json",
         recompute=bool(t.recompute),
+        on_change=str(t.on_change),
+        on_change_key="tradeoff.on_change",
+        recompute_key="tradeoff.recompute",
         desc=f"tradeoff {exp}",
         after=after,
     )

@@ -25,7 +25,13 @@ def test_ok_skipped_failed_recorded_and_the_loop_goes_on(tmp_path):
     summary = run_cells(cells_in(tmp_path, ["a", "skip", "bad", "bb"]), fn, root=tmp_path)
     assert (summary["ok"], summary["skipped"], summary["failed"], summary["cached"]) == (2, 1, 1, 0)
     rec = {n: json.loads((tmp_path / n / "metrics.json").read_text()) for n in ("a", "skip", "bad", "bb")}
+    files = rec["a"].pop("files")
+    assert rec["a"].pop("settings_hash") == rec["bb"]["settings_hash"]  # the same config
     assert rec["a"] == {"name": "a", "status": "ok", "reason": None, "value": 1}
+    assert (
+        set(files) == {"config.yaml"}
+        and files["config.yaml"]["bytes"] == (tmp_path / "a" / "config.yaml").stat().st_size
+    )
     assert rec["skip"]["status"] == "skipped" and rec["skip"]["reason"] == "needs a GPU"
     assert (
         rec["bad"]["status"] == "failed"
@@ -101,3 +107,118 @@ def test_links_are_idempotent(tmp_path):
         link_or_copy(src, tmp_path / "cell" / "src.txt")
     assert [p.name for p in (tmp_path / "cell").iterdir()] == ["src.txt"]
     assert (tmp_path / "cell" / "src.txt").read_text() == "x"
+
+
+def test_a_finished_cell_with_a_missing_or_changed_file_is_unfinished(tmp_path):
+    calls = []
+
+    def fn(cell, shared):
+        calls.append(cell.name)
+        (cell.folder / "image.png").write_bytes(b"image of " + cell.name.encode())
+        return {}
+
+    cells = cells_in(tmp_path, ["a", "b", "c"])
+    run_cells(cells, fn, root=tmp_path)
+    files = json.loads((tmp_path / "a" / "metrics.json").read_text())["files"]
+    assert set(files) == {"config.yaml", "image.png"} and len(files["image.png"]["sha256"]) == 64
+    (tmp_path / "a" / "image.png").unlink()  # deleted
+    (tmp_path / "b" / "image.png").write_bytes(b"image of c")  # same size, other content
+    calls.clear()
+    summary = run_cells(cells, fn, root=tmp_path)
+    assert calls == ["a", "b"] and summary["cached"] == 1 and summary["ok"] == 2
+
+
+def _cfg_cells(root, **values):
+    cfg = OmegaConf.create({"output_dir": "", "seed": 0, "sampler": {"steps": 4, "progress": True}, **values})
+    return [Cell(name=n, folder=root / n, config=cfg.copy(), record={"name": n}) for n in ("a", "b")]
+
+
+def test_changed_settings_stop_before_any_work_naming_the_keys_and_the_choices(tmp_path):
+    from snell_bench.experiment.cells import SettingsChanged
+
+    calls = []
+
+    def fn(cell, shared):
+        calls.append(cell.name)
+        return {}
+
+    run_cells(_cfg_cells(tmp_path), fn, root=tmp_path)
+    changed = _cfg_cells(tmp_path)
+    changed[0].config.sampler.steps = 8
+    changed[1].config.seed = 3
+    calls.clear()
+    with pytest.raises(SettingsChanged) as e:
+        run_cells(changed, fn, root=tmp_path)
+    msg = str(e.value)
+    assert "sampler.steps: 4 -> 8 (1 cell)" in msg and "seed: 0 -> 3 (1 cell)" in msg, msg
+    assert "grid.on_change=recompute" in msg and "grid.recompute=true" in msg and "experiment_name" in msg
+    assert calls == []  # nothing ran
+    # keys that do not change a result (progress bars, output paths) are not settings
+    quiet = _cfg_cells(tmp_path)
+    for c in quiet:
+        c.config.sampler.progress = False
+    assert run_cells(quiet, fn, root=tmp_path)["cached"] == 2 and calls == []
+    # on_change=recompute redoes exactly the changed cells, which then count as done
+    summary = run_cells(changed[:1] + _cfg_cells(tmp_path)[1:], fn, root=tmp_path, on_change="recompute")
+    assert calls == ["a"] and summary["ok"] == 1 and summary["cached"] == 1
+    assert run_cells(changed[:1], fn, root=tmp_path)["cached"] == 1
+
+
+def _sweep_process(root, log, names):
+    import time
+
+    def fn(cell, shared):
+        with open(log, "a") as f:
+            f.write(f"{cell.name}\n")
+        time.sleep(0.2)
+        return {}
+
+    run_cells(cells_in(root, names), fn, root=root)
+
+
+def test_sweeps_running_at_once_compute_each_cell_once_and_leave_no_temporary(tmp_path):
+    import multiprocessing
+
+    names = [f"c{i}" for i in range(8)]
+    log = tmp_path / "calls.txt"
+    ctx = multiprocessing.get_context("fork")
+    procs = [ctx.Process(target=_sweep_process, args=(tmp_path / "runs", log, names)) for _ in range(3)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(60)
+    assert all(p.exitcode == 0 for p in procs)
+    calls = log.read_text().split()
+    assert sorted(calls) == names  # each cell once
+    assert all(record_done(tmp_path / "runs" / n / "metrics.json") for n in names)
+    assert not [p for p in (tmp_path / "runs").rglob("*") if p.name.startswith(".")]
+
+
+def test_a_lock_left_by_a_dead_process_is_free(tmp_path):
+    import fcntl
+    import os
+
+    from snell_bench.experiment.cells import LOCK_NAME, claim
+
+    folder = tmp_path / "a"
+    folder.mkdir()
+    pid = os.fork()
+    if pid == 0:  # a sweep that takes the lock and is killed
+        fd = os.open(folder / LOCK_NAME, os.O_RDWR | os.O_CREAT)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        os._exit(0)
+    os.waitpid(pid, 0)
+    assert (folder / LOCK_NAME).exists()  # the file stays; its lock died with the process
+    summary = run_cells(cells_in(tmp_path, ["a"]), lambda c, s: {}, root=tmp_path)
+    assert summary["ok"] == 1 and not (folder / LOCK_NAME).exists()
+    with claim(folder) as mine:  # held: a second claim fails
+        assert mine
+        with claim(folder) as other:
+            assert not other
+
+
+def test_a_cell_whose_folder_cannot_be_written_fails_alone(tmp_path):
+    (tmp_path / "b").write_text("a file where the cell's folder should be")
+    summary = run_cells(cells_in(tmp_path, ["a", "b", "c"]), lambda c, s: {}, root=tmp_path)
+    assert summary["ok"] == 2 and summary["failed"] == 1
+    assert summary["failures"][0][0] == str(tmp_path / "b") and "cannot be written" in summary["failures"][0][1]

@@ -122,14 +122,20 @@ def test_rerun_skips_finished_cells_and_recompute_is_deterministic(smoke):
 
 
 def test_failures_and_skips_are_recorded_and_the_sweep_goes_on(tmp_path):
+    import trimesh
+
     from snell_bench.experiment.runner import run_grid
 
+    open_mesh = tmp_path / "open_box.ply"  # a box without its lid: fails when the fox cell builds it
+    box = trimesh.creation.box()
+    box.update_faces(box.face_normals[:, 2] < 0.5)
+    box.export(open_mesh)
     cfg = make_cfg(
         tmp_path,
         [
             "grid.scenes=[living_room]",
             "grid.objects=[sphere,fox]",
-            "object.path=/nonexistent/fox.ply",  # kept by the fox cell (value overrides win over object=fox)
+            f"object.path={open_mesh}",  # kept by the fox cell (value overrides win over object=fox)
             "grid.methods=[t2i,flux2_dev]",
             "reference.enabled=false",
             "reference.true_render=false",
@@ -141,8 +147,18 @@ def test_failures_and_skips_are_recorded_and_the_sweep_goes_on(tmp_path):
     assert m["living_room-0/sphere/flux2_dev"]["status"] == "skipped"
     assert "GPU" in m["living_room-0/sphere/flux2_dev"]["reason"]
     fox = m["living_room-0/fox/t2i"]
-    assert fox["status"] == "failed" and "object.path" in fox["reason"] and "/nonexistent/fox.ply" in fox["reason"]
+    assert fox["status"] == "failed" and "not watertight" in fox["reason"] and "object.repair=true" in fox["reason"]
+    assert "object.allow_open=true" in fox["reason"] and str(open_mesh) in fox["reason"]
     assert summary["failed"] == 2 and any("fox" in c for c, _ in summary["failures"])
+
+
+def test_a_missing_mesh_file_fails_before_any_work_naming_the_cell(tmp_path):
+    from snell_bench.experiment.runner import run_grid
+
+    cfg = make_cfg(tmp_path, ["grid.objects=[sphere,fox]", "object.path=/nonexistent/fox.ply"])
+    with pytest.raises(ValueError, match=r"object=fox.*object.path='/nonexistent/fox.ply'"):
+        run_grid(cfg)
+    assert not (tmp_path / "runs").exists()
 
 
 def test_unknown_names_fail_before_any_work(tmp_path):
@@ -267,3 +283,59 @@ def test_adaptive_methods_log_decisions_and_savings(tmp_path):
     row = per_cell[per_cell["method"] == "adaptive"].iloc[0]
     assert row["delta_psnr"] == pytest.approx(adap["metrics"]["psnr"] - snell["metrics"]["psnr"])
     assert "savings.md" in (tmp_path / "reports/smoke/README.md").read_text()
+
+
+def test_resume_with_changed_settings_stops_naming_the_keys(tmp_path):
+    from snell_bench.experiment.cells import SettingsChanged
+    from snell_bench.experiment.runner import run_grid
+
+    one = ["grid.scenes=[living_room]", "grid.methods=[t2i]", "reference.enabled=false", "grid.report=false"]
+    first = run_grid(make_cfg(tmp_path, [*one, "sampler.steps=4"]))
+    assert first["ok"] == 1
+    record = metrics_of(tmp_path / "runs" / "smoke")["living_room-0/sphere/t2i"]
+    for change, key in (("sampler.steps=6", "sampler.steps: 4 -> 6"), ("scene.width=168", "scene.width: 160 -> 168")):
+        with pytest.raises(SettingsChanged, match="grid.on_change=recompute") as e:
+            run_grid(make_cfg(tmp_path, [*one, "sampler.steps=4", change]))
+        assert key in str(e.value)
+    # output paths, the grid's lists and progress bars are not settings of a cell
+    again = run_grid(make_cfg(tmp_path, [*one, "sampler.steps=4", "sampler.progress=false", "grid.methods=[t2i]"]))
+    assert again["cached"] == 1 and again["ok"] == 0
+    redo = run_grid(make_cfg(tmp_path, [*one, "sampler.steps=6", "grid.on_change=recompute"]))
+    assert redo["ok"] == 1
+    after = metrics_of(tmp_path / "runs" / "smoke")["living_room-0/sphere/t2i"]
+    assert after["settings_hash"] != record["settings_hash"]
+    assert run_grid(make_cfg(tmp_path, [*one, "sampler.steps=6"]))["cached"] == 1
+
+
+def test_a_deleted_image_makes_its_cell_unfinished(tmp_path):
+    from snell_bench.experiment.runner import run_grid
+
+    one = ["grid.scenes=[living_room]", "grid.methods=[t2i]", "reference.enabled=false", "grid.report=false"]
+    run_grid(make_cfg(tmp_path, one))
+    cell = tmp_path / "runs" / "smoke" / "living_room-0" / "sphere" / "t2i"
+    files = json.loads((cell / "metrics.json").read_text())["files"]
+    assert {"image.png", "config.yaml", "I_minus.png", "depth.npy", "camera.json", "object.ply"} <= set(files)
+    (cell / "image.png").unlink()
+    assert run_grid(make_cfg(tmp_path, one))["ok"] == 1 and (cell / "image.png").is_file()
+
+
+def test_a_report_never_averages_cells_of_different_settings(tmp_path):
+    from snell_bench.experiment.runner import check_same_settings, run_grid
+
+    base = ["grid.methods=[t2i]", "reference.enabled=false", "sampler.steps=4"]
+    run_grid(make_cfg(tmp_path, [*base, "grid.scenes=[living_room]"]))  # a report of one cell
+    root = tmp_path / "runs" / "smoke"
+    check_same_settings(root)
+    # another part of the grid, the way parallel sweeps split it: the same settings, one report
+    run_grid(make_cfg(tmp_path, [*base, "grid.scenes=[kitchen]"]))
+    check_same_settings(root)
+    # a part computed with other settings: the report refuses to average them
+    run_grid(
+        make_cfg(
+            tmp_path, [*base, "grid.scenes=[kitchen]", "grid.variations=[1]", "sampler.steps=6", "grid.report=false"]
+        )
+    )
+    with pytest.raises(ValueError, match=r"sampler.steps: 4 in 2 cells .*; 6 in 1 cell \(kitchen-1/sphere/t2i\)"):
+        check_same_settings(root)
+    with pytest.raises(ValueError, match="different settings"):
+        run_grid(make_cfg(tmp_path, [*base, "grid.scenes=[kitchen]"]))

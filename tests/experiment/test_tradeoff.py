@@ -369,19 +369,34 @@ def test_a_failing_setting_does_not_stop_the_sweep(tmp_path):
     cfg = make_cfg(
         tmp_path,
         ["reference.true_render=false"],
-        axes=["tradeoff.axes.levels='sampler.levels=0'", "tradeoff.only=[levels]"],
+        axes=["+tradeoff.axes.size='object.size=0.0001'", "tradeoff.only=[size]"],  # too small to see: fails placing it
         presets=(),
         scenes=["living_room"],
     )
     summary = run_tradeoff(cfg)
     res = results(tmp_path / "runs" / "tradeoff")
     assert summary["ok"] == 1 and summary["failed"] == 1
-    bad = res["living_room-0/levels=0"]
-    assert bad["status"] == "failed" and "levels" in bad["reason"]
+    (label,) = [k for k, r in res.items() if r["status"] == "failed"]
+    assert "object.size" in res[label]["reason"] and "too few to trace" in res[label]["reason"]
     ok = res["living_room-0/baseline"]
     assert ok["status"] == "ok" and ok["metrics"]["psnr_true"] is None and "true render" in ok["missing"]["psnr_true"]
     md = (tmp_path / "reports" / "tradeoff" / "tradeoff.md").read_text()
-    assert "failed: living_room / levels=0" in md
+    assert f"failed: living_room / {label.split('/')[1]}" in md
+
+
+def test_an_unusable_setting_stops_the_sweep_before_any_work(tmp_path):
+    from snell_bench.experiment.tradeoff import run_tradeoff
+
+    cfg = make_cfg(
+        tmp_path,
+        [],
+        axes=["tradeoff.axes.levels='sampler.levels=0'", "tradeoff.only=[levels]"],
+        presets=(),
+        scenes=["living_room"],
+    )
+    with pytest.raises(ValueError, match=r"tradeoff setting 'levels=0'.*sampler.levels must be an integer >= 1, got 0"):
+        run_tradeoff(cfg)
+    assert not (tmp_path / "runs").exists()
 
 
 def test_converged_reference_is_shared_and_independent_of_the_settings_spp(sweep):
