@@ -30,6 +30,7 @@ method; a sweep setting: scene x setting). :func:`run_cells` runs a list of them
 from __future__ import annotations
 
 import fcntl
+import functools
 import hashlib
 import json
 import logging
@@ -194,14 +195,37 @@ class SettingsChanged(ValueError):
         )
 
 
+@functools.lru_cache(maxsize=1)
+def _schema_defaults() -> dict:
+    from snell_bench.config import Config
+
+    flat: dict = {}
+
+    def walk(d, prefix):
+        for k, v in d.items():
+            if isinstance(v, dict) and v:
+                walk(v, f"{prefix}{k}.")
+            else:
+                flat[f"{prefix}{k}"] = v
+
+    walk(OmegaConf.to_container(OmegaConf.structured(Config), resolve=False), "")
+    return flat
+
+
 def _changed(cell: Cell, record: dict, current: dict, current_hash: str) -> ChangedCell | None:
     if record.get("settings_hash") == current_hash:
         return None
     old = _saved_settings(cell.folder)
     if old is None:
         return ChangedCell(cell, {})
-    diff = settings_diff(old, current)
-    return ChangedCell(cell, diff) if diff or "settings_hash" in record else None
+    defaults = _schema_defaults()
+    diff = {
+        k: (a, b)
+        for k, (a, b) in settings_diff(old, current).items()
+        # a setting added to the schema since the cell finished, at its default: the cell had that behaviour
+        if not (a == "<absent>" and k in defaults and defaults[k] == b)
+    }
+    return ChangedCell(cell, diff) if diff else None
 
 
 # ---------------------------------------------------------------------------- claiming a cell

@@ -222,3 +222,16 @@ def test_a_cell_whose_folder_cannot_be_written_fails_alone(tmp_path):
     summary = run_cells(cells_in(tmp_path, ["a", "b", "c"]), lambda c, s: {}, root=tmp_path)
     assert summary["ok"] == 2 and summary["failed"] == 1
     assert summary["failures"][0][0] == str(tmp_path / "b") and "cannot be written" in summary["failures"][0][1]
+
+
+def test_a_setting_added_to_the_schema_at_its_default_is_no_change(tmp_path):
+    """A cell computed before ``object.repair`` existed had its default behaviour: still done."""
+    from snell_bench.experiment.cells import SettingsChanged
+
+    old = _cfg_cells(tmp_path, object={"ior": 1.5})
+    run_cells(old, lambda c, s: {}, root=tmp_path)
+    new = _cfg_cells(tmp_path, object={"ior": 1.5, "repair": False})
+    assert run_cells(new, lambda c, s: {}, root=tmp_path)["cached"] == 2
+    on = _cfg_cells(tmp_path, object={"ior": 1.5, "repair": True})  # not the default: a change
+    with pytest.raises(SettingsChanged, match=r"object.repair: '<absent>' -> True"):
+        run_cells(on, lambda c, s: {}, root=tmp_path)
