@@ -198,18 +198,9 @@ class SettingsChanged(ValueError):
 @functools.lru_cache(maxsize=1)
 def _schema_defaults() -> dict:
     from snell_bench.config import Config
+    from snell_bench.experiment.plan import flatten
 
-    flat: dict = {}
-
-    def walk(d, prefix):
-        for k, v in d.items():
-            if isinstance(v, dict) and v:
-                walk(v, f"{prefix}{k}.")
-            else:
-                flat[f"{prefix}{k}"] = v
-
-    walk(OmegaConf.to_container(OmegaConf.structured(Config), resolve=False), "")
-    return flat
+    return flatten(OmegaConf.to_container(OmegaConf.structured(Config), resolve=False))
 
 
 def _changed(cell: Cell, record: dict, current: dict, current_hash: str) -> ChangedCell | None:

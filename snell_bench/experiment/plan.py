@@ -68,20 +68,21 @@ def result_settings(cfg: DictConfig) -> dict[str, Any]:
         if isinstance(node, dict):
             node.pop(leaf, None)
     c = OmegaConf.create(plain)
-    flat: dict[str, Any] = {}
-
-    def walk(d, prefix):
-        for k, v in d.items():
-            if isinstance(v, dict) and v:
-                walk(v, f"{prefix}{k}.")
-            else:
-                flat[f"{prefix}{k}"] = v
-
     try:
         values = OmegaConf.to_container(c, resolve=True)
     except Exception:  # noqa: BLE001 - a value that cannot resolve fails its cell, which says why
         values = OmegaConf.to_container(c, resolve=False)
-    walk(values, "")
+    return flatten(values)
+
+
+def flatten(d: dict, prefix: str = "") -> dict[str, Any]:
+    """``{"a": {"b": 1}, "c": []}`` -> ``{"a.b": 1, "c": []}`` (empty dicts and lists kept as values)."""
+    flat: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict) and v:
+            flat.update(flatten(v, f"{prefix}{k}."))
+        else:
+            flat[f"{prefix}{k}"] = v
     return flat
 
 
