@@ -20,6 +20,7 @@ import dataclasses
 import difflib
 import math
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
@@ -208,6 +209,40 @@ def _object(cfg: DictConfig, out: list[str]) -> None:
         out.append(f"object.up_axis={axis!r}: use x, y or z, optionally signed (-z)")
 
 
+def _files(cfg: DictConfig, out: list[str]) -> None:
+    """The input files a config names: there, and files rather than folders."""
+    from snell_bench.pipeline import data_path
+
+    def need(key: str, what: str, why: str) -> None:
+        value = _get(cfg, key)
+        if not value:
+            out.append(f"{why} needs {key}: set {key}=PATH ({what})")
+            return
+        try:
+            data_path(value, key, what)
+        except OSError as e:
+            out.append(str(e))
+
+    if _get(cfg, "scene.source") == "image":
+        need("scene.image", "image file", "scene.source=image")
+        if _get(cfg, "scene.depth"):
+            need("scene.depth", "depth file", "scene.depth")
+    for key, what in (
+        ("metrics.lpips_weights", "torchvision VGG16 state dict"),
+        ("metrics.clip_weights", "open_clip ViT-B-16 checkpoint file or folder"),
+        ("metrics.image_reward_python", "python executable of an environment with image-reward"),
+    ):
+        value = _get(cfg, key)
+        if value and not Path(str(value)).exists():
+            out.append(
+                f"{key}={str(value)!r}: no such file (the {what}); fix the path, or set {key}=null to report the "
+                "metric as missing"
+            )
+    segmenter = _get(cfg, "segment.segmenter")
+    if isinstance(segmenter, DictConfig) and str(segmenter.get("_target_", "")).endswith("MaskFileSegmenter"):
+        need("segment.mask", "a PNG mask file, nonzero on the surface", f"segment={_get(cfg, 'segment.name')}")
+
+
 def _sampler(cfg: DictConfig, out: list[str]) -> None:
     from snell_bench.sampler.settings import SamplerSettings
 
@@ -217,17 +252,19 @@ def _sampler(cfg: DictConfig, out: list[str]) -> None:
     except (ValueError, TypeError) as e:
         out.append(str(e))
         return
+    limits = []  # (levels, what limits them)
     h, w = _get(cfg, "scene.height"), _get(cfg, "scene.width")
     if _get(cfg, "scene.source") in ("procedural", "generated") and _is_int(h) and _is_int(w) and h > 0 and w > 0:
-        most = max_levels(h, w)
-        pano = _get(cfg, "warps.pano_height")
-        if s.uses_panorama and _is_int(pano) and pano > 0:
-            most = min(most, max_levels(pano, 2 * pano))
+        limits.append((max_levels(h, w), f"the {h}x{w} image (scene.height x scene.width)"))
+    pano = _get(cfg, "warps.pano_height")
+    if s.uses_panorama and _is_int(pano) and pano > 1:
+        limits.append((max_levels(pano, 2 * pano), f"the {pano}x{2 * pano} panorama (warps.pano_height)"))
+    if limits:
+        most, what = min(limits)
         if s.effective_levels > most:
             out.append(
-                f"sampler.levels={s.levels}: a {h}x{w} image has at most {most} pyramid levels (each halves it, the "
-                "coarsest keeps 2 pixels); "
-                f"use sampler.levels={min(5, most)} (1 to {most})"
+                f"sampler.levels={s.levels}: {what} has at most {most} pyramid levels (each halves it, the "
+                f"coarsest keeps 2 pixels); use sampler.levels={min(5, most)} (1 to {most}) or a larger size"
             )
 
 
@@ -249,12 +286,41 @@ def _warps_and_reference(cfg: DictConfig, out: list[str]) -> None:
     _int_at_least(cfg, "relight.candidates", 1, out, "", 3)
 
 
+def _devices(cfg: DictConfig, out: list[str]) -> None:
+    """Devices named explicitly must exist here (``null`` / ``auto``: CUDA when available, which a
+    method that needs it reports as skipped); dtypes must be known."""
+    import torch
+
+    from snell_bench.models.devices import parse_dtype
+
+    for key in ("model.device", "depth.device", "segment.device"):
+        value = _get(cfg, key)
+        if value is None or str(value) == "auto":
+            continue
+        try:
+            dev = torch.device(str(value))
+        except (RuntimeError, ValueError):
+            out.append(f"{key}={value!r} is not a device; use cpu, cuda, cuda:1 or null")
+            continue
+        if dev.type == "cuda" and not torch.cuda.is_available():
+            out.append(f"{key}={value!r}: this machine has no CUDA device; use {key}=cpu (or null)")
+        elif dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
+            out.append(f"{key}={value!r}: there are {torch.cuda.device_count()} CUDA devices; use cuda:0 ...")
+    dtype = _get(cfg, "model.dtype")
+    if dtype is not None:
+        try:
+            parse_dtype(str(dtype))
+        except (TypeError, ValueError) as e:
+            out.append(str(e))
+
+
 def _model_and_method(cfg: DictConfig, out: list[str]) -> None:
     from snell_bench.metrics.fidelity import PROTOCOLS
     from snell_bench.pipeline import METHOD_KINDS, PROMPT_KINDS
     from snell_bench.scene.sources import PANO_PRIORS
 
     _choice(cfg, "model.pano_prior", PANO_PRIORS, out)
+    _devices(cfg, out)
     _choice(cfg, "method.kind", METHOD_KINDS, out)
     _choice(cfg, "method.prompt", PROMPT_KINDS, out)
     _choice(cfg, "method.mask", ("object", "box"), out)
@@ -336,7 +402,7 @@ def check_config(cfg: DictConfig, *, grid: bool | None = None) -> DictConfig:
     job = _get(cfg, "job")
     if job not in JOBS:
         problems.append(f"job={job!r} is unknown; use one of {sorted(JOBS)}")
-    for check in (_scene, _object, _sampler, _warps_and_reference, _model_and_method):
+    for check in (_scene, _object, _files, _sampler, _warps_and_reference, _model_and_method):
         check(cfg, problems)
     if grid if grid is not None else job == "grid":
         problems += check_grid_entries(cfg)

@@ -57,7 +57,10 @@ def test_free_form_nodes_and_every_shipped_config_pass():
         (["object.size=-1"], "object.size=-1.0: must be a finite number > 0 or null"),
         (["object.relative_size=0"], "object.relative_size=0.0: must be a finite number > 0"),
         (["object.ior=abc"], "object.ior='abc': unknown material 'abc'"),
-        (["sampler.levels=20"], "sampler.levels=20: a 720x1280 image has at most 9 pyramid levels"),
+        (
+            ["sampler.levels=20"],
+            "sampler.levels=20: the 720x1280 image (scene.height x scene.width) has at most 9 pyramid levels",
+        ),
         (["sampler.steps=0"], "sampler.steps must be an integer >= 1, got 0"),
         (["sampler.sync=maybe"], "sampler.sync='maybe' is unknown"),
         (["warps.max_bounces=0"], "warps.max_bounces=0: must be an integer >= 1"),
@@ -66,6 +69,17 @@ def test_free_form_nodes_and_every_shipped_config_pass():
         (["grid.on_change=ignore"], "grid.on_change='ignore' is unknown; use one of ['error', 'recompute']"),
         (["object=spot", "object.path=/nonexistent.obj"], "object.path='/nonexistent.obj': no such mesh file"),
         (["object=spot", "object.path=datasets"], "object.path='datasets' is a folder, not a mesh file"),
+        (["model.dtype=float17"], "unknown dtype 'float17' (config key model.dtype)"),
+        (["model.device=tpu9"], "model.device='tpu9' is not a device"),
+        (["scene.source=image"], "scene.source=image needs scene.image: set scene.image=PATH"),
+        (["scene=tum_office", "scene.image=/no.png"], "scene.image='/no.png': no such image file"),
+        (["scene=tum_office", "scene.depth=/no.png"], "scene.depth='/no.png': no such depth file"),
+        (["segment=mask"], "segment=mask needs segment.mask: set segment.mask=PATH"),
+        (["metrics.lpips_weights=/no.pth"], "metrics.lpips_weights='/no.pth': no such file"),
+        (
+            ["warps.pano_height=16", "sampler.levels=5"],
+            "the 16x32 panorama (warps.pano_height) has at most 4 pyramid levels",
+        ),
     ],
 )
 def test_unusable_values_name_the_key_the_value_and_the_fix(overrides, expected):
@@ -119,3 +133,11 @@ def test_max_levels_is_what_the_pyramid_warp_takes():
         pyramid_warp(torch.rand(1, 3, h, w), coords, levels=L, collapse=False)
         with pytest.raises((RuntimeError, ValueError)):
             pyramid_warp(torch.rand(1, 3, h, w), coords, levels=L + 1, collapse=False)
+
+
+@pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="checks a machine without CUDA")
+def test_an_explicit_cuda_device_without_cuda_is_an_error():
+    with pytest.raises(
+        ConfigError, match=r"model.device='cuda': this machine has no CUDA device; use model.device=cpu"
+    ):
+        check_config(compose(["model=tiny_flux", "model.device=cuda"]))

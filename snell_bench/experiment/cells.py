@@ -256,6 +256,15 @@ def claim(folder: Path) -> Iterator[bool]:
             os.close(fd)
 
 
+def _remove_leftovers(folder: Path) -> None:
+    """Remove the temporaries (``.<name>.<random>.tmp`` / ``.link``) a killed process left in a
+    cell folder this process holds the lock of: no other writer can be using them."""
+    for path in folder.glob(".*"):
+        if path.name != LOCK_NAME and path.suffix in (".tmp", ".link") and path.is_file():
+            log.info("removing %s, left by an interrupted run", path)
+            path.unlink(missing_ok=True)
+
+
 # ---------------------------------------------------------------------------- the loop
 def _write_record(cell: Cell, record: dict, record_name: str) -> None:
     cfg = cell.config.copy()
@@ -346,6 +355,7 @@ def run_cells(
                 elif states[id(cell)] == "todo" and status(cell) == "done" and not recompute:
                     counts["cached"] += 1  # another process finished it meanwhile
                 else:
+                    _remove_leftovers(cell.folder)
                     counts[_run_one(cell, fn, shared, record_name, settings, hashes, failures)] += 1
         except OSError as e:  # the cell's folder cannot be written: it fails alone
             reason = f"{type(e).__name__}: {e} (the cell's folder {cell.folder} cannot be written)"

@@ -235,3 +235,11 @@ def test_a_setting_added_to_the_schema_at_its_default_is_no_change(tmp_path):
     on = _cfg_cells(tmp_path, object={"ior": 1.5, "repair": True})  # not the default: a change
     with pytest.raises(SettingsChanged, match=r"object.repair: '<absent>' -> True"):
         run_cells(on, lambda c, s: {}, root=tmp_path)
+
+
+def test_temporaries_of_a_killed_run_are_removed_when_the_cell_is_computed(tmp_path):
+    (tmp_path / "a").mkdir()
+    for name in (".image.png.k3j2.tmp", ".depth.npy.x9.link"):  # what a SIGKILL mid-write leaves
+        (tmp_path / "a" / name).write_bytes(b"partial")
+    assert run_cells(cells_in(tmp_path, ["a"]), lambda c, s: {}, root=tmp_path)["ok"] == 1
+    assert not [p for p in (tmp_path / "a").iterdir() if p.name.startswith(".")]

@@ -94,10 +94,8 @@ def test_bad_inputs_name_the_key(tmp_path, make, match):
         pipeline.prepare_inputs(cfg, references=False)
 
 
-def test_a_bad_frame_fails_its_cell_and_the_others_finish(tmp_path):
-    from snell_bench.experiment.runner import run_grid
-
-    cfg = compose(
+def _frame_cfg(tmp_path, depth):
+    return compose(
         [
             "+experiment=smoke",
             "scene.width=160",
@@ -107,16 +105,33 @@ def test_a_bad_frame_fails_its_cell_and_the_others_finish(tmp_path):
             "reference.true_render=false",
             "grid.scenes=[living_room,tum_office]",
             "grid.methods=[t2i]",
-            "scene.depth=/nonexistent/depth.png",
+            f"scene.depth={depth}",
             "grid.report=false",
-            f"runs_dir={tmp_path}",
+            f"runs_dir={tmp_path / 'runs'}",
             f"output_dir={tmp_path}",
         ]
     )
-    summary = run_grid(cfg)
+
+
+def test_a_bad_frame_fails_its_cell_and_the_others_finish(tmp_path):
+    from snell_bench.experiment.runner import run_grid
+
+    damaged = tmp_path / "depth.png"
+    damaged.write_bytes(b"\x89PNG\r\n\x1a\n not a png any more")  # there, but unreadable: fails when read
+    summary = run_grid(_frame_cfg(tmp_path, damaged))
     assert summary["ok"] == 1 and summary["failed"] == 1
-    bad = json.loads((tmp_path / "smoke/tum_office-0/sphere/t2i/metrics.json").read_text())
-    assert bad["status"] == "failed" and "scene.depth" in bad["reason"] and "/nonexistent/depth.png" in bad["reason"]
+    bad = json.loads((tmp_path / "runs/smoke/tum_office-0/sphere/t2i/metrics.json").read_text())
+    assert bad["status"] == "failed" and str(damaged) in bad["reason"], bad["reason"]
+
+
+def test_a_missing_frame_fails_before_any_work(tmp_path):
+    from snell_bench.experiment.runner import run_grid
+
+    with pytest.raises(
+        ValueError, match=r"scene=tum_office .*scene.depth='/nonexistent/depth.png': no such depth file"
+    ):
+        run_grid(_frame_cfg(tmp_path, "/nonexistent/depth.png"))
+    assert not (tmp_path / "runs").exists()
 
 
 @pytest.mark.slow

@@ -339,3 +339,19 @@ def test_a_report_never_averages_cells_of_different_settings(tmp_path):
         check_same_settings(root)
     with pytest.raises(ValueError, match="different settings"):
         run_grid(make_cfg(tmp_path, [*base, "grid.scenes=[kitchen]"]))
+
+
+@pytest.mark.parametrize(
+    "identity",
+    [
+        ("living_room", 0, "sphere", "snellcaster"),
+        ("kitchen", 2, "sphere:1.333", "no_dpa"),
+        ("cafe", 1, "fox", "no_lpw"),
+    ],
+)
+def test_identity_defaults_equal_composing_the_cell(identity):
+    from snell_bench.experiment.plan import result_settings
+    from snell_bench.experiment.runner import _IdentityDefaults, cell_overrides
+    from snell_bench.pipeline import apply_method
+
+    assert _IdentityDefaults()(*identity) == result_settings(apply_method(compose(cell_overrides(*identity))))
