@@ -25,7 +25,14 @@ from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-__all__ = ["ConfigError", "check_config", "unknown_keys", "max_levels", "check_grid_entries"]
+__all__ = [
+    "ConfigError",
+    "check_config",
+    "unknown_keys",
+    "max_levels",
+    "check_grid_entries",
+    "check_tradeoff_entries",
+]
 
 
 class ConfigError(ValueError):
@@ -384,6 +391,46 @@ def check_grid_entries(cfg: DictConfig) -> list[str]:
     return out
 
 
+def check_tradeoff_entries(cfg: DictConfig) -> list[str]:
+    """Problems of the ``tradeoff`` lists: scenes (non-empty, known, no repeats), the object spec,
+    the method, the variation, ``only`` (names of ``axes``) and the presets."""
+    from snell_bench.experiment.plan import check_names, check_unique, parse_object_spec
+    from snell_bench.scene.objects import resolve_ior
+
+    out: list[str] = []
+    t = cfg.tradeoff
+    scenes = [str(x) for x in (t.scenes or [])]
+    if not scenes:
+        out.append("tradeoff.scenes is empty; give at least one scene, e.g. tradeoff.scenes=[living_room]")
+    name, ior = parse_object_spec(str(t.object))
+    for group, key, names in (
+        ("scene", "tradeoff.scenes", scenes),
+        ("object", "tradeoff.object", [name]),
+        ("method", "tradeoff.method", [str(t.method)]),
+        ("preset", "tradeoff.presets", [str(x) for x in (t.presets or [])]),
+    ):
+        try:
+            check_names(group, names, key)
+        except ValueError as e:
+            out.append(str(e))
+    for key, values in (("tradeoff.scenes", scenes), ("tradeoff.presets", [str(x) for x in (t.presets or [])])):
+        try:
+            check_unique(values, key)
+        except ValueError as e:
+            out.append(str(e))
+    if ior is not None:
+        try:
+            resolve_ior(ior)
+        except ValueError as e:
+            out.append(f"tradeoff.object={str(t.object)!r}: {e}")
+    _int_at_least(cfg, "tradeoff.variation", 0, out, " (it seeds the scene and the sampling)", 0)
+    if t.only is not None:
+        unknown = [str(a) for a in t.only if str(a) not in (t.axes or {})]
+        if unknown:
+            out.append(f"tradeoff.only: unknown axes {unknown}; choose from {list(t.axes or {})}")
+    return out
+
+
 def check_config(cfg: DictConfig, *, grid: bool | None = None) -> DictConfig:
     """Raise :class:`ConfigError` listing every unknown key and unusable value of ``cfg``.
 
@@ -406,6 +453,8 @@ def check_config(cfg: DictConfig, *, grid: bool | None = None) -> DictConfig:
         check(cfg, problems)
     if grid if grid is not None else job == "grid":
         problems += check_grid_entries(cfg)
+    if grid is None and job == "tradeoff":
+        problems += check_tradeoff_entries(cfg)
     if problems:
         raise ConfigError(problems)
     return cfg

@@ -27,6 +27,7 @@ def run_cli(tmp_path, *args):
         (["job=preview", "+object.iorr=3"], "did you mean object.ior?"),
         (["job=preview", "scene.width=0"], "scene.width=0: must be a positive multiple"),
         (["+experiment=smoke", "grid.methods=[nope]"], "grid.methods: unknown method 'nope'"),
+        (["+experiment=tradeoff", "tradeoff.scenes=[nope]"], "tradeoff.scenes: unknown scene 'nope'"),
     ],
 )
 def test_a_bad_setting_fails_before_any_folder_is_created(tmp_path, args, expected):

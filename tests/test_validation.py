@@ -141,3 +141,21 @@ def test_an_explicit_cuda_device_without_cuda_is_an_error():
         ConfigError, match=r"model.device='cuda': this machine has no CUDA device; use model.device=cpu"
     ):
         check_config(compose(["model=tiny_flux", "model.device=cuda"]))
+
+
+@pytest.mark.parametrize(
+    "overrides,expected",
+    [
+        (["tradeoff.scenes=[kitchen,kitchen]"], "tradeoff.scenes lists 'kitchen' more than once"),
+        (["tradeoff.scenes=[]"], "tradeoff.scenes is empty"),
+        (["tradeoff.scenes=[nope]"], "tradeoff.scenes: unknown scene 'nope'"),
+        (["tradeoff.presets=[fast,fast]"], "tradeoff.presets lists 'fast' more than once"),
+        (["tradeoff.object=sphere:abc"], "tradeoff.object='sphere:abc': unknown material 'abc'"),
+        (["tradeoff.variation=-1"], "tradeoff.variation=-1: must be an integer >= 0"),
+        (["tradeoff.only=[nope]"], "tradeoff.only: unknown axes ['nope']"),
+    ],
+)
+def test_tradeoff_entries_are_checked(overrides, expected):
+    with pytest.raises(ConfigError) as e:
+        check_config(compose(["+experiment=tradeoff", *overrides]))
+    assert expected in str(e.value), str(e.value)

@@ -92,7 +92,6 @@ from snell_bench.experiment.plan import (
     compose_cell,
     object_dir_name,
     object_overrides,
-    parse_object_spec,
 )
 from snell_bench.experiment.reports import (  # noqa: F401  (re-exported)
     PRESET_AXIS,
@@ -110,6 +109,7 @@ from snell_bench.experiment.reports import (  # noqa: F401  (re-exported)
     update_spp_records,
 )
 from snell_bench.utils.io import save_npy, write_json
+from snell_bench.validation import ConfigError, check_tradeoff_entries
 
 log = logging.getLogger(__name__)
 
@@ -295,12 +295,10 @@ def plan_tradeoff(cfg: DictConfig) -> list[Cell]:
     """Every (scene, setting) of ``cfg.tradeoff``, composed and checked before any work."""
     t = cfg.tradeoff
     check_reproducible(cfg)
+    problems = check_tradeoff_entries(cfg)
+    if problems:
+        raise ConfigError(problems)
     scenes = [str(s) for s in t.scenes]
-    if not scenes:
-        raise ValueError("tradeoff.scenes is empty; give at least one scene, e.g. tradeoff.scenes=[living_room]")
-    check_names("scene", scenes, "tradeoff.scenes")
-    check_names("object", [parse_object_spec(str(t.object))[0]], "tradeoff.object")
-    check_names("method", [str(t.method)], "tradeoff.method")
     settings = build_settings(cfg)
     root = Path(cfg.runs_dir) / str(cfg.experiment_name)
     cells = []
