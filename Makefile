@@ -53,9 +53,15 @@ test: setup
 test-slow: setup
 	HF_HUB_OFFLINE=1 $(PY) -m pytest -q -m slow
 
+# import contracts (pyproject.toml [tool.importlinter]) and import cycles between modules: both
+# run, and lint fails if either fails
 lint: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+	status=0; \
+	$(VENV)/bin/lint-imports --no-cache || status=1; \
+	$(PY) tools/check_imports.py snell_bench || status=1; \
+	exit $$status
 
 format: setup
 	$(VENV)/bin/ruff check --fix .

@@ -1,7 +1,7 @@
 """The optional language-model path of :mod:`snell_bench.scene.prompts`.
 
 :func:`decompose_with_llm` asks a local text-generation model to mark the object phrase of an
-unmarked prompt with ``[[...]]`` and then calls :func:`~snell_bench.scene.prompts.decompose`.
+unmarked prompt with ``[[...]]`` and then calls :func:`~snell_bench.scene.prompt_rules.decompose`.
 Weights are read from local files only, never downloaded.
 """
 
@@ -14,7 +14,7 @@ from functools import lru_cache
 from pathlib import Path
 
 from snell_bench.models.errors import WeightsNotFoundError
-from snell_bench.scene.prompts import CLOSE, EXAMPLE, LLM_KEY, OPEN, TEXT_KEY, Prompts, decompose
+from snell_bench.scene.prompt_rules import CLOSE, EXAMPLE, LLM_KEY, OPEN, TEXT_KEY, Prompts, decompose
 
 __all__ = ["LLM_INSTRUCTION", "decompose_with_llm"]
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
+import snell_bench.scene.prompt_rules as rules_module
 import snell_bench.scene.prompts as prompts_module
 from snell_bench.models.errors import WeightsNotFoundError
 from snell_bench.scene.prompts import PANO_PREFIX, Prompts, decompose, decompose_with_llm
@@ -255,7 +256,7 @@ def test_materials_and_scene():
 
 
 def test_decompose_docstring_example():
-    result = doctest.testmod(prompts_module, optionflags=doctest.NORMALIZE_WHITESPACE)
+    result = doctest.testmod(rules_module, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
 
 

@@ -33,8 +33,8 @@ lazily on first use).
 
 Modules: :mod:`~.scene` (the scene and its renders), :mod:`~.shading` (ray casting, lighting),
 :mod:`~.layouts`, :mod:`~.furniture` and :mod:`~.outdoor` (what each kind contains and where),
-:mod:`~.builder` (the triangle mesh), :mod:`~.textures` (materials), :mod:`~.noise` and
-:mod:`~.color` (helpers).
+:mod:`~.frames` (the camera pose, a layout and the room frame they share), :mod:`~.builder` (the
+triangle mesh), :mod:`~.textures` (materials), :mod:`~.noise` and :mod:`~.color` (helpers).
 """
 
 from snell_bench.scene.procedural.color import srgb_decode, srgb_encode

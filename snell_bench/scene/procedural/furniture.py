@@ -8,18 +8,15 @@ a fixed order.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from snell_bench.scene.procedural.builder import Builder
 from snell_bench.scene.procedural.color import hsv, lin
+from snell_bench.scene.procedural.frames import Room
 from snell_bench.scene.procedural.noise import Noise, mix, rot_y
 from snell_bench.scene.procedural.shading import Light
 from snell_bench.scene.procedural.textures import Material, cabinet, painting, solid, stone, tiles
-
-if TYPE_CHECKING:
-    from snell_bench.scene.procedural.layouts import Room
 
 __all__ = [
     "tabletop_items",

@@ -9,7 +9,7 @@ import numpy as np
 
 from snell_bench.scene.procedural.builder import Builder
 from snell_bench.scene.procedural.color import hsv, lin
-from snell_bench.scene.procedural.layouts import CameraPose, Layout, camera_pose
+from snell_bench.scene.procedural.frames import CameraPose, Layout, camera_pose
 from snell_bench.scene.procedural.noise import Noise, mix, rot_y, smoothstep
 from snell_bench.scene.procedural.shading import Light
 from snell_bench.scene.procedural.textures import Material, planks, stone

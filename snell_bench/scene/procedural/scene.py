@@ -12,7 +12,8 @@ from snell_bench.imaging.equirect import PanoramaCamera, equirect_grid, equirect
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.procedural.builder import Builder
 from snell_bench.scene.procedural.color import srgb_encode
-from snell_bench.scene.procedural.layouts import Layout, build_room
+from snell_bench.scene.procedural.frames import Layout
+from snell_bench.scene.procedural.layouts import build_room
 from snell_bench.scene.procedural.noise import Noise
 from snell_bench.scene.procedural.outdoor import build_outdoor
 from snell_bench.scene.procedural.shading import Light, RadianceField
@@ -62,6 +63,11 @@ class ProceduralScene:
         ValueError: If ``kind`` is unknown or ``seed`` is negative.
         TypeError: If ``seed`` is not an int.
     """
+
+    def __reduce__(self):
+        """A scene is a function of its kind and seed: pickled as those two (its textures are
+        closures), and rebuilt, identical, when unpickled."""
+        return type(self), (self.kind, self.seed)
 
     def __init__(self, kind: str = "room", seed: int = 0):
         if kind not in SCENE_KINDS:
