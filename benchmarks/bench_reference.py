@@ -42,7 +42,7 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 import snell_bench  # noqa: E402,F401  (first: sets the OpenMP wait policy before torch loads)
 from snell_bench import pipeline  # noqa: E402
 from snell_bench.config import compose  # noqa: E402
-from snell_bench.render import backend  # noqa: E402
+from snell_bench.render import probe, variants  # noqa: E402
 
 #: The presets' reference sample counts before this benchmark's changes.
 BEFORE_SPP = {"fast": 4, "balanced": 16, "paper": 32}
@@ -57,18 +57,18 @@ CELLS = {
 @contextlib.contextmanager
 def variant(name: str | None):
     """Force the Mitsuba variant (``None``: the probe's choice)."""
-    old = os.environ.get(backend.VARIANT_ENV)
+    old = os.environ.get(variants.VARIANT_ENV)
     if name:
-        os.environ[backend.VARIANT_ENV] = name
+        os.environ[variants.VARIANT_ENV] = name
     else:
-        os.environ.pop(backend.VARIANT_ENV, None)
+        os.environ.pop(variants.VARIANT_ENV, None)
     try:
         yield
     finally:
         if old is None:
-            os.environ.pop(backend.VARIANT_ENV, None)
+            os.environ.pop(variants.VARIANT_ENV, None)
         else:
-            os.environ[backend.VARIANT_ENV] = old
+            os.environ[variants.VARIANT_ENV] = old
 
 
 def render(cfg_overrides: list[str], inputs, forced: str | None, repeat: int) -> dict:
@@ -95,10 +95,10 @@ def warm_up(forced: str | None) -> tuple[str, float]:
     """Import Mitsuba, pick (or force) the variant and compile the tiny probe scene's kernels."""
     t0 = time.perf_counter()
     with variant(forced):
-        name = backend.mitsuba_variant()
-        os.environ[backend.VARIANT_ENV] = name
+        name = variants.mitsuba_variant()
+        os.environ[variants.VARIANT_ENV] = name
         with contextlib.redirect_stdout(io.StringIO()):
-            backend.probe_render()
+            probe.probe_render()
     return name, time.perf_counter() - t0
 
 

@@ -1,5 +1,12 @@
 """Image metrics: masked fidelity (PSNR, MAE, LPIPS) and text-image alignment (CLIP, ImageReward).
 
+- :mod:`~snell_bench.metrics.functional`: masked PSNR and MAE as pure functions, grayscale, masked
+  histogram matching, the protocols.
+- :mod:`~snell_bench.metrics.fidelity`: their class forms (batch accumulators) and masked LPIPS.
+- :mod:`~snell_bench.metrics.alignment`: CLIP score, ImageReward and :func:`score_all`.
+- :mod:`~snell_bench.metrics.scoring`: the scorers of a run and :func:`score_cell`.
+- :mod:`~snell_bench.metrics.refraction`: the object region against π^R(I⁻).
+
 Conventions:
     - Images: float tensors ``(B, 3, H, W)`` (``B == 1`` for the functional forms) or numpy
       ``(H, W, 3)``, sRGB-encoded, in [0, 1]. Masks: bool ``(H, W)`` or ``(B, 1, H, W)``.
@@ -29,15 +36,13 @@ from .alignment import (
     resolve_clip_checkpoint,
     score_all,
 )
-from .fidelity import (
+from .fidelity import MaskedLPIPS, MaskedMAE, MaskedPSNR
+from .functional import (
     EMPTY_MASK_REASON,
     GRAY_WEIGHTS,
     NON_FINITE_REASON,
     PROTOCOL_CONFIG_KEY,
     PROTOCOLS,
-    MaskedLPIPS,
-    MaskedMAE,
-    MaskedPSNR,
     MetricUnavailable,
     check_protocol,
     masked_mae,

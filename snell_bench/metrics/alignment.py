@@ -11,7 +11,7 @@ Convention:
     - ImageReward runs in a separate interpreter (config key ``metrics.image_reward_python``) over a
       JSON protocol on stdin/stdout (see :data:`IMAGE_REWARD_WORKER`).
     - Weights are never downloaded. A scorer whose weights or program are missing raises
-      :class:`~snell_bench.metrics.fidelity.MetricUnavailable` naming the config key to set;
+      :class:`~snell_bench.metrics.functional.MetricUnavailable` naming the config key to set;
       :func:`score_all` reports it as ``None`` with the reason.
 """
 
@@ -29,7 +29,8 @@ from typing import Any, TypedDict
 import numpy as np
 import torch
 
-from .fidelity import MaskedLPIPS, MetricUnavailable, check_protocol, masked_mae, masked_psnr
+from .fidelity import MaskedLPIPS
+from .functional import MetricUnavailable, check_protocol, masked_mae, masked_psnr
 
 __all__ = [
     "IMAGE_REWARD_WORKER",
@@ -388,7 +389,7 @@ def score_all(
         - PSNR, MAE, LPIPS: masked, under ``protocol`` (``"paper"``: grayscale, histogram-matched,
           LPIPS averaged over the mask; ``"authors"``: matched values rescaled to the generated range,
           LPIPS on the masked RGB images averaged over the whole image; see
-          :func:`~snell_bench.metrics.fidelity.masked_psnr` and
+          :func:`~snell_bench.metrics.functional.masked_psnr` and
           :class:`~snell_bench.metrics.fidelity.MaskedLPIPS`). An unknown ``protocol`` raises
           ``ValueError`` naming ``metrics.protocol``. The LPIPS scorer is called as
           ``lpips(generated, reference, mask, histogram_match=...)`` under ``paper`` and as

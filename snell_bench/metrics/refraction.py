@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from snell_bench.imaging.remap import remap
-from snell_bench.metrics.fidelity import MetricUnavailable, masked_psnr
+from snell_bench.metrics.functional import MetricUnavailable, masked_psnr
 from snell_bench.utils.tensors import bchw_to_hwc
 
 __all__ = ["refraction_psnr"]

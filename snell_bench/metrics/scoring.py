@@ -3,12 +3,13 @@ of one cell with the reason for each missing one.
 
 - :func:`load_scorers` builds the weight-backed scorers (LPIPS, CLIP, ImageReward) from the
   ``metrics`` config. A scorer that cannot be built, for any reason (weights not configured, a
-  broken weights file), is kept as the :class:`~snell_bench.metrics.fidelity.MetricUnavailable`
+  broken weights file), is kept as the :class:`~snell_bench.metrics.functional.MetricUnavailable`
   that says why: building never raises.
 - :func:`score_cell` scores one image: the metrics of :data:`METRIC_NAMES` against the reference
   and the prompt, and ``psnr_true`` against the true render over the object mask, under one
   evaluation protocol (config key ``metrics.protocol``: ``"paper"`` or ``"authors"``, see
-  :mod:`snell_bench.metrics.fidelity`), recorded in its result.
+  :mod:`snell_bench.metrics.functional` and :mod:`snell_bench.metrics.fidelity`), recorded in its
+  result.
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ import torch
 from snell_bench.utils.tensors import bchw_to_hwc
 
 from .alignment import METRIC_NAMES, CLIPScore, ImageRewardScorer, ScoreResult, score_all
-from .fidelity import MaskedLPIPS, MetricUnavailable, check_protocol, masked_psnr
+from .fidelity import MaskedLPIPS
+from .functional import MetricUnavailable, check_protocol, masked_psnr
 
 __all__ = [
     "PROMPT_METRICS",

@@ -1,7 +1,13 @@
 """Reference renders: an independent physically based renderer (Mitsuba 3) and the true render of
 procedural scenes.
 
-- :mod:`~snell_bench.render.backend`: Mitsuba (import, variant, plugins, scene pieces).
+- :mod:`~snell_bench.render.variants`: importing Mitsuba and choosing its variant (probed in a
+  subprocess running :mod:`~snell_bench.render.probe`).
+- :mod:`~snell_bench.render.plugins`: Mitsuba plugins written in Python (the refraction-path BSDF,
+  a pinhole sensor of any intrinsics).
+- :mod:`~snell_bench.render.pieces`: scene pieces (meshes, sensors, emitters, BSDFs, samplers).
+- :mod:`~snell_bench.render.integrator`: :func:`~snell_bench.render.integrator.render_linear`, the
+  render loop (windows, seeds, render threads).
 - :mod:`~snell_bench.render.geometry`: the background built from a depth map, the object's arrays.
 - :mod:`~snell_bench.render.reference`: :func:`render_reference`, the Mitsuba reference render.
 - :mod:`~snell_bench.render.true_render`: :func:`render_true`, the true render of a procedural
@@ -11,8 +17,8 @@ Importing this package does not import Mitsuba; :func:`render_reference` does (i
 ``render`` extra: ``pip install snell_bench[render]``).
 """
 
-from snell_bench.render.backend import mitsuba_variant
 from snell_bench.render.reference import ReferenceRender, render_reference
 from snell_bench.render.true_render import render_true
+from snell_bench.render.variants import mitsuba_variant
 
 __all__ = ["ReferenceRender", "mitsuba_variant", "render_reference", "render_true"]

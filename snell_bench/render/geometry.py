@@ -1,7 +1,7 @@
 """Geometry of the reference render: the background built from I⁻'s depth, and the object's arrays.
 
 Nothing here imports Mitsuba: the functions return numpy arrays that
-:mod:`snell_bench.render.reference` hands to :mod:`snell_bench.render.backend`.
+:mod:`snell_bench.render.reference` turns into Mitsuba meshes (:func:`~snell_bench.render.pieces.mesh`).
 
 Convention:
     - Frames and pixels: the camera frame and pixel centres of :mod:`snell_bench.scene.camera`; pixel

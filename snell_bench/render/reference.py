@@ -5,9 +5,11 @@ what a generated scene provides (I⁻, its z-depth, K) and an independent render
 cross-checks our own tracer (:mod:`snell_bench.optics`).
 
 Convention:
-    - Frames, pixels, sensor and randomness: see :mod:`snell_bench.render.backend`; the background,
-      its flaps at depth edges, the object's normals and ``object_mask``: see
-      :mod:`snell_bench.render.geometry`.
+    - Frames, pixels and sensor: see :mod:`snell_bench.render.pieces`; randomness and render
+      windows: see :mod:`snell_bench.render.integrator`; the background, its flaps at depth edges,
+      the object's normals and ``object_mask``: see :mod:`snell_bench.render.geometry`.
+    - Object BSDFs: Mitsuba's ``dielectric``, or the refraction-path BSDF of
+      :mod:`snell_bench.render.plugins`.
     - Background: its front side is an ``area`` emitter textured with I⁻ decoded to linear RGB,
       texel-exact; its BSDF is black.
     - Unobserved: the back sides of the background (a copy with flipped faces just behind it) and the
@@ -28,7 +30,7 @@ Convention:
       (:func:`~snell_bench.render.geometry.object_rect`: every pixel whose footprint can overlap the
       object's projection) grown by ``crop_margin_px``, a crop window of the full film, so each pixel
       in it sees the rays it sees in a full-frame render (other random numbers, though: see
-      :mod:`snell_bench.render.backend`). Outside it no camera ray meets the object, so a full-frame
+      :mod:`snell_bench.render.integrator`). Outside it no camera ray meets the object, so a full-frame
       render there shows the background seen directly, and that is pasted: a pixel with a valid depth
       shows its own texel (``linear`` = I⁻ decoded to linear RGB, ``unobserved`` = 0), a pixel
       without one shows nothing (``linear`` = 0, ``unobserved`` = 1: its ray leaves through the hole
@@ -38,7 +40,7 @@ Convention:
       darker by the share of its samples lost), which the paste does not have. An object with a
       vertex closer than the near clip plane (or behind the camera) has no bounded projection, and
       one outside the image nothing to crop to: then the whole frame is rendered.
-    - Sampler: one of Mitsuba's (:data:`~snell_bench.render.backend.SAMPLERS`); all but
+    - Sampler: one of Mitsuba's (:data:`~snell_bench.render.pieces.SAMPLERS`); all but
       ``independent`` accept only some sample counts and round any other up (logged, see below).
     - Self-noise (``self_noise=True``): the image pass is two independent renders A and B (seeds
       ``2 seed`` and ``2 seed + 1``) of ``n1`` and ``n2`` samples per pixel, ``n1 + n2 = spp``, and
@@ -72,17 +74,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear
-from snell_bench.render.backend import (
-    SAMPLERS,
-    black_bsdf,
-    check_sampler,
-    mesh,
-    render_linear,
-    rgb_emitter,
-    sample_count,
-    set_variant,
-    texture_emitter,
-)
 from snell_bench.render.geometry import (
     background_geometry,
     flaps,
@@ -92,6 +83,18 @@ from snell_bench.render.geometry import (
     object_rect,
     subdivide,
 )
+from snell_bench.render.integrator import render_linear
+from snell_bench.render.pieces import (
+    SAMPLERS,
+    black_bsdf,
+    check_sampler,
+    mesh,
+    rgb_emitter,
+    sample_count,
+    texture_emitter,
+)
+from snell_bench.render.plugins import REFRACTION_PATH_BSDF
+from snell_bench.render.variants import set_variant
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.depth_mesh import build_background, valid_depth_mask
 from snell_bench.scene.objects import GlassObject
@@ -304,7 +307,7 @@ def render_reference(
         i_minus: ``(H, W, 3)`` sRGB image in [0, 1] of the object-free scene.
         depth: ``(H, W)`` z-depth of I⁻ (NaN, inf or <= 0 where unknown).
         camera: the camera of I⁻, any pinhole ``K`` (``fx != fy`` and skew included; see
-            :func:`~snell_bench.render.backend.sensor`).
+            :func:`~snell_bench.render.pieces.sensor`).
         obj: the glass object in camera coordinates.
         spp: samples per pixel of the image pass (rounded up to a count ``sampler`` accepts).
         edge_threshold: relative depth jump at which the depth mesh is cut (as in ``compute_warps``).
@@ -316,8 +319,8 @@ def render_reference(
             refraction path (refraction at each interface, reflection only under total internal
             reflection) with weight 1, so ``image`` shows what our self-warp π^R predicts, without
             Fresnel reflection or loss: a purely geometric render, for cross-checks.
-        sampler: Mitsuba's sampler: a name of :data:`~snell_bench.render.backend.SAMPLERS`, or a
-            dict of its properties (see :func:`~snell_bench.render.backend.check_sampler`).
+        sampler: Mitsuba's sampler: a name of :data:`~snell_bench.render.pieces.SAMPLERS`, or a
+            dict of its properties (see :func:`~snell_bench.render.pieces.check_sampler`).
         crop: render only the object's window (see the module's conventions); ``False``: the
             whole frame.
         crop_margin_px: pixels added on each side of the object's rectangle.
@@ -384,7 +387,7 @@ def render_reference(
         "background": mesh(
             mi, "background", tex_v, tex_f, uv=tex_uv, bsdf=black_bsdf(mi), emitter=texture_emitter(mi, texture)
         ),
-        "object": object_shape(dielectric("dielectric" if fresnel else "snell_refraction_path")),
+        "object": object_shape(dielectric("dielectric" if fresnel else REFRACTION_PATH_BSDF)),
     }
     python_rect = None if fresnel else rect
     seeds = [int(seed)] if len(counts) == 1 else [2 * int(seed), 2 * int(seed) + 1]
@@ -399,7 +402,7 @@ def render_reference(
         "background": mesh(mi, "background", obs_v, obs_f, bsdf=black_bsdf(mi), emitter=rgb_emitter(mi, green)),
         "back": mesh(mi, "back", back_v, back_f, bsdf=black_bsdf(mi), emitter=rgb_emitter(mi, red)),
         "box": mesh(mi, "box", bg.box_vertices, box_faces, bsdf=black_bsdf(mi), emitter=rgb_emitter(mi, red)),
-        "object": object_shape(dielectric("snell_refraction_path")),
+        "object": object_shape(dielectric(REFRACTION_PATH_BSDF)),
     }
     share = render_linear(mi, shapes, camera, u_spp, seed, max_depth, clip, rect, **render_opts)
     timings["unobserved"] = time.perf_counter() - t0

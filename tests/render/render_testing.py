@@ -12,7 +12,7 @@ import scipy.ndimage as nd
 
 from snell_bench.imaging.remap import remap
 from snell_bench.optics import compute_warps
-from snell_bench.render.backend import VARIANT_ENV
+from snell_bench.render.variants import VARIANT_ENV
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.objects import GlassObject
 from snell_bench.scene.placement import place_object

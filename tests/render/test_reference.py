@@ -25,8 +25,8 @@ from render_testing import (  # noqa: E402
 
 from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear  # noqa: E402
 from snell_bench.optics import HitKind  # noqa: E402
-from snell_bench.render.backend import VARIANT_ENV  # noqa: E402
 from snell_bench.render.reference import render_reference  # noqa: E402
+from snell_bench.render.variants import VARIANT_ENV  # noqa: E402
 from snell_bench.scene.camera import Camera  # noqa: E402
 from snell_bench.scene.objects import GlassObject  # noqa: E402
 

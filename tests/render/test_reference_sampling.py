@@ -14,8 +14,8 @@ mi = pytest.importorskip("mitsuba")
 from render_testing import far_from_object, forced_cpu_variant, make_room  # noqa: E402
 
 from snell_bench.config import ReferenceConfig, compose  # noqa: E402
-from snell_bench.render import backend  # noqa: E402
-from snell_bench.render.backend import SAMPLERS, check_sampler, sample_count  # noqa: E402
+from snell_bench.render import variants  # noqa: E402
+from snell_bench.render.pieces import SAMPLERS, check_sampler, sample_count  # noqa: E402
 from snell_bench.render.reference import _window, halves_self_noise, render_reference  # noqa: E402
 from snell_bench.scene.camera import Camera  # noqa: E402
 from snell_bench.scene.objects import GlassObject  # noqa: E402
@@ -133,7 +133,7 @@ class TestSampler:
         assert check_sampler({"type": "stratified", "jitter": False}) == {"type": "stratified", "jitter": False}
 
     def test_sample_counts_are_mitsubas(self):
-        m = backend.set_variant()
+        m = variants.set_variant()
         assert sample_count(m, "independent", 7) == 7
         assert sample_count(m, "stratified", 8) == 9
         assert sample_count(m, "orthogonal", 16) == 25
@@ -155,7 +155,7 @@ class TestSampler:
         cfg = compose(["output_dir=/tmp/x"] + ([f"preset={preset}"] if preset else []))
         r = cfg.reference
         assert r.sampler in SAMPLERS and r.sampler == ReferenceConfig().sampler
-        m = backend.set_variant()
+        m = variants.set_variant()
         assert r.spp % 2 == 0 and sample_count(m, r.sampler, r.spp // 2) == r.spp // 2
         assert sample_count(m, r.sampler, r.unobserved_spp) == r.unobserved_spp
 
@@ -227,11 +227,11 @@ class TestLLVM:
         other samples: it agrees within the noise."""
         import drjit as dr
 
-        if not backend._probe("llvm_ad_rgb"):
+        if not variants._probe("llvm_ad_rgb"):
             pytest.skip("the llvm_ad_rgb variant does not work here (libLLVM missing or incompatible)")
         args = (room.image, room.depth, room.camera, room.obj)
         scalar = render_reference(*args, spp=50, seed=3)
-        monkeypatch.setenv(backend.VARIANT_ENV, "llvm_ad_rgb")
+        monkeypatch.setenv(variants.VARIANT_ENV, "llvm_ad_rgb")
         a, b = (render_reference(*args, spp=50, seed=3) for _ in range(2))
         assert a.variant == "llvm_ad_rgb" and a.window == scalar.window
         np.testing.assert_allclose(a.linear, b.linear, rtol=0, atol=1e-6)
