@@ -24,10 +24,12 @@ from typing import Any, Protocol, runtime_checkable
 
 import torch
 
+from snell_bench.config.sampler import SCHEDULES as _SCHEDULES
+
 __all__ = ["SCHEDULES", "Condition", "Generator", "LatentGeometry", "check_schedule", "generator_device"]
 
 #: Schedule kinds every backend's :meth:`Generator.sigmas` accepts.
-SCHEDULES = ("flux", "linear")
+SCHEDULES = _SCHEDULES  # the ``sampler.schedule`` choices, owned by the schema
 
 
 def check_schedule(kind: str, num_steps: int) -> None:

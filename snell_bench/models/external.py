@@ -25,7 +25,6 @@ Convention:
 
 from __future__ import annotations
 
-import gc
 import inspect
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -40,7 +39,6 @@ from snell_bench.utils.tensors import bchw_to_hwc, hwc_to_bchw
 __all__ = [
     "CallSettings",
     "call_settings",
-    "clear_pipeline_cache",
     "generate_external",
     "inpaint_external",
     "load_pipeline",
@@ -49,9 +47,6 @@ __all__ = [
 #: The negative prompt that switches on a ``true_cfg_scale`` pipeline's classifier-free guidance
 #: without naming a concept to avoid (Qwen-Image's model card).
 EMPTY_NEGATIVE_PROMPT = " "
-
-#: The single loaded pipeline: ``(key, pipeline)``.
-_CACHE: dict[tuple, object] = {}
 
 
 @dataclass(frozen=True)
@@ -184,16 +179,6 @@ def _missing(model_id: str, cls, reason: str) -> WeightsNotFoundError:
     )
 
 
-def clear_pipeline_cache() -> None:
-    """Release the cached pipeline (and the GPU memory it holds)."""
-    if not _CACHE:
-        return
-    _CACHE.clear()
-    gc.collect()
-    if torch.cuda.is_available():
-        torch.cuda.empty_cache()
-
-
 def load_pipeline(
     model_id: str | Path,
     *,
@@ -201,7 +186,8 @@ def load_pipeline(
     device: str | torch.device | None = None,
     dtype: torch.dtype | str | None = None,
 ):
-    """A diffusers pipeline from local files, on ``device`` in ``dtype``; the last one is cached.
+    """A diffusers pipeline from local files, on ``device`` in ``dtype`` (each call loads it: how
+    long it is kept is the caller's choice, e.g. :class:`~snell_bench.pipeline.pool.ModelPool`).
 
     Convention:
         - ``pipeline=None`` loads the class that the folder's (or cached snapshot's)
@@ -210,8 +196,6 @@ def load_pipeline(
         - Always ``local_files_only=True``; the dtype goes through
           :func:`~snell_bench.models.devices.dtype_kwarg` (``dtype=``, never ``torch_dtype=``).
         - The device is resolved before the weights are read, so a missing GPU fails fast.
-        - A single cache slot keyed by ``(model_id, class, device, dtype)``: the same call returns
-          the same object; a different one releases the old pipeline before loading.
 
     Args:
         model_id: a local diffusers folder or a Hugging Face id in the local cache (config key
@@ -239,19 +223,13 @@ def load_pipeline(
         ),
     )
     dt = parse_dtype(dtype) or default_dtype(dev)
-    key = (model_id, cls.__name__, str(dev), dt)
-    if key in _CACHE:
-        return _CACHE[key]
-    clear_pipeline_cache()
     if not _is_local_or_repo_id(model_id):
         raise _missing(model_id, cls, "no such folder, and not a Hugging Face model id")
     try:
         pipe = cls.from_pretrained(model_id, local_files_only=True, **dtype_kwarg(dt))
     except OSError as e:  # includes huggingface_hub's LocalEntryNotFoundError
         raise _missing(model_id, cls, str(e)) from e
-    pipe = pipe.to(dev)
-    _CACHE[key] = pipe
-    return pipe
+    return pipe.to(dev)
 
 
 def _to_tensor(images: np.ndarray, size: tuple[int, int], pipe) -> torch.Tensor:
@@ -271,7 +249,7 @@ def _generator(pipe, seed: int) -> torch.Generator:
 
 
 def generate_external(
-    model_id: str | Path,
+    pipe_or_model_id,
     prompt: str,
     size: tuple[int, int],
     *,
@@ -294,8 +272,9 @@ def generate_external(
           ``guidance_scale`` 3.5.
 
     Args:
-        model_id: a local diffusers folder or a Hugging Face id in the local cache
-            (config key ``method.model_id``).
+        pipe_or_model_id: a built text-to-image pipeline (used as it is), or a local diffusers
+            folder / Hugging Face id in the local cache (config key ``method.model_id``), loaded with
+            :func:`load_pipeline` on ``device`` in ``dtype``.
         prompt: the text prompt.
         size: the image size ``(H, W)``, multiples of 16 for these models.
         seed: seeds the pipeline's generator.
@@ -315,7 +294,10 @@ def generate_external(
         DeviceNotAvailableError: if CUDA is needed and missing.
         ValueError: if the pipeline returns another size than ``size``.
     """
-    pipe = load_pipeline(model_id, pipeline=pipeline, device=device, dtype=dtype)
+    if isinstance(pipe_or_model_id, (str, Path)):
+        pipe = load_pipeline(pipe_or_model_id, pipeline=pipeline, device=device, dtype=dtype)
+    else:
+        pipe = pipe_or_model_id
     settings = call_settings(pipe, steps, guidance)
     H, W = size
     out = pipe(

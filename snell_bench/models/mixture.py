@@ -56,7 +56,6 @@ __all__ = [
     "MixtureGenerator",
     "glass_variants",
     "panorama_variants",
-    "scene_mixture",
 ]
 
 #: Appearances of the main view's glass, each wrong in its own way (see :func:`glass_variants`).
@@ -440,8 +439,3 @@ class MixtureGenerator(AnalyticGenerator):
             vels.append(((s * Bk - a * A) * zb - s * M).T.reshape(C, h, w))
             resp.append(wk.T.reshape(-1, h, w))
         return torch.stack(means), torch.stack(vels), resp
-
-
-def scene_mixture(i_minus, object_mask, panorama=None, **kwargs) -> MixtureGenerator:
-    """:meth:`MixtureGenerator.from_scene` as a plain function (the registry's ``mixture``)."""
-    return MixtureGenerator.from_scene(i_minus, object_mask, panorama, **kwargs)

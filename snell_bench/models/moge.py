@@ -1,7 +1,7 @@
-"""MoGe-2 behind :class:`~snell_bench.models.depth.DepthEstimator`: metric depth, a validity mask
+"""MoGe-2 behind :class:`~snell_bench.models.depth_base.DepthEstimator`: metric depth, a validity mask
 and the intrinsics from one image.
 
-Convention (see :mod:`snell_bench.models.depth` for the shared ones):
+Convention (see :mod:`snell_bench.models.depth_base` for the shared ones):
     - ``moge.model.v2.MoGeModel`` from the optional ``dlr-moge`` package (extra ``depth``), imported
       only when an estimator is built; e.g. ``Ruicheng/moge-2-vitl-normal``.
     - ``infer`` gives normalised intrinsics (image edges at 0 and 1, the centre of pixel ``i`` at
@@ -22,7 +22,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from .depth import HF_REPO_ID, MOGE2_ID, DepthEstimate, check_image, resolve_depth_device, valid_depth, weights_help
+from .depth_base import (
+    HF_REPO_ID,
+    MOGE2_ID,
+    DepthEstimate,
+    check_image,
+    resolve_depth_device,
+    valid_depth,
+    weights_help,
+)
 from .errors import WeightsNotFoundError
 
 __all__ = ["MoGe2Depth"]

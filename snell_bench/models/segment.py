@@ -39,6 +39,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from .errors import WeightsNotFoundError
+from .tiny_text import clip_tokenizer_from_open_clip_vocab
 
 log = logging.getLogger(__name__)
 
@@ -371,7 +372,7 @@ def tiny_sam3(seed: int = 0):
           scales (4, 2, 1, 0.5).
         - Text: CLIP text encoder (width 8, 2 heads, 1 layer) over CLIP's 49408-token vocabulary and
           32 positions (SAM 3's), tokenised by the CLIP tokenizer written from open_clip's vocabulary
-          (:func:`~snell_bench.models.tiny_flux.clip_tokenizer_from_open_clip_vocab`).
+          (:func:`~snell_bench.models.tiny_text.clip_tokenizer_from_open_clip_vocab`).
         - Geometry encoder, DETR encoder and decoder: width 8, 2 heads, 1 layer, feed-forward 16;
           4 queries. Mask decoder: width 8 (``GroupNorm(8, width)`` makes 8 the least), 2 upsampling
           stages (SAM 3 uses 2 of its 3 with three FPN levels); instance masks at 16 x 16.
@@ -397,8 +398,6 @@ def tiny_sam3(seed: int = 0):
         Sam3VisionConfig,
         Sam3ViTConfig,
     )
-
-    from .tiny_flux import clip_tokenizer_from_open_clip_vocab
 
     tokenizer = clip_tokenizer_from_open_clip_vocab()
     width, heads, ff = 8, 2, 16

@@ -1,6 +1,6 @@
 """Depth Pro and metric Depth Anything V2 at toy size with random weights, built from configs in code
 (CPU tests; their outputs mean nothing): the transformers code paths of
-:class:`~snell_bench.models.depth.TransformersDepth` without any checkpoint.
+:class:`~snell_bench.models.transformers_depth.TransformersDepth` without any checkpoint.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from typing import Any
 
 import torch
 
-from .depth import TransformersDepth
+from .transformers_depth import TransformersDepth
 
 __all__ = ["tiny_depth_anything", "tiny_depth_pro"]
 

@@ -17,8 +17,9 @@ Convention:
     - No file is downloaded. Tokenizers are byte-level BPE tokenizers over the 256 byte symbols plus
       the special tokens each prompt format needs, with merges that make every word of the
       pipeline's fixed prompt text one token; SD3's CLIP tokenizers are
-      :func:`~snell_bench.models.tiny_flux.clip_tokenizer_from_open_clip_vocab` (OpenAI CLIP's real
-      vocabulary), its T5 tokenizer is the file-less ``ByT5Tokenizer``.
+      :func:`~snell_bench.models.tiny_text.clip_tokenizer_from_open_clip_vocab` (OpenAI CLIP's real
+      vocabulary), its T5 tokenizer is the file-less ``ByT5Tokenizer``
+      (:func:`~snell_bench.models.tiny_text.t5_byte_tokenizer`).
     - FLUX.2: the ``tokenizer`` component is a ``PixtralProcessor`` (as in FLUX.2-dev) with a
       Mistral-style chat template (``[SYSTEM_PROMPT]...[/SYSTEM_PROMPT][INST]...[/INST]``); the text
       encoder is a ``Mistral3ForConditionalGeneration`` with 30 decoder layers, because the
@@ -33,6 +34,9 @@ from __future__ import annotations
 import re
 
 import torch
+
+from .tiny_flux import build_tiny_flux_pipeline
+from .tiny_text import clip_tokenizer_from_open_clip_vocab, t5_byte_tokenizer, tiny_clip_text_encoder, tiny_t5_encoder
 
 __all__ = ["TINY_KINDS", "QWEN_IMAGE_PROMPT_TEMPLATE", "build_tiny_pipeline", "byte_level_symbols"]
 
@@ -334,53 +338,22 @@ def _tiny_sd3(seed: int):
         SD3Transformer2DModel,
         StableDiffusion3Pipeline,
     )
-    from transformers import ByT5Tokenizer, CLIPTextConfig, CLIPTextModelWithProjection, T5Config, T5EncoderModel
-
-    from .tiny_flux import clip_tokenizer_from_open_clip_vocab
 
     clip_tok = clip_tokenizer_from_open_clip_vocab()
-    t5_tok = ByT5Tokenizer()
+    t5_tok = t5_byte_tokenizer()
     clip_widths = (16, 24)  # CLIP-L and CLIP-G (768 and 1280 in SD3.5)
     t5_width = 48  # the two CLIP embeddings (40 wide) are zero-padded to it, as 2048 to 4096 in SD3.5
 
     def clip(width: int, act: str):
-        return CLIPTextModelWithProjection(
-            CLIPTextConfig(
-                vocab_size=len(clip_tok),
-                hidden_size=width,
-                intermediate_size=2 * width,
-                projection_dim=width,
-                num_hidden_layers=2,
-                num_attention_heads=2,
-                max_position_embeddings=77,
-                hidden_act=act,
-                bos_token_id=clip_tok.bos_token_id,
-                eos_token_id=clip_tok.eos_token_id,
-                pad_token_id=clip_tok.pad_token_id,
-            )
+        return tiny_clip_text_encoder(
+            clip_tok, width, intermediate_size=2 * width, num_heads=2, hidden_act=act, with_projection=True
         )
 
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         text_encoder = clip(clip_widths[0], "quick_gelu")
         text_encoder_2 = clip(clip_widths[1], "gelu")
-        text_encoder_3 = T5EncoderModel(
-            T5Config(
-                vocab_size=len(t5_tok),
-                d_model=t5_width,
-                d_kv=8,
-                d_ff=64,
-                num_layers=2,
-                num_heads=2,
-                relative_attention_num_buckets=8,
-                relative_attention_max_distance=32,
-                feed_forward_proj="gated-gelu",
-                dropout_rate=0.0,
-                is_encoder_decoder=False,
-                pad_token_id=t5_tok.pad_token_id,
-                eos_token_id=t5_tok.eos_token_id,
-            )
-        )
+        text_encoder_3 = tiny_t5_encoder(t5_tok, t5_width, d_ff=64, num_heads=2)
         transformer = SD3Transformer2DModel(
             sample_size=32,
             patch_size=2,
@@ -469,8 +442,6 @@ def build_tiny_pipeline(kind: str, seed: int = 0):
         ValueError: for an unknown ``kind``.
     """
     if kind in ("flux", "flux_fill"):
-        from .tiny_flux import build_tiny_flux_pipeline
-
         return build_tiny_flux_pipeline(seed, fill=kind == "flux_fill")
     builders = {"flux2": _tiny_flux2, "qwen_image": _tiny_qwen_image, "sd3": _tiny_sd3}
     if kind not in builders:

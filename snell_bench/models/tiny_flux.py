@@ -11,115 +11,28 @@ Convention:
       RNG state is left untouched, and two builds with the same seed have identical weights.
     - Every module is in ``.eval()`` mode (modules built from configs start in train mode, and T5's
       dropout would otherwise randomise the embeddings).
-    - No file is downloaded. The T5 side uses the byte-level ``ByT5Tokenizer`` (no vocabulary file);
-      the CLIP side uses a ``CLIPTokenizer`` written from open_clip's shipped BPE vocabulary
-      (``bpe_simple_vocab_16e6.txt.gz``) into ``$SNELL_BENCH_CACHE/clip_bpe_tokenizer`` (default
-      ``~/.cache/snell_bench``; a temporary folder if that is not writable), once per machine.
+    - No file is downloaded. Tokenizers and text encoders come from :mod:`snell_bench.models.tiny_text`:
+      the byte-level ``ByT5Tokenizer`` (no vocabulary file) on the T5 side, a ``CLIPTokenizer`` written
+      once per machine from open_clip's shipped BPE vocabulary on the CLIP side.
     - The VAE's ``sample_size`` is 1024, as in FLUX.1-dev, so VAE tiling starts at the same image size.
 """
 
 from __future__ import annotations
 
-import functools
-import gzip
-import importlib.util
-import json
-import os
-import tempfile
-from pathlib import Path
-
 import torch
 
-from snell_bench.utils.io import write_text
-
 from .flux import FluxGenerator
+from .tiny_text import clip_tokenizer_from_open_clip_vocab, t5_byte_tokenizer, tiny_clip_text_encoder, tiny_t5_encoder
 
-__all__ = ["TinyFluxGenerator", "build_tiny_flux_pipeline", "clip_tokenizer_from_open_clip_vocab"]
+__all__ = ["TinyFluxGenerator", "build_tiny_flux_pipeline"]
 
 #: FLUX.1-dev's VAE latent normalisation.
 FLUX_VAE_SCALING_FACTOR = 0.3611
 FLUX_VAE_SHIFT_FACTOR = 0.1159
 
-#: CLIP's BPE vocabulary: 256 byte symbols, 256 end-of-word byte symbols, 48894 merges, 2 specials.
-_CLIP_NUM_MERGES = 49152 - 256 - 2
-_CLIP_VOCAB_SIZE = 49408
-_CLIP_BOS, _CLIP_EOS = "<|startoftext|>", "<|endoftext|>"
-_TOKENIZER_FOLDER_NAME = "clip_bpe_tokenizer"
 #: FLUX Fill's transformer input: packed latents (16 x 4) + packed masked-image latents (16 x 4)
 #: + the packed pixel mask (8 x 8 per latent pixel, x 4).
 _FILL_IN_CHANNELS = 16 * 4 + 16 * 4 + 8 * 8 * 4
-
-
-def _open_clip_bpe_path() -> Path:
-    spec = importlib.util.find_spec("open_clip")  # locates the package without importing it
-    if spec is None or not spec.submodule_search_locations:
-        raise RuntimeError("open_clip_torch is not installed: it ships the CLIP BPE vocabulary for the tiny FLUX")
-    path = Path(list(spec.submodule_search_locations)[0]) / "bpe_simple_vocab_16e6.txt.gz"
-    if not path.is_file():
-        raise RuntimeError(f"open_clip's BPE vocabulary is missing: {path}")
-    return path
-
-
-def _cache_root() -> Path:
-    root = os.environ.get("SNELL_BENCH_CACHE")
-    return Path(root).expanduser() if root else Path.home() / ".cache" / "snell_bench"
-
-
-def _write_clip_tokenizer_files(folder: Path) -> None:
-    """Write ``vocab.json`` and ``merges.txt`` (Hugging Face CLIP format) from open_clip's BPE file.
-
-    Each file is written atomically (:func:`~snell_bench.utils.io.write_text`), so concurrent
-    writers never expose a partial file.
-
-    Args:
-        folder: the target folder (created if missing).
-
-    Raises:
-        OSError: if the folder or a file cannot be written.
-        RuntimeError: if open_clip or its vocabulary is missing.
-    """
-    bpe_path = _open_clip_bpe_path()
-    from open_clip.tokenizer import bytes_to_unicode
-
-    with gzip.open(bpe_path) as f:
-        lines = f.read().decode("utf-8").split("\n")
-    merges = lines[1 : _CLIP_NUM_MERGES + 1]
-    symbols = list(bytes_to_unicode().values())
-    vocab = symbols + [s + "</w>" for s in symbols] + ["".join(m.split()) for m in merges] + [_CLIP_BOS, _CLIP_EOS]
-    assert len(vocab) == _CLIP_VOCAB_SIZE, len(vocab)
-    folder.mkdir(parents=True, exist_ok=True)
-    contents = {
-        "vocab.json": json.dumps({tok: i for i, tok in enumerate(vocab)}, ensure_ascii=False),
-        "merges.txt": "#version: 0.2\n" + "\n".join(merges) + "\n",
-    }
-    for name, text in contents.items():
-        write_text(folder / name, text)
-
-
-def _clip_tokenizer_folder() -> Path:
-    """The folder holding the CLIP tokenizer files, written on first use."""
-    candidates = [
-        _cache_root() / _TOKENIZER_FOLDER_NAME,
-        Path(tempfile.gettempdir()) / f"snell_bench_{_TOKENIZER_FOLDER_NAME}",
-    ]
-    for folder in candidates:
-        if (folder / "vocab.json").is_file() and (folder / "merges.txt").is_file():
-            return folder
-        try:
-            _write_clip_tokenizer_files(folder)
-            return folder
-        except OSError:
-            continue
-    raise RuntimeError(f"could not write the CLIP tokenizer files to any of {[str(c) for c in candidates]}")
-
-
-@functools.lru_cache(maxsize=1)
-def clip_tokenizer_from_open_clip_vocab():
-    """A ``CLIPTokenizer`` equal to OpenAI CLIP's, built without a download (memoized: tokenizers
-    are not modified by encoding, so one instance is shared)."""
-    from transformers import CLIPTokenizer
-
-    return CLIPTokenizer.from_pretrained(str(_clip_tokenizer_folder()), model_max_length=77)
 
 
 def build_tiny_flux_pipeline(seed: int = 0, *, fill: bool = False, kontext: bool = False):
@@ -136,8 +49,10 @@ def build_tiny_flux_pipeline(seed: int = 0, *, fill: bool = False, kontext: bool
           context image are concatenated to the noisy ones along the sequence, not the channels.
         - VAE: 16 latent channels, 4 blocks (downscale 8), channels (8, 16, 16, 16), 4 norm groups,
           no quant convs, scaling 0.3611 / shift 0.1159 (FLUX.1-dev's values).
-        - Text: CLIP text model (width 32, projection 32, CLIP's 49408-token vocabulary, 77 tokens);
-          T5 encoder (``d_model`` 32) over ByT5 bytes.
+        - Text: CLIP text model (width 32, projection 32, MLP 37, 4 heads, CLIP's 49408-token
+          vocabulary, 77 tokens); T5 encoder (``d_model`` 32, feed-forward 37, 4 heads) over ByT5 bytes
+          (:func:`~snell_bench.models.tiny_text.tiny_clip_text_encoder`,
+          :func:`~snell_bench.models.tiny_text.tiny_t5_encoder`).
         - Scheduler: ``FlowMatchEulerDiscreteScheduler`` with FLUX.1-dev's dynamic shifting
           (sequence lengths 256 / 4096, shifts 0.5 / 1.15).
         - Weights are drawn from ``torch.manual_seed(seed)`` in a forked RNG; every module is in eval mode.
@@ -165,10 +80,9 @@ def build_tiny_flux_pipeline(seed: int = 0, *, fill: bool = False, kontext: bool
         FluxPipeline,
         FluxTransformer2DModel,
     )
-    from transformers import ByT5Tokenizer, CLIPTextConfig, CLIPTextModel, T5Config, T5EncoderModel
 
     tokenizer = clip_tokenizer_from_open_clip_vocab()
-    tokenizer_2 = ByT5Tokenizer()
+    tokenizer_2 = t5_byte_tokenizer()
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         transformer = FluxTransformer2DModel(
@@ -199,38 +113,8 @@ def build_tiny_flux_pipeline(seed: int = 0, *, fill: bool = False, kontext: bool
             use_quant_conv=False,
             use_post_quant_conv=False,
         )
-        text_encoder = CLIPTextModel(
-            CLIPTextConfig(
-                vocab_size=_CLIP_VOCAB_SIZE,
-                hidden_size=32,
-                intermediate_size=37,
-                projection_dim=32,
-                num_hidden_layers=2,
-                num_attention_heads=4,
-                max_position_embeddings=77,
-                hidden_act="quick_gelu",
-                bos_token_id=tokenizer.bos_token_id,
-                eos_token_id=tokenizer.eos_token_id,
-                pad_token_id=tokenizer.pad_token_id,
-            )
-        )
-        text_encoder_2 = T5EncoderModel(
-            T5Config(
-                vocab_size=len(tokenizer_2),
-                d_model=32,
-                d_kv=8,
-                d_ff=37,
-                num_layers=2,
-                num_heads=4,
-                relative_attention_num_buckets=8,
-                relative_attention_max_distance=32,
-                feed_forward_proj="gated-gelu",
-                dropout_rate=0.0,
-                is_encoder_decoder=False,
-                pad_token_id=tokenizer_2.pad_token_id,
-                eos_token_id=tokenizer_2.eos_token_id,
-            )
-        )
+        text_encoder = tiny_clip_text_encoder(tokenizer, 32, intermediate_size=37, num_heads=4)
+        text_encoder_2 = tiny_t5_encoder(tokenizer_2, 32, d_ff=37, num_heads=4)
     scheduler = FlowMatchEulerDiscreteScheduler(
         base_image_seq_len=256,
         base_shift=0.5,

@@ -3,8 +3,8 @@
 The loop takes its noise schedule from the generator (:meth:`~snell_bench.models.base.Generator.sigmas`).
 """
 
+from snell_bench.config.sampler import SYNC_MODES, SamplerSettings
 from snell_bench.sampler.schedule import flux_shift, flux_sigmas, linear_sigmas
-from snell_bench.sampler.settings import SYNC_MODES, SamplerSettings
 from snell_bench.sampler.steps import euler_estimate, renoise, stochastic_step, sync_step
 
 __all__ = [

@@ -19,8 +19,8 @@ import dataclasses
 
 import numpy as np
 
+from snell_bench.config.sampler import SamplerSettings
 from snell_bench.optics.warps import WarpSet
-from snell_bench.sampler.settings import SamplerSettings
 
 __all__ = ["decide"]
 

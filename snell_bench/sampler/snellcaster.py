@@ -16,25 +16,31 @@ the exact forward kernel and run again, ``tt_repeats_main`` times for the main v
 ``tt_repeats_pano`` times for the panorama; a branch that stops repeating early keeps its latest
 latent and lends its latest estimates to the other's blends, so every model call's output is used.
 
-Convention: images ``(1, 3, H, W)`` sRGB in [0, 1]; warps as in :class:`~snell_bench.optics.WarpSet`.
+Convention:
+    - Images ``(1, 3, H, W)`` (main view) and ``(1, 3, Hp, Wp)`` (panorama, ``Wp = 2 Hp``), float32
+      sRGB in [0, 1]; warps as in :class:`~snell_bench.optics.WarpSet` (backward maps ``(H', W', 2)``
+      in pixels, order x, y, NaN where invalid).
+    - Latents ``(1, C, h, w)`` float32, unpacked (:class:`~snell_bench.models.base.LatentGeometry`);
+      ``z_sigma = (1 - sigma) x0 + sigma eps`` (:mod:`snell_bench.sampler.steps`).
+    - Every random draw (initial noise, stochastic steps, time travel) comes from one
+      ``torch.Generator`` on the generator's device, seeded with ``seed``, in loop order: the main
+      view's draw before the panorama's at every point where both draw.
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from snell_bench.imaging.blend import blend_pyramids, fresnel_combine
-from snell_bench.imaging.pyramid import gaussian_pyramid, laplacian_from_gaussian, pyramid_warp
-from snell_bench.models.base import Generator, generator_device
+from snell_bench.config.sampler import SamplerSettings
+from snell_bench.models.base import Condition, Generator, generator_device
 from snell_bench.optics.warps import WarpSet
 from snell_bench.sampler.adaptive import decide
-from snell_bench.sampler.settings import SamplerSettings
 from snell_bench.sampler.steps import (
     euler_estimate,
     latent_rounding,
@@ -44,6 +50,7 @@ from snell_bench.sampler.steps import (
     stochastic_step,
     sync_step,
 )
+from snell_bench.sampler.views import Views
 
 log = logging.getLogger(__name__)
 
@@ -52,150 +59,239 @@ __all__ = ["SampleResult", "sample"]
 
 @dataclass
 class SampleResult:
-    image: torch.Tensor  # (1, 3, H, W)
-    panorama: torch.Tensor | None  # (1, 3, Hp, Wp)
+    """What :func:`sample` returns.
+
+    Attributes:
+        image: ``(1, 3, H, W)`` float32 sRGB in [0, 1], on the CPU.
+        panorama: ``(1, 3, Hp, Wp)`` float32 sRGB in [0, 1] on the CPU, or ``None`` without the
+            panorama branch.
+        model_calls: velocity evaluations per branch, ``{"main": n, "pano": n}``.
+        timings: seconds per stage: ``setup`` (warps to the device, I⁻'s pyramids), ``model``,
+            ``codec`` (decode and encode), ``warp_blend``, ``step``.
+        dumps: every ``dump_every`` steps, the decoded estimates before (``*_x0``) and after
+            (``*_sync``) synchronisation, on the CPU.
+        decisions: what the run modelled and why (:func:`snell_bench.sampler.adaptive.decide`).
+    """
+
+    image: torch.Tensor
+    panorama: torch.Tensor | None
     model_calls: dict[str, int] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     dumps: list[dict] = field(default_factory=list)
-    #: What the run modelled and why (:func:`snell_bench.sampler.adaptive.decide`).
     decisions: dict = field(default_factory=dict)
 
 
 class _Clock:
+    """Wall-clock seconds accumulated per stage (the keys of :attr:`SampleResult.timings`)."""
+
     def __init__(self) -> None:
         self.t: dict[str, float] = {"setup": 0.0, "model": 0.0, "codec": 0.0, "warp_blend": 0.0, "step": 0.0}
 
     def add(self, key: str, t0: float) -> None:
+        """Add the time since ``t0`` (a :func:`time.perf_counter` reading) to ``key``."""
         self.t[key] += time.perf_counter() - t0
 
 
-def _nan_where(coords: np.ndarray, invalid: np.ndarray) -> np.ndarray:
-    c = np.array(coords, dtype=np.float32, copy=True)
-    c[invalid] = np.nan
-    return c
+@dataclass
+class _Prompts:
+    """The text conditioning of both branches.
+
+    Attributes:
+        main: the main view's prompt, batch 1.
+        pano: the panorama's prompt, batch 1 (``None`` without the panorama branch).
+        both: both prompts, batch 2 in the order (main, panorama), for one model call on both
+            latents when they have the same size; ``None`` otherwise.
+    """
+
+    main: Condition
+    pano: Condition | None
+    both: Condition | None
 
 
-class _Views:
-    """Warp maps as tensors and the constant warps of I⁻, prepared once per run."""
+# ---------------------------------------------------------------------------- stages of the loop
 
-    def __init__(
-        self,
-        ws: WarpSet,
-        i_minus: torch.Tensor,
-        s: SamplerSettings,
-        reflection_mask: np.ndarray | None = None,
-        device: torch.device | None = None,
-    ) -> None:
-        L = s.effective_levels
-        self.levels = L
-        self.roi = bool(s.roi)
-        self._gauss_last: dict[bool, tuple[torch.Tensor, list[torch.Tensor]]] = {}
-        self.lam = s.effective_lam
-        dev = torch.device("cpu") if device is None else torch.device(device)
 
-        def on_device(a: np.ndarray) -> torch.Tensor:  # every map and mask crosses to the device once
-            return torch.from_numpy(np.ascontiguousarray(a)).to(dev)
+def _check_i_minus(i_minus: torch.Tensor, height: int, width: int) -> None:
+    """Raise ``ValueError`` unless ``i_minus`` is a finite ``(1, 3, height, width)`` image."""
+    if tuple(i_minus.shape) != (1, 3, height, width):
+        raise ValueError(f"i_minus must be (1, 3, {height}, {width}) for these warps, got {tuple(i_minus.shape)}")
+    if not torch.isfinite(i_minus).all():
+        raise ValueError("i_minus holds NaN or inf")
 
-        i_minus = i_minus.to(dev)
-        self.object_mask = on_device(ws.object_mask)[None, None]
-        self.fresnel = on_device(ws.fresnel)[None, None]
-        # maps: NaN marks every invalid source, so the masks follow from the maps
-        self.main_from_pano = on_device(ws.pano_refraction)
-        self.main_refl_from_pano = on_device(ws.pano_reflection)
-        refl_self = ws.reflection
-        if reflection_mask is not None:  # reflect only where it is not negligible
-            self.main_refl_from_pano = on_device(_nan_where(ws.pano_reflection, ~reflection_mask))
-            refl_self = _nan_where(ws.reflection, ~reflection_mask)
-        self.pano_from_main = on_device(_nan_where(ws.pano_to_persp, ws.pano_to_persp_object))
-        self.refl_iminus = None  # reflection of I⁻ itself, for runs without the panorama branch
-        if s.reflection and not s.uses_panorama:
-            self.refl_iminus = pyramid_warp(i_minus, on_device(refl_self), levels=L, roi=self.roi)
-        self.imin_main, self.imin_main_m = pyramid_warp(i_minus, on_device(ws.refraction), levels=L, collapse=False)
-        self.imin_pano, self.imin_pano_m = pyramid_warp(
-            i_minus, on_device(ws.pano_to_persp), levels=L, collapse=False, dest_wrap_x=True, roi=self.roi
+
+def _noise_schedule(gen: Generator, s: SamplerSettings, height: int, width: int) -> torch.Tensor:
+    """The generator's ``T + 1`` noise levels for the main view's size (``ValueError`` otherwise)."""
+    sigmas = gen.sigmas(s.steps, height, width, kind=s.schedule)
+    T = s.steps
+    if tuple(sigmas.shape) != (T + 1,):
+        raise ValueError(
+            f"{gen.name}.sigmas gave {tuple(sigmas.shape)} noise levels for {T} steps, expected ({T + 1},)"
         )
-
-    @staticmethod
-    def _own(gauss: list[torch.Tensor], wrap_x: bool = False):
-        pyr = laplacian_from_gaussian(gauss, wrap_x=wrap_x)
-        return pyr, [torch.ones((p.shape[0], 1) + p.shape[-2:], dtype=torch.bool, device=p.device) for p in pyr]
-
-    def gauss(self, img: torch.Tensor | None, wrap_x: bool = False) -> list[torch.Tensor] | None:
-        """The Gaussian pyramid of an estimate, built once and shared by its own Laplacian pyramid and
-        every warp that reads it; an estimate lent unchanged to a time-travel repeat of the other
-        branch is not decomposed again."""
-        if img is None:
-            return None
-        last = self._gauss_last.get(wrap_x)
-        if last is None or last[0] is not img:
-            last = (img, gaussian_pyramid(img, self.levels, wrap_x=wrap_x))
-            self._gauss_last[wrap_x] = last
-        return last[1]
-
-    def blend_main(
-        self,
-        x0: torch.Tensor,
-        x0_pano: torch.Tensor | None,
-        s: SamplerSettings,
-        g_main: list[torch.Tensor] | None = None,
-        g_pano: list[torch.Tensor] | None = None,
-    ) -> torch.Tensor:
-        g_main = g_main if g_main is not None else self.gauss(x0)
-        g_pano = g_pano if g_pano is not None else self.gauss(x0_pano, wrap_x=True)
-        own, own_m = self._own(g_main)
-        lv, ms = [own, self.imin_main], [own_m, self.imin_main_m]
-        if x0_pano is not None:
-            p, pm = pyramid_warp(
-                x0_pano,
-                self.main_from_pano,
-                levels=self.levels,
-                wrap_x=True,
-                collapse=False,
-                roi=self.roi,
-                src_pyramid=g_pano,
-            )
-            lv.insert(1, p)
-            ms.insert(1, pm)
-        refr, _ = blend_pyramids(lv, ms, lam=self.lam, fallback_levels=own)
-        if not s.reflection:
-            return refr
-        if x0_pano is not None:
-            refl, ok = pyramid_warp(
-                x0_pano, self.main_refl_from_pano, levels=self.levels, wrap_x=True, roi=self.roi, src_pyramid=g_pano
-            )
-        elif self.refl_iminus is not None:  # no panorama: mirror rays that reach surfaces I⁻ shows
-            refl, ok = self.refl_iminus
-        else:
-            return refr
-        return fresnel_combine(refl, refr, self.fresnel, mask=self.object_mask & ok)
-
-    def blend_pano(
-        self,
-        x0_pano: torch.Tensor,
-        x0: torch.Tensor,
-        g_pano: list[torch.Tensor] | None = None,
-        g_main: list[torch.Tensor] | None = None,
-    ) -> torch.Tensor:
-        g_pano = g_pano if g_pano is not None else self.gauss(x0_pano, wrap_x=True)
-        g_main = g_main if g_main is not None else self.gauss(x0)
-        own, own_m = self._own(g_pano, wrap_x=True)
-        m, mm = pyramid_warp(
-            x0,
-            self.pano_from_main,
-            levels=self.levels,
-            collapse=False,
-            dest_wrap_x=True,
-            roi=self.roi,
-            src_pyramid=g_main,
-        )
-        out, _ = blend_pyramids(
-            [own, m, self.imin_pano], [own_m, mm, self.imin_pano_m], lam=self.lam, fallback_levels=own, wrap_x=True
-        )
-        return out
+    return sigmas
 
 
-def _in_window(i: int, T: int, window: tuple[float, float]) -> bool:
-    return window[0] * T <= i < window[1] * T
+def _encode_prompts(gen: Generator, prompt: str, pano_prompt: str, use_pano: bool, same_size: bool) -> _Prompts:
+    """The conditioning of the main view, the panorama (with ``use_pano``) and both in one batch
+    (with ``use_pano`` and ``same_size``: both latents have the same shape)."""
+    main = gen.condition([prompt], ["main"])
+    pano = gen.condition([pano_prompt], ["pano"]) if use_pano else None
+    both = gen.condition([prompt, pano_prompt], ["main", "pano"]) if use_pano and same_size else None
+    return _Prompts(main=main, pano=pano, both=both)
+
+
+def _block(i: int, s: SamplerSettings) -> tuple[int, int, int]:
+    """The block of steps that starts at step ``i``: its length and how often each branch runs it.
+
+    Inside the time-travel window ``[tt_window[0] T, tt_window[1] T)`` a block is ``tt_length`` steps
+    (fewer at the end) run ``tt_repeats_main`` / ``tt_repeats_pano`` times; elsewhere one step, run
+    once. Without the panorama branch its repeat count is 0.
+
+    Returns:
+        ``(length, repeats_main, repeats_pano)``.
+    """
+    T = s.steps
+    travel = s.sync == "snellcaster" and s.time_travel and s.tt_window[0] * T <= i < s.tt_window[1] * T
+    length = min(s.tt_length, T - i) if travel else 1
+    repeats_main = s.tt_repeats_main if travel else 1
+    repeats_pano = (s.tt_repeats_pano if travel else 1) if s.uses_panorama else 0
+    return length, repeats_main, repeats_pano
+
+
+def _estimate_x0(
+    gen: Generator,
+    z_main: torch.Tensor,
+    z_pano: torch.Tensor | None,
+    sigma: float,
+    prompts: _Prompts,
+    run_main: bool,
+    run_pano: bool,
+    calls: dict[str, int],
+    clock: _Clock,
+) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """The model calls of one step and the clean latent estimates ``x0_hat = z - sigma v``.
+
+    Both branches go through one batched call when both run and :attr:`_Prompts.both` exists.
+    ``calls`` and ``clock`` (``model``) are updated in place.
+
+    Args:
+        z_main: ``(1, C, h, w)`` the main view's latent at ``sigma``.
+        z_pano: ``(1, C, hp, wp)`` the panorama's latent at ``sigma``, or ``None``.
+        sigma: the noise level.
+        run_main: the main view runs this step.
+        run_pano: the panorama runs this step.
+
+    Returns:
+        ``(x0_main, x0_pano)``, latents of the shapes of ``z``; ``None`` for a branch that does not run.
+    """
+    t0 = time.perf_counter()
+    v_main = v_pano = None
+    if run_main and run_pano and prompts.both is not None:
+        v = gen.velocity(torch.cat([z_main, z_pano]), sigma, prompts.both)
+        v_main, v_pano = v[:1], v[1:]
+    else:
+        if run_main:
+            v_main = gen.velocity(z_main, sigma, prompts.main)
+        if run_pano:
+            v_pano = gen.velocity(z_pano, sigma, prompts.pano)
+    calls["main"] += int(run_main)
+    calls["pano"] += int(run_pano)
+    clock.add("model", t0)
+    x0_main = euler_estimate(z_main, v_main, sigma) if run_main else None
+    x0_pano = euler_estimate(z_pano, v_pano, sigma) if run_pano else None
+    return x0_main, x0_pano
+
+
+def _decode(gen: Generator, latent: torch.Tensor | None, clock: _Clock) -> torch.Tensor | None:
+    """``(1, C, h, w)`` latent -> ``(1, 3, H, W)`` sRGB image in [0, 1] (``None`` -> ``None``);
+    the time counts as ``codec``."""
+    t0 = time.perf_counter()
+    out = gen.decode(latent) if latent is not None else None
+    clock.add("codec", t0)
+    return out
+
+
+def _warp_and_blend(
+    views: Views,
+    x0_main: torch.Tensor | None,
+    x0_pano: torch.Tensor | None,
+    run_main: bool,
+    run_pano: bool,
+    clock: _Clock,
+) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """The synchronized estimates of the branches that run (:meth:`Views.blend_main`,
+    :meth:`Views.blend_pano`), each reading the other's latest decoded estimate; the time counts as
+    ``warp_blend``.
+
+    Args:
+        x0_main: ``(1, 3, H, W)`` sRGB in [0, 1], the main view's latest decoded estimate.
+        x0_pano: ``(1, 3, Hp, Wp)`` sRGB in [0, 1], the panorama's, or ``None``.
+
+    Returns:
+        ``(sync_main, sync_pano)`` sRGB images, ``None`` for a branch that does not run.
+    """
+    t0 = time.perf_counter()
+    g_main, g_pano = views.gauss(x0_main), views.gauss(x0_pano, wrap_x=True)
+    sync_main = views.blend_main(x0_main, x0_pano, g_main, g_pano) if run_main else None
+    sync_pano = views.blend_pano(x0_pano, x0_main, g_pano, g_main) if run_pano else None
+    clock.add("warp_blend", t0)
+    return sync_main, sync_pano
+
+
+def _encode(
+    gen: Generator,
+    sync_main: torch.Tensor | None,
+    sync_pano: torch.Tensor | None,
+    run_main: bool,
+    run_pano: bool,
+    clock: _Clock,
+) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """The synchronized images ``(1, 3, ., .)`` sRGB in [0, 1] of the branches that run as clean
+    latents ``(1, C, ., .)`` (``None`` for the others); the time counts as ``codec``."""
+    t0 = time.perf_counter()
+    x0_main = gen.encode(sync_main) if run_main else None
+    x0_pano = gen.encode(sync_pano) if run_pano else None
+    clock.add("codec", t0)
+    return x0_main, x0_pano
+
+
+def _step(
+    z: torch.Tensor,
+    x0: torch.Tensor,
+    sigma: float,
+    sigma_next: float,
+    s: SamplerSettings,
+    rng: torch.Generator,
+    keep: Callable[[torch.Tensor], torch.Tensor],
+    model_dtype: torch.dtype | None,
+) -> torch.Tensor:
+    """One branch's step from ``sigma`` to ``sigma_next`` with the clean estimate ``x0``.
+
+    Stochastic (``s.stochastic``: fresh noise from ``rng``, then rounded by ``keep``), else
+    deterministic: the scheduler's step with latents held in ``model_dtype`` when the latents are
+    rounded to the model's dtype (:func:`~snell_bench.sampler.steps.pipeline_step`), else
+    :func:`~snell_bench.sampler.steps.sync_step`.
+
+    Args:
+        z: ``(1, C, h, w)`` float32 latent at ``sigma``.
+        x0: ``(1, C, h, w)`` clean latent estimate.
+        keep: :func:`~snell_bench.sampler.steps.latent_rounding` of the run.
+        model_dtype: :func:`~snell_bench.sampler.steps.rounding_dtype` of the run.
+
+    Returns:
+        ``(1, C, h, w)`` float32 latent at ``sigma_next``.
+    """
+    if s.stochastic:
+        return keep(stochastic_step(z, x0, sigma, sigma_next, rng, s.eta))
+    if model_dtype is not None:
+        return pipeline_step(z, x0, sigma, sigma_next, model_dtype)
+    return sync_step(z, x0, sigma, sigma_next)
+
+
+def _to_host(x: torch.Tensor | None) -> torch.Tensor | None:
+    return None if x is None else x.cpu()
+
+
+# ---------------------------------------------------------------------------- the sampler
 
 
 def sample(
@@ -232,142 +328,113 @@ def sample(
         ValueError: if ``i_minus`` has the wrong shape or is not finite, or the generator's
             schedule does not have ``settings.steps + 1`` levels.
     """
+    # 1. check inputs; decide what the scene needs modelled; the noise schedule
     H, W = warps.camera.shape
-    if tuple(i_minus.shape) != (1, 3, H, W):
-        raise ValueError(f"i_minus must be (1, 3, {H}, {W}) for these warps, got {tuple(i_minus.shape)}")
-    if not torch.isfinite(i_minus).all():
-        raise ValueError("i_minus holds NaN or inf")
+    _check_i_minus(i_minus, H, W)
     s, decisions, reflection_mask = decide(warps, settings)
     if decisions.get("panorama", {}).get("used") is False and "observed_share" in decisions["panorama"]:
         log.info(
             "panorama branch skipped: %.1f %% of object pixels observed in I⁻",
             100 * decisions["panorama"]["observed_share"],
         )
-    dev = generator_device(gen)
-    g = torch.Generator(dev).manual_seed(int(seed))
-    clock = _Clock()
-    use_pano = s.uses_panorama
-    shape_m = gen.geometry.latent_shape(H, W)
-    shape_p = gen.geometry.latent_shape(*warps.pano.shape) if use_pano else None
-    sig = gen.sigmas(s.steps, H, W, kind=s.schedule)
     T = s.steps
-    if tuple(sig.shape) != (T + 1,):
-        raise ValueError(f"{gen.name}.sigmas gave {tuple(sig.shape)} noise levels for {T} steps, expected ({T + 1},)")
+    use_pano = s.uses_panorama
+    synchronised = s.sync == "snellcaster"
+    shape_main = gen.geometry.latent_shape(H, W)
+    shape_pano = gen.geometry.latent_shape(*warps.pano.shape) if use_pano else None
+    sigmas = _noise_schedule(gen, s, H, W)
+    dev = generator_device(gen)
+    clock = _Clock()
+
+    # 2. encode prompts
+    prompts = _encode_prompts(gen, prompt, pano_prompt, use_pano, shape_main == shape_pano)
+
+    # 3. prepare latents: initial noise from the run's generator, main view first
+    rng = torch.Generator(dev).manual_seed(int(seed))
     keep = latent_rounding(gen, s.latent_dtype)
     model_dtype = rounding_dtype(gen, s.latent_dtype)
+    z_main = keep(torch.randn((1,) + shape_main, generator=rng, device=dev))
+    z_pano = keep(torch.randn((1,) + shape_pano, generator=rng, device=dev)) if use_pano else None
 
-    z_m = keep(torch.randn((1,) + shape_m, generator=g, device=dev))
-    z_p = keep(torch.randn((1,) + shape_p, generator=g, device=dev)) if use_pano else None
-    cond_m = gen.condition([prompt], ["main"])
-    cond_p = gen.condition([pano_prompt], ["pano"]) if use_pano else None
-    cond_both = gen.condition([prompt, pano_prompt], ["main", "pano"]) if use_pano and shape_m == shape_p else None
-
+    # 4. prepare warps: maps on the device, I⁻'s warped pyramids
     t0 = time.perf_counter()
-    views = _Views(warps, i_minus.float(), s, reflection_mask, device=dev) if s.sync == "snellcaster" else None
+    views = Views(warps, i_minus.float(), s, reflection_mask, device=dev) if synchronised else None
     clock.add("setup", t0)
 
+    # 5. denoising loop, in blocks (one step, or a time-travel block run several times per branch)
     calls = {"main": 0, "pano": 0}
     dumps: list[dict] = []
-
-    def velocities(run_m: bool, run_p: bool, sigma: float):
-        """Model calls -> the clean latent estimates (None for a branch that does not run)."""
-        t0 = time.perf_counter()
-        vm = vp = None
-        if run_m and run_p and cond_both is not None:
-            v = gen.velocity(torch.cat([z_m, z_p]), sigma, cond_both)
-            vm, vp = v[:1], v[1:]
-        else:
-            if run_m:
-                vm = gen.velocity(z_m, sigma, cond_m)
-            if run_p:
-                vp = gen.velocity(z_p, sigma, cond_p)
-        calls["main"] += int(run_m)
-        calls["pano"] += int(run_p)
-        clock.add("model", t0)
-        lm = euler_estimate(z_m, vm, sigma) if run_m else None
-        lp = euler_estimate(z_p, vp, sigma) if run_p else None
-        return lm, lp
-
-    def decode(lat):
-        t0 = time.perf_counter()
-        out = gen.decode(lat) if lat is not None else None
-        clock.add("codec", t0)
-        return out
-
-    def step(z, x0_lat, sigma, sigma_next):
-        if s.stochastic:
-            return keep(stochastic_step(z, x0_lat, sigma, sigma_next, g, s.eta))
-        if model_dtype is not None:  # the scheduler's step with latents in the model's dtype
-            return pipeline_step(z, x0_lat, sigma, sigma_next, model_dtype)
-        return sync_step(z, x0_lat, sigma, sigma_next)
-
-    def to_host(x):
-        return None if x is None else x.cpu()
-
     bar = tqdm(total=T, desc=f"sampling ({s.sync})", disable=not s.progress, leave=False)
     i = 0
     with torch.inference_mode():
         while i < T:
-            travel = s.sync == "snellcaster" and s.time_travel and _in_window(i, T, s.tt_window)
-            L = min(s.tt_length, T - i) if travel else 1
-            Rm = s.tt_repeats_main if travel else 1
-            Rp = (s.tt_repeats_pano if travel else 1) if use_pano else 0
-            hist_m: list[torch.Tensor | None] = [None] * L
-            hist_p: list[torch.Tensor | None] = [None] * L
-            for r in range(max(Rm, Rp)):
-                run_m, run_p = r < Rm, r < Rp
-                for j in range(L):
-                    sigma, sigma_next = float(sig[i + j]), float(sig[i + j + 1])
-                    lm, lp = velocities(run_m, run_p, sigma)
-                    dump = bool(s.dump_every) and (i + j) % s.dump_every == 0 and r == max(Rm, Rp) - 1
+            length, repeats_main, repeats_pano = _block(i, s)
+            repeats = max(repeats_main, repeats_pano)
+            # each branch's latest decoded estimate per step of the block, lent to the other's blends
+            latest_main: list[torch.Tensor | None] = [None] * length
+            latest_pano: list[torch.Tensor | None] = [None] * length
+            for r in range(repeats):
+                run_main, run_pano = r < repeats_main, r < repeats_pano
+                for j in range(length):
+                    k = i + j
+                    sigma, sigma_next = float(sigmas[k]), float(sigmas[k + 1])
+                    dump = bool(s.dump_every) and k % s.dump_every == 0 and r == repeats - 1
                     # the synchronised blends need the decoded estimates; the generator alone (and an
                     # unsynchronised last step) decodes nothing before the final image
-                    sync = views is not None and (s.sync_last_step or i + j < T - 1)
-                    xm = decode(lm) if sync or dump else None
-                    xp = decode(lp) if sync or dump else None
-                    if run_m:
-                        hist_m[j] = xm
-                    if run_p:
-                        hist_p[j] = xp
-                    xm_use, xp_use = hist_m[j], hist_p[j] if use_pano else None
-                    sm = sp = None
+                    sync = views is not None and (s.sync_last_step or k < T - 1)
+
+                    # 5a. estimate x0 (clean latents)
+                    x0_main, x0_pano = _estimate_x0(
+                        gen, z_main, z_pano, sigma, prompts, run_main, run_pano, calls, clock
+                    )
+
+                    # 5b. decode the estimates
+                    img_main = _decode(gen, x0_main, clock) if sync or dump else None
+                    img_pano = _decode(gen, x0_pano, clock) if sync or dump else None
+                    if run_main:
+                        latest_main[j] = img_main
+                    if run_pano:
+                        latest_pano[j] = img_pano
+                    img_main, img_pano = latest_main[j], latest_pano[j]
+
+                    # 5c. warp and blend; 5d. encode the synchronised images
+                    sync_main = sync_pano = None
                     if sync:
-                        t0 = time.perf_counter()
-                        gm, gp = views.gauss(xm_use), views.gauss(xp_use, wrap_x=True)
-                        sm = views.blend_main(xm_use, xp_use, s, gm, gp) if run_m else None
-                        sp = views.blend_pano(xp_use, xm_use, gp, gm) if run_p else None
-                        clock.add("warp_blend", t0)
-                        t0 = time.perf_counter()
-                        lm = gen.encode(sm) if run_m else None
-                        lp = gen.encode(sp) if run_p else None
-                        clock.add("codec", t0)
+                        sync_main, sync_pano = _warp_and_blend(views, img_main, img_pano, run_main, run_pano, clock)
+                        x0_main, x0_pano = _encode(gen, sync_main, sync_pano, run_main, run_pano, clock)
+
+                    # 5e. step each running branch with its (synchronised) estimate
                     t0 = time.perf_counter()
-                    if run_m:
-                        z_m = step(z_m, lm, sigma, sigma_next)
-                    if run_p:
-                        z_p = step(z_p, lp, sigma, sigma_next)
+                    if run_main:
+                        z_main = _step(z_main, x0_main, sigma, sigma_next, s, rng, keep, model_dtype)
+                    if run_pano:
+                        z_pano = _step(z_pano, x0_pano, sigma, sigma_next, s, rng, keep, model_dtype)
                     clock.add("step", t0)
+
                     if dump:
                         dumps.append(
                             {
-                                "step": i + j,
+                                "step": k,
                                 "sigma": sigma,
-                                "main_x0": to_host(xm_use),
-                                "main_sync": to_host(sm if sync else xm_use) if run_m else None,
-                                "pano_x0": to_host(xp_use),
-                                "pano_sync": to_host(sp if sync else xp_use) if run_p else None,
+                                "main_x0": _to_host(img_main),
+                                "main_sync": _to_host(sync_main if sync else img_main) if run_main else None,
+                                "pano_x0": _to_host(img_pano),
+                                "pano_sync": _to_host(sync_pano if sync else img_pano) if run_pano else None,
                             }
                         )
-                # travel back for the next repeat of each branch that repeats again
-                if r + 1 < Rm:
-                    z_m = keep(renoise(z_m, float(sig[i + L]), float(sig[i]), g))
-                if r + 1 < Rp:
-                    z_p = keep(renoise(z_p, float(sig[i + L]), float(sig[i]), g))
-            i += L
-            bar.update(L)
+
+                # 5f. time travel: renoise to the block's start each branch that repeats again
+                if r + 1 < repeats_main:
+                    z_main = keep(renoise(z_main, float(sigmas[i + length]), float(sigmas[i]), rng))
+                if r + 1 < repeats_pano:
+                    z_pano = keep(renoise(z_pano, float(sigmas[i + length]), float(sigmas[i]), rng))
+            i += length
+            bar.update(length)
         bar.close()
-        image = decode(z_m).cpu()  # only the final images (and dumps) come back from the device
-        pano = decode(z_p).cpu() if use_pano else None
+
+        # 6. decode the final latents (only the final images and the dumps leave the device)
+        image = _decode(gen, z_main, clock).cpu()
+        pano = _decode(gen, z_pano, clock).cpu() if use_pano else None
     return SampleResult(
         image=image, panorama=pano, model_calls=calls, timings=dict(clock.t), dumps=dumps, decisions=decisions
     )

@@ -19,12 +19,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from tolerances import reordering_tolerance
 
 from snell_bench.models import DeviceNotAvailableError, WeightsNotFoundError
 from snell_bench.models.external import (
     CallSettings,
     call_settings,
-    clear_pipeline_cache,
     generate_external,
     inpaint_external,
     load_pipeline,
@@ -76,7 +76,6 @@ def folders(tmp_path_factory):
         build_tiny_pipeline(kind, seed=0).save_pretrained(root / kind)
         out[kind] = str(root / kind)
     yield out
-    clear_pipeline_cache()
 
 
 @pytest.fixture(scope="module")
@@ -176,8 +175,11 @@ def test_inpaint_with_a_built_pipeline_equals_the_saved_one(scene, inpainted):
     pipe = build_tiny_flux_pipeline(seed=0, fill=True)
     img, settings = inpaint_external(pipe, PROMPT, i_minus, mask, seed=1, steps=2, return_settings=True)
     # equal up to rounding: weights read from safetensors lie at other memory alignments than
-    # freshly allocated ones, and the CPU matmul kernels then sum in another order
-    torch.testing.assert_close(img, inpainted, rtol=0, atol=1e-5)
+    # freshly allocated ones, and the CPU matmul kernels then sum in another order. The longest
+    # reduction is the joint attention over the 512 T5 tokens and the (H / 16) (W / 16) image tokens
+    # (the transformer's input projection reads 384 channels, fewer).
+    atol = reordering_tolerance(512 + (H // 16) * (W // 16), inpainted)
+    torch.testing.assert_close(img, inpainted, rtol=0, atol=atol)
     assert settings == CallSettings("FluxFillPipeline", 2, 30.0, "guidance_scale")
     assert pipe.device.type == "cpu" and pipe.transformer.dtype == torch.float32  # used as it is
 
@@ -307,11 +309,10 @@ def test_dtype_is_applied(folders):
     assert load_pipeline(folders["t2i"], device="cpu").transformer.dtype == torch.float32
 
 
-def test_one_pipeline_is_cached(folders):
+def test_each_call_loads_and_the_class_is_honoured(folders):
+    """Loading keeps nothing: how long a pipeline lives is the model pool's choice."""
     a = load_pipeline(folders["fill"], pipeline="FluxFillPipeline", device="cpu")
-    assert load_pipeline(folders["fill"], pipeline="FluxFillPipeline", device="cpu") is a
     assert type(a).__name__ == "FluxFillPipeline"
-    clear_pipeline_cache()
     assert load_pipeline(folders["fill"], pipeline="FluxFillPipeline", device="cpu") is not a
     with pytest.raises(ValueError, match="not a diffusers pipeline"):
         load_pipeline(folders["fill"], pipeline="NoSuchPipeline", device="cpu")

@@ -6,7 +6,6 @@ import pytest
 import torch
 from conftest import integrate_flow
 
-from snell_bench.models import build_generator
 from snell_bench.models.analytic import AnalyticGenerator
 from snell_bench.models.base import Generator
 from snell_bench.models.mixture import (
@@ -271,12 +270,12 @@ def test_bad_arguments():
         MixtureGenerator([])
 
 
-def test_built_by_name_and_from_the_config():
+def test_built_from_the_class_and_from_the_config():
     from hydra.utils import instantiate
 
     from snell_bench.config import compose
 
-    g = build_generator("mixture", i_minus=image(), object_mask=disc(), panorama=image(16, 32, 1))
+    g = MixtureGenerator.from_scene(i_minus=image(), object_mask=disc(), panorama=image(16, 32, 1))
     assert isinstance(g, MixtureGenerator)
     cfg = compose(["model=mixture", "output_dir=/tmp/x"]).model
     assert cfg.name == "mixture" and cfg.from_scene and cfg.multiple == 8 and cfg.relighter is not None

@@ -10,12 +10,22 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 import pytest
 import torch
+from tolerances import reordering_tolerance
 
 from snell_bench.models.tiny_flux import TinyFluxGenerator
 from snell_bench.sampler.text_to_image import text_to_image
 
 PROMPT = "a glass sphere on a wooden table"
 STEPS = 4
+
+
+def flux_reduction(H, W):
+    """The longest reduction of the tiny FLUX at H x W: the joint attention over the 512 T5 tokens
+    and the (H / 16) (W / 16) packed latent tokens. The loop and the pipeline compute the same float32
+    image in other summation orders (other matrix shapes), and the schedules differ by the float32
+    rounding of each sigma (at most 2**-24 sigma: one more rounding per step, of the size the bound
+    counts), so they agree to ``reordering_tolerance(flux_reduction(H, W), image)``."""
+    return 512 + (H // 16) * (W // 16)
 
 
 def pipeline_image(gen, H, W, seed, steps=STEPS):
@@ -47,8 +57,7 @@ def test_float32_equals_flux_pipeline(gen32, hw):
     ours = text_to_image(gen32, PROMPT, H, W, steps=STEPS, seed=3)
     ref = pipeline_image(gen32, H, W, seed=3)
     assert ours.shape == ref.shape == (1, 3, H, W)
-    # the float64 schedule vs the scheduler's float32 sigmas: ~1e-6 apart
-    assert (ours - ref).abs().max() < 2e-5
+    assert (ours - ref).abs().max() <= reordering_tolerance(flux_reduction(H, W), ref)
 
 
 def test_guidance_is_the_pipelines(gen32):
@@ -56,7 +65,7 @@ def test_guidance_is_the_pipelines(gen32):
     g = TinyFluxGenerator(seed=0, guidance=7.0)
     ours = text_to_image(g, PROMPT, 64, 64, steps=2, seed=1)
     ref = pipeline_image(g, 64, 64, seed=1, steps=2)
-    assert (ours - ref).abs().max() < 2e-5
+    assert (ours - ref).abs().max() <= reordering_tolerance(flux_reduction(64, 64), ref)
     assert (ours - text_to_image(gen32, PROMPT, 64, 64, steps=2, seed=1)).abs().max() > 1e-4
 
 
