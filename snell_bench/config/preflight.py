@@ -1,6 +1,6 @@
 """Checks before Hydra creates its output folder or configures logging (a Hydra callback,
 ``hydra.callbacks.preflight`` in ``conf/config.yaml``): the config is valid
-(:func:`snell_bench.validation.check_config`) and every folder the job writes is writable, so a
+(:func:`snell_bench.config.checks.check_config`) and every folder the job writes is writable, so a
 bad setting or a read-only folder fails with its key named, and no folder is created first."""
 
 from __future__ import annotations
@@ -13,11 +13,14 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
+from snell_bench.config.checks import check_config
+from snell_bench.config.choices import Job
+
 __all__ = ["Preflight", "check_writable", "output_folders"]
 
 #: Jobs that write under ``runs_dir`` and ``reports_dir``.
-_RUNS_JOBS = ("grid", "tradeoff")
-_REPORT_JOBS = ("grid", "tradeoff", "report")
+_RUNS_JOBS = (Job.grid, Job.tradeoff)
+_REPORT_JOBS = (Job.grid, Job.tradeoff, Job.report)
 
 
 def check_writable(folder: str | os.PathLike, key: str) -> None:
@@ -64,8 +67,6 @@ class Preflight(Callback):
     """Validate the config and the output folders before Hydra touches the file system."""
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
-        from snell_bench.validation import check_config
-
         def check() -> None:
             check_config(config)
             for key, folder in output_folders(config):

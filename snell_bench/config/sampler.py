@@ -1,6 +1,6 @@
 """Sampler settings: every knob of the synchronized sampler, the ablations as single switches.
 
-Also the structured-config schema of the ``sampler`` node (``conf/``).
+The structured-config schema of the ``sampler`` node (``conf/``); it checks its own values.
 """
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Optional
 
-from snell_bench.models.base import SCHEDULES
+__all__ = ["LATENT_DTYPES", "SCHEDULES", "SamplerSettings", "SYNC_MODES"]
 
-__all__ = ["LATENT_DTYPES", "SamplerSettings", "SYNC_MODES"]
-
+#: Noise schedules of the generators (:meth:`~snell_bench.models.base.Generator.sigmas`).
+SCHEDULES = ("flux", "linear")
 SYNC_MODES = ("snellcaster", "none")
 LATENT_DTYPES = ("float32", "model")
 

@@ -1,16 +1,57 @@
-"""Structured configs (the schema behind ``conf/``), registered with Hydra's ConfigStore."""
+"""The structured schema behind ``conf/``: one dataclass per config node, registered with Hydra.
+
+Convention:
+    - A string setting with a closed set of values is a :mod:`~snell_bench.config.choices` enum:
+      OmegaConf rejects any other value when the config is composed, naming the key and the choices.
+    - Each dataclass checks the ranges of its own values in ``__post_init__`` (all lines at once, a
+      :class:`~snell_bench.config.errors.ConfigError`); OmegaConf runs it when a node is turned
+      into its dataclass (``OmegaConf.to_object``), which :func:`~snell_bench.config.checks.check_config`
+      does for every node. Checks across nodes and of files and devices live in
+      :mod:`snell_bench.config.checks`.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
-from hydra.core.config_store import ConfigStore
-from omegaconf import MISSING, DictConfig
+from omegaconf import MISSING
 
-from snell_bench.sampler.settings import SamplerSettings
+from snell_bench.config.choices import (
+    DepthKind,
+    InpaintMask,
+    Job,
+    MethodKind,
+    Normals,
+    OnChange,
+    PanoPrior,
+    PromptKind,
+    Protocol,
+    RefSampler,
+    Source,
+)
+from snell_bench.config.errors import Problems
+from snell_bench.config.materials import resolve_ior
+from snell_bench.config.sampler import SamplerSettings
+
+__all__ = [
+    "Config",
+    "SceneConfig",
+    "ObjectConfig",
+    "WarpConfig",
+    "ModelConfig",
+    "ModelsConfig",
+    "MethodConfig",
+    "DepthConfig",
+    "SegmentConfig",
+    "MetricsConfig",
+    "ReferenceConfig",
+    "RelightConfig",
+    "GridConfig",
+    "TradeoffConfig",
+    "SamplerSettings",
+    "CHECKED_NODES",
+]
 
 
 @dataclass
@@ -23,7 +64,7 @@ class SceneConfig:
     #: ``depth_scale``, ``depth_kind``, ``intrinsics`` or ``fov_deg``; without ``depth`` a depth
     #: estimator, ``depth=...``) or ``generated`` (I⁻ generated from ``prompt_minus`` by the model at
     #: seed ``variation``, depth and intrinsics from the depth estimator).
-    source: str = "procedural"
+    source: Source = Source.procedural
     #: Procedural stand-in kind (``room``, ``kitchen``, ``outdoor``).
     kind: str = "room"
     #: The variation; the procedural seed is ``seed_offset + variation``.
@@ -46,7 +87,7 @@ class SceneConfig:
     #: File units per metre of an integer depth file (5000 for TUM, 1000 for millimetres).
     depth_scale: Optional[float] = None
     #: ``z`` (depth along the optical axis) or ``range`` (distance along the ray).
-    depth_kind: str = "z"
+    depth_kind: DepthKind = DepthKind.z
     #: ``[fx, fy, cx, cy]`` in pixels of the file as stored, or ``fov_deg`` (horizontal, square pixels).
     intrinsics: Optional[list] = None
     fov_deg: Optional[float] = None
@@ -79,6 +120,18 @@ class SceneConfig:
     #: ``text`` written without ``[[...]]``; ``null``: the phrase must be marked.
     prompt_llm: Optional[str] = None
 
+    def __post_init__(self) -> None:
+        p = Problems("scene")
+        p.int_at_least("variation", self.variation, 0, " (it seeds the scene and the sampling)", 0)
+        p.int_at_least("seed_offset", self.seed_offset, 0, "", 0)
+        if self.source == Source.procedural:
+            p.int_at_least("supersample", self.supersample, 1, "", 2)
+        if self.source == Source.generated:
+            p.int_at_least("steps", self.steps, 1, "", 28)
+        p.finite("fov_deg", self.fov_deg, positive=True, hi=179.0, optional=True, fix="e.g. scene.fov_deg=60")
+        p.finite("depth_scale", self.depth_scale, positive=True, optional=True, fix="e.g. 5000 (TUM) or 1000 (mm)")
+        p.raise_if_any()
+
 
 @dataclass
 class ObjectConfig:
@@ -110,6 +163,21 @@ class ObjectConfig:
     #: A supporting plane counts as horizontal within this angle of the scene's up direction.
     max_tilt_deg: float = 30.0
 
+    def __post_init__(self) -> None:
+        p = Problems("object")
+        fix = "object.size is in scene units (metres); null uses object.relative_size x the distance"
+        p.finite("size", self.size, positive=True, optional=True, fix=fix)
+        p.finite("relative_size", self.relative_size, positive=True, fix="e.g. object.relative_size=0.25")
+        p.finite("yaw_deg", self.yaw_deg, fix="a rotation about the up axis in degrees, e.g. object.yaw_deg=30")
+        p.finite("max_tilt_deg", self.max_tilt_deg, lo=0.0, hi=90.0, fix="e.g. object.max_tilt_deg=30")
+        try:
+            resolve_ior(self.ior)
+        except ValueError as e:
+            p.append(f"object.ior={self.ior!r}: {e}")
+        if str(self.up_axis).lstrip("+-").lower() not in ("x", "y", "z"):
+            p.append(f"object.up_axis={self.up_axis!r}: use x, y or z, optionally signed (-z)")
+        p.raise_if_any()
+
 
 @dataclass
 class WarpConfig:
@@ -118,7 +186,7 @@ class WarpConfig:
     pano_height: int = 1024
     max_bounces: int = 8
     #: ``interpolated`` (smooth, creased at sharp edges) or ``face``.
-    normals: str = "interpolated"
+    normals: Normals = Normals.interpolated
     edge_threshold: float = 0.05
     #: Cache folder for warps (content-hashed); ``null`` disables caching.
     cache_dir: Optional[str] = "runs/cache/warps"
@@ -128,6 +196,14 @@ class WarpConfig:
     #: Treat background farther than the distance at which doing so moves any warp by less than this
     #: many pixels as an environment at infinity (rays reach it by direction); ``null``: exact geometry.
     infinity_tolerance_px: Optional[float] = None
+
+    def __post_init__(self) -> None:
+        p = Problems("warps")
+        p.int_at_least("pano_height", self.pano_height, 2, "", 1024)
+        p.int_at_least("max_bounces", self.max_bounces, 1, "", 8)
+        p.finite("edge_threshold", self.edge_threshold, positive=True, fix="e.g. warps.edge_threshold=0.05")
+        p.finite("infinity_tolerance_px", self.infinity_tolerance_px, positive=True, optional=True, fix="e.g. 0.5")
+        p.raise_if_any()
 
 
 @dataclass
@@ -154,7 +230,7 @@ class ModelConfig:
     #: I⁻ does not show; for tests that need it) or ``observed`` (I⁻ seen through π, smoothly
     #: filled where I⁻ does not look). Sources that cannot render a panorama (photos, generated
     #: scenes) always use ``observed``.
-    pano_prior: str = "other"
+    pano_prior: PanoPrior = PanoPrior.other
     #: flux: a local folder with the diffusers layout, or a model id found in the Hugging Face cache.
     path: Optional[str] = None
     #: flux: ``cuda`` (default when available) or ``cpu``; dtype ``bfloat16`` on GPU by default.
@@ -174,6 +250,27 @@ class ModelConfig:
     #: FLUX Kontext from local weights, the tiny random one, or the traced-shadow stand-in).
     relighter: Any = None
 
+    def __post_init__(self) -> None:
+        p = Problems("model")
+        p.int_at_least("multiple", self.multiple, 1, " (the generator's block size)", 16)
+        p.raise_if_any()
+
+
+@dataclass
+class ModelsConfig:
+    """The models of a process (:class:`~snell_bench.pipeline.pool.ModelPool`): every model a sweep
+    needs is loaded once and kept while the budget allows."""
+
+    #: GiB of model parameters and buffers held at once (``null``: no limit). When the models of a
+    #: sweep do not fit together, its cells run model by model (all cells of one model, then the
+    #: next), so each model still loads once; a model larger than the budget is loaded alone.
+    memory_gb: Optional[float] = None
+
+    def __post_init__(self) -> None:
+        p = Problems("models")
+        p.finite("memory_gb", self.memory_gb, positive=True, optional=True, fix="e.g. models.memory_gb=70")
+        p.raise_if_any()
+
 
 @dataclass
 class MethodConfig:
@@ -184,7 +281,7 @@ class MethodConfig:
     label: str = "Snellcaster"
     #: ``snellcaster`` (the synchronized sampler), ``t2i`` (the generator alone from p), ``inpaint``
     #: (fill the object region of I⁻; CPU stand-in without optics), ``external`` (another model).
-    kind: str = "snellcaster"
+    kind: MethodKind = MethodKind.snellcaster
     #: What it needs (``gpu``, ``weights``), for the reader: a method whose pipeline cannot load
     #: here (no CUDA and no ``model.device=cpu``, no weights) is skipped with the reason.
     requires: list = field(default_factory=list)
@@ -199,13 +296,18 @@ class MethodConfig:
     steps: Optional[int] = None
     guidance: Optional[float] = None
     #: The text a pipeline baseline sees: ``full`` (p) or ``object`` (p_obj, the object phrase).
-    prompt: str = "full"
+    prompt: PromptKind = PromptKind.full
     #: ``inpaint``: the region repainted: ``object`` (the object's silhouette) or ``box`` (its
     #: bounding box), grown by ``mask_dilate_px`` pixels.
-    mask: str = "object"
+    mask: InpaintMask = InpaintMask.object
     mask_dilate_px: int = 0
     #: Relight the image after sampling (the ``relight`` node; the model's ``relighter``).
     relight: bool = False
+
+    def __post_init__(self) -> None:
+        p = Problems("method")
+        p.int_at_least("mask_dilate_px", self.mask_dilate_px, 0, "", 0)
+        p.raise_if_any()
 
 
 @dataclass
@@ -250,9 +352,9 @@ class MetricsConfig:
     #: ``authors`` (as the authors' released evaluation does: the histogram matched in shape but
     #: rescaled to the generated image's own range, LPIPS on RGB with both inputs multiplied by the
     #: mask).
-    protocol: str = "paper"
+    protocol: Protocol = Protocol.paper
     #: The text CLIP and ImageReward score against: ``full`` (p) or ``object`` (p_obj).
-    clip_text: str = "full"
+    clip_text: PromptKind = PromptKind.full
 
     #: torchvision VGG16 state dict for LPIPS (e.g. vgg16-397923af.pth).
     lpips_weights: Optional[str] = None
@@ -273,7 +375,7 @@ class ReferenceConfig:
     spp: int = 242
     #: Mitsuba's sampler: ``orthogonal`` (the least noise per second here), ``stratified``,
     #: ``multijitter``, ``ldsampler`` or ``independent``.
-    sampler: str = "orthogonal"
+    sampler: RefSampler = RefSampler.orthogonal
     #: Samples per pixel of the unobserved pass (only the metric mask depends on it); ``null``: ``spp``.
     unobserved_spp: Optional[int] = 25
     #: Render only the object's rectangle (plus ``crop_margin_px``); the rest is the background seen
@@ -291,6 +393,16 @@ class ReferenceConfig:
     true_spp: int = 4
     #: Bounces of the true render; ``null``: ``warps.max_bounces`` (set it to compare bounce counts).
     true_max_bounces: Optional[int] = None
+
+    def __post_init__(self) -> None:
+        p = Problems("reference")
+        p.int_at_least("spp", self.spp, 1, "", 242)
+        if self.unobserved_spp is not None:
+            p.int_at_least("unobserved_spp", self.unobserved_spp, 1, "", 25)
+        p.int_at_least("crop_margin_px", self.crop_margin_px, 0, "", 4)
+        p.int_at_least("true_spp", self.true_spp, 1, "", 4)
+        p.finite("unobserved_threshold", self.unobserved_threshold, lo=0.0, hi=1.0, fix="e.g. 0.05")
+        p.raise_if_any()
 
 
 @dataclass
@@ -310,6 +422,11 @@ class RelightConfig:
     lora: Optional[str] = None
     lora_scale: float = 1.0
 
+    def __post_init__(self) -> None:
+        p = Problems("relight")
+        p.int_at_least("candidates", self.candidates, 1, "", 3)
+        p.raise_if_any()
+
 
 @dataclass
 class GridConfig:
@@ -324,7 +441,7 @@ class GridConfig:
     #: A finished cell whose recorded settings differ from this run's (``sampler.steps``,
     #: ``scene.width``, ...): ``error`` (stop before any work, naming the changed keys) or
     #: ``recompute`` (redo those cells with this run's settings).
-    on_change: str = "error"
+    on_change: OnChange = OnChange.error
     #: Build the report tables after the sweep.
     report: bool = True
 
@@ -352,18 +469,24 @@ class TradeoffConfig:
     #: Recompute settings that already finished (else they are reused).
     recompute: bool = False
     #: A finished setting whose recorded config differs from this run's: ``error`` or ``recompute``.
-    on_change: str = "error"
+    on_change: OnChange = OnChange.error
+
+    def __post_init__(self) -> None:
+        p = Problems("tradeoff")
+        p.int_at_least("variation", self.variation, 0, " (it seeds the scene and the sampling)", 0)
+        p.raise_if_any()
 
 
 @dataclass
 class Config:
     #: Which job ``python -m snell_bench`` runs.
-    job: str = "preview"
+    job: Job = Job.preview
     seed: int = 0
     scene: SceneConfig = field(default_factory=SceneConfig)
     object: ObjectConfig = field(default_factory=ObjectConfig)
     warps: WarpConfig = field(default_factory=WarpConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
+    models: ModelsConfig = field(default_factory=ModelsConfig)
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
     method: MethodConfig = field(default_factory=MethodConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
@@ -384,76 +507,6 @@ class Config:
     overrides: list = field(default_factory=list)
 
 
-CONFIG_MODULE = "snell_bench.conf"
-
-
-@contextmanager
-def config_context() -> Iterator[None]:
-    """Hydra's global state for composing: the running application's when there is one, else
-    the package's config groups (:data:`CONFIG_MODULE`) for the duration of the block."""
-    from hydra import initialize_config_module
-    from hydra.core.global_hydra import GlobalHydra
-
-    register_configs()
-    if GlobalHydra.instance().is_initialized():
-        yield
-    else:
-        with initialize_config_module(config_module=CONFIG_MODULE, version_base="1.3"):
-            yield
-
-
-def compose(overrides: Sequence[str] = (), config_name: str = "config") -> DictConfig:
-    """The config ``python -m snell_bench OVERRIDES`` would run, composed with Hydra from the
-    config groups shipped in :mod:`snell_bench.conf` (defaults lists honoured, schema kept).
-
-    Inside a running Hydra application its search path is used; elsewhere the package's. The
-    overrides are recorded in ``cfg.overrides``.
-
-    Args:
-        overrides: Hydra override strings, e.g. ``["+experiment=smoke", "scene.width=320"]``.
-        config_name: the primary config.
-
-    Returns:
-        The composed config (struct mode on).
-    """
-    from hydra import compose as hydra_compose
-
-    overrides = [str(o) for o in overrides]
-    with config_context():
-        cfg = hydra_compose(config_name=config_name, overrides=overrides)
-    cfg.overrides = overrides
-    return cfg
-
-
-def group_options(group: str) -> list[str]:
-    """The names a config group offers (``conf/<group>/*.yaml`` and registered nodes)."""
-    from hydra.core.global_hydra import GlobalHydra
-
-    with config_context():
-        names = GlobalHydra.instance().config_loader().get_group_options(group)
-    return sorted(n for n in names if not n.startswith("base_"))
-
-
-def _prompts(text: str, field: str, llm: Optional[str] = None) -> str:
-    """The ``prompts`` resolver: one field of the decomposition of a marked prompt (or of one a
-    local language model marks, ``scene.prompt_llm``)."""
-    from snell_bench.scene.prompts import decompose, decompose_with_llm
-
-    if llm and "[[" not in str(text):
-        return getattr(decompose_with_llm(str(text), model_path=str(llm)), field)
-    return getattr(decompose(str(text)), field)
-
-
-def register_configs() -> None:
-    from omegaconf import OmegaConf
-
-    if not OmegaConf.has_resolver("prompts"):
-        OmegaConf.register_new_resolver("prompts", _prompts)
-    cs = ConfigStore.instance()
-    cs.store(name="base_config", node=Config)
-    cs.store(group="scene", name="base_scene", node=SceneConfig)
-    cs.store(group="object", name="base_object", node=ObjectConfig)
-    cs.store(group="model", name="base_model", node=ModelConfig)
-    cs.store(group="method", name="base_method", node=MethodConfig)
-    cs.store(group="depth", name="base_depth", node=DepthConfig)
-    cs.store(group="segment", name="base_segment", node=SegmentConfig)
+#: The nodes whose dataclass checks its own ranges (``sampler`` is checked with the method's
+#: switches applied, the root's ``seed`` by :func:`~snell_bench.config.checks.check_config`).
+CHECKED_NODES = ("scene", "object", "warps", "model", "models", "method", "reference", "relight", "tradeoff")

@@ -1,4 +1,4 @@
-"""Glass objects: procedural primitives, mesh files, materials.
+"""Glass objects: procedural primitives and mesh files (materials: :mod:`snell_bench.config.materials`).
 
 Convention:
     - A *canonical* object (``sphere``, ``cylinder``, ``pyramid``, ``from_file``) lives in its own
@@ -23,56 +23,14 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from snell_bench.config.materials import MATERIALS, resolve_ior
+
 log = logging.getLogger(__name__)
 
 __all__ = ["MATERIALS", "resolve_ior", "GlassObject"]
 
-#: Refractive indices (sodium D line, ~589 nm) of common transparent materials.
-MATERIALS: dict[str, float] = {
-    "air": 1.0,
-    "ice": 1.31,
-    "water": 1.333,
-    "acrylic": 1.49,
-    "glass": 1.5,
-    "crown_glass": 1.52,
-    "quartz": 1.544,
-    "flint_glass": 1.62,
-    "sapphire": 1.77,
-    "cubic_zirconia": 2.15,
-    "diamond": 2.42,
-}
-
-
 #: Mesh file suffixes trimesh reads that the bundled objects use.
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
-
-
-def resolve_ior(material: str | float | int) -> float:
-    """Index of refraction from a material name in :data:`MATERIALS` or a number.
-
-    Raises ``ValueError`` for an unknown name or a value that is not finite and > 0.
-    An IOR of 1 is allowed (the object is invisible: identity warp); below 1 means the object is
-    optically thinner than its surroundings (e.g. an air bubble: pass the ratio).
-    """
-    if isinstance(material, str):
-        key = material.strip().lower().replace(" ", "_").replace("-", "_")
-        if key in MATERIALS:
-            return MATERIALS[key]
-        try:
-            material = float(key)
-        except ValueError:
-            raise ValueError(
-                f"unknown material {material!r}; use one of {sorted(MATERIALS)} or a number (the IOR)"
-            ) from None
-    if isinstance(material, bool):
-        raise ValueError(f"ior must be a number or a material name, got {material!r}")
-    try:
-        ior = float(material)
-    except (TypeError, ValueError):
-        raise ValueError(f"ior must be a number or a material name, got {material!r}") from None
-    if not math.isfinite(ior) or ior <= 0.0:
-        raise ValueError(f"ior must be finite and > 0, got {material!r} (glass is 1.5, water 1.333)")
-    return ior
 
 
 def _clean_mesh(mesh: trimesh.Trimesh, *, allow_open: bool, repair: bool, what: str) -> trimesh.Trimesh:

@@ -12,8 +12,6 @@ metres, NaN where unknown (unobserved space); the camera in the OpenCV frame wit
 
 from __future__ import annotations
 
-import hashlib
-import json
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -22,7 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from snell_bench.config.choices import PanoPrior
 from snell_bench.scene.camera import Camera
+from snell_bench.utils.io import json_hash
 
 log = logging.getLogger(__name__)
 
@@ -92,7 +92,7 @@ def estimate_depth(
 
 
 def _cache_key(meta: dict) -> str:
-    return hashlib.sha256(json.dumps(meta, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    return json_hash(meta)
 
 
 def generated_image(
@@ -178,7 +178,7 @@ def scene_panorama(scene: SceneInputs, pano, supersample: int = 1) -> np.ndarray
 
 
 #: The kinds of panorama prior :func:`panorama_prior` builds (config key ``model.pano_prior``).
-PANO_PRIORS = ("other", "blur", "truth", "observed")
+PANO_PRIORS = PanoPrior.values()
 #: ``pano_prior="other"``: the procedural seed of the other variation is the scene's plus this.
 OTHER_VARIATION_OFFSET = 1000
 

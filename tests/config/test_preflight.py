@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from snell_bench.preflight import check_writable
+from snell_bench.config.preflight import check_writable
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def run_cli(tmp_path, *args):

@@ -1,9 +1,9 @@
 """Config checks before any work: unknown keys and unusable values name the key, the value and the fix."""
 
 import pytest
+from hydra.errors import ConfigCompositionException
 
-from snell_bench.config import compose
-from snell_bench.validation import ConfigError, check_config, max_levels, unknown_keys
+from snell_bench.config import ConfigError, check_config, compose, max_levels, unknown_keys
 
 
 @pytest.mark.parametrize(
@@ -64,12 +64,9 @@ def test_free_form_nodes_and_every_shipped_config_pass():
         (["sampler.steps=0"], "sampler.steps must be an integer >= 1, got 0"),
         (["sampler.sync=maybe"], "sampler.sync='maybe' is unknown"),
         (["warps.max_bounces=0"], "warps.max_bounces=0: must be an integer >= 1"),
-        (["reference.sampler=sobol"], "reference.sampler='sobol' is unknown"),
-        (["model.pano_prior=nope"], "model.pano_prior='nope' is unknown"),
-        (["grid.on_change=ignore"], "grid.on_change='ignore' is unknown; use one of ['error', 'recompute']"),
         (["object=spot", "object.path=/nonexistent.obj"], "object.path='/nonexistent.obj': no such mesh file"),
         (["object=spot", "object.path=datasets"], "object.path='datasets' is a folder, not a mesh file"),
-        (["model.dtype=float17"], "unknown dtype 'float17' (config key model.dtype)"),
+        (["model.dtype=float17"], "model.dtype='float17' is unknown; use one of ['bfloat16'"),
         (["model.device=tpu9"], "model.device='tpu9' is not a device"),
         (["scene.source=image"], "scene.source=image needs scene.image: set scene.image=PATH"),
         (["scene=tum_office", "scene.image=/no.png"], "scene.image='/no.png': no such image file"),
@@ -159,3 +156,40 @@ def test_tradeoff_entries_are_checked(overrides, expected):
     with pytest.raises(ConfigError) as e:
         check_config(compose(["+experiment=tradeoff", *overrides]))
     assert expected in str(e.value), str(e.value)
+
+
+@pytest.mark.parametrize(
+    "override, choice",
+    [
+        ("reference.sampler=sobol", "orthogonal"),
+        ("model.pano_prior=nope", "observed"),
+        ("grid.on_change=ignore", "recompute"),
+        ("tradeoff.on_change=ignore", "recompute"),
+        ("scene.source=photo", "generated"),
+        ("scene.depth_kind=disparity", "range"),
+        ("job=nope", "tradeoff"),
+        ("metrics.protocol=ours", "authors"),
+        ("metrics.clip_text=both", "object"),
+        ("method.kind=magic", "external"),
+        ("method.prompt=both", "object"),
+        ("warps.normals=smooth", "interpolated"),
+    ],
+)
+def test_a_value_outside_its_choices_fails_when_composed(override, choice):
+    """The choices are enums of the schema: Hydra names the override and OmegaConf the choices."""
+    with pytest.raises(ConfigCompositionException) as e:
+        compose([override])
+    text = f"{e.value} {e.value.__cause__}"
+    assert override in text and "expected one of" in text and choice in text, text
+
+
+def test_the_choices_are_the_stages_own():
+    """Each enum lists exactly what the stage that reads it accepts."""
+    from snell_bench.config import PanoPrior, Protocol, RefSampler
+    from snell_bench.metrics.functional import PROTOCOLS
+    from snell_bench.render.pieces import SAMPLERS
+    from snell_bench.scene.sources import PANO_PRIORS
+
+    assert set(RefSampler.values()) == set(SAMPLERS)
+    assert set(Protocol.values()) == set(PROTOCOLS)
+    assert set(PanoPrior.values()) == set(PANO_PRIORS)

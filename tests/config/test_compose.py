@@ -10,9 +10,9 @@ import pytest
 from omegaconf import OmegaConf
 
 from snell_bench.config import compose, group_options
-from snell_bench.sampler.settings import SamplerSettings
+from snell_bench.config.sampler import SamplerSettings
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_config_groups_ship_inside_the_package():

@@ -1,0 +1,130 @@
+"""The choices of the config's string settings, typed where the schema owns them.
+
+OmegaConf checks an ``Enum`` field when a config is composed (``scene.source=bogus`` fails with
+the choices listed), so no stage checks them again. Each choice is a ``str`` too: it compares equal
+to its value (``Source.image == "image"``), formats as it (``f"{x}"``, ``str(x)``), and is written as
+it into YAML and JSON, so files and hashes of a cell do not depend on it being an enum.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+
+__all__ = [
+    "Choice",
+    "Job",
+    "Source",
+    "DepthKind",
+    "Normals",
+    "PanoPrior",
+    "MethodKind",
+    "PromptKind",
+    "InpaintMask",
+    "Protocol",
+    "RefSampler",
+    "OnChange",
+]
+
+
+class Choice(str, Enum):
+    """A string setting with a closed set of values (the member names are the values)."""
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self.value), spec)
+
+    @classmethod
+    def values(cls) -> tuple[str, ...]:
+        return tuple(m.value for m in cls)
+
+
+class Job(Choice):
+    """What ``python -m snell_bench`` runs (``job``)."""
+
+    preview = "preview"
+    generate = "generate"
+    grid = "grid"
+    tradeoff = "tradeoff"
+    report = "report"
+
+
+class Source(Choice):
+    """Where I⁻ comes from (``scene.source``)."""
+
+    procedural = "procedural"
+    image = "image"
+    generated = "generated"
+
+
+class DepthKind(Choice):
+    """What a depth file holds (``scene.depth_kind``): z along the optical axis, or range along the ray."""
+
+    z = "z"
+    range = "range"
+
+
+class Normals(Choice):
+    """Shading normals of the traced object (``warps.normals``)."""
+
+    interpolated = "interpolated"
+    face = "face"
+
+
+class PanoPrior(Choice):
+    """The panorama a generator built from the scene starts from (``model.pano_prior``)."""
+
+    other = "other"
+    blur = "blur"
+    truth = "truth"
+    observed = "observed"
+
+
+class MethodKind(Choice):
+    """What a method runs (``method.kind``)."""
+
+    snellcaster = "snellcaster"
+    t2i = "t2i"
+    inpaint = "inpaint"
+    external = "external"
+
+
+class PromptKind(Choice):
+    """Which text a pipeline baseline or CLIP sees (``method.prompt``, ``metrics.clip_text``): the
+    full prompt p or the object phrase p_obj."""
+
+    full = "full"
+    object = "object"
+
+
+class InpaintMask(Choice):
+    """The region ``method=inpaint`` repaints (``method.mask``)."""
+
+    object = "object"
+    box = "box"
+
+
+class Protocol(Choice):
+    """The evaluation protocol (``metrics.protocol``): the paper's text or the authors' code."""
+
+    paper = "paper"
+    authors = "authors"
+
+
+class RefSampler(Choice):
+    """Mitsuba's sampler of the reference render (``reference.sampler``)."""
+
+    independent = "independent"
+    stratified = "stratified"
+    multijitter = "multijitter"
+    orthogonal = "orthogonal"
+    ldsampler = "ldsampler"
+
+
+class OnChange(Choice):
+    """What a sweep does with a finished cell computed with other settings (``grid.on_change``,
+    ``tradeoff.on_change``)."""
+
+    error = "error"
+    recompute = "recompute"

@@ -1,0 +1,113 @@
+"""Composing configs from the package's config groups, as ``python -m snell_bench`` does.
+
+The ``prompts`` resolver (``${prompts:${.text},minus,...}``) decomposes a scene's marked prompt into
+p, p⁻, p³⁶⁰, the object phrase and the surface (:mod:`snell_bench.scene.prompt_rules`, or a local
+language model, :mod:`snell_bench.scene.prompt_llm`): the one place where the config imports from
+a stage package.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from typing import Optional
+
+from hydra import compose as hydra_compose
+from hydra import initialize_config_module
+from hydra.core.config_store import ConfigStore
+from hydra.core.global_hydra import GlobalHydra
+from omegaconf import DictConfig, OmegaConf
+
+from snell_bench.config.schema import (
+    Config,
+    DepthConfig,
+    MethodConfig,
+    ModelConfig,
+    ObjectConfig,
+    SceneConfig,
+    SegmentConfig,
+)
+from snell_bench.scene.prompt_llm import decompose_with_llm
+from snell_bench.scene.prompt_rules import decompose
+
+__all__ = ["CONFIG_MODULE", "config_context", "compose", "group_options", "register_configs"]
+
+CONFIG_MODULE = "snell_bench.conf"
+
+
+@contextmanager
+def config_context() -> Iterator[None]:
+    """Hydra's global state for composing: the running application's when there is one, else
+    the package's config groups (:data:`CONFIG_MODULE`) for the duration of the block."""
+    register_configs()
+    if GlobalHydra.instance().is_initialized():
+        yield
+    else:
+        with initialize_config_module(config_module=CONFIG_MODULE, version_base="1.3"):
+            yield
+
+
+def compose(overrides: Sequence[str] = (), config_name: str = "config") -> DictConfig:
+    """The config ``python -m snell_bench OVERRIDES`` would run, composed with Hydra from the
+    config groups shipped in :mod:`snell_bench.conf` (defaults lists honoured, schema kept).
+
+    Inside a running Hydra application its search path is used; elsewhere the package's. The
+    overrides are recorded in ``cfg.overrides``.
+
+    Args:
+        overrides: Hydra override strings, e.g. ``["+experiment=smoke", "scene.width=320"]``.
+        config_name: the primary config.
+
+    Returns:
+        The composed config (struct mode on).
+    """
+    overrides = [str(o) for o in overrides]
+    with config_context():
+        cfg = hydra_compose(config_name=config_name, overrides=overrides)
+    cfg.overrides = overrides
+    return cfg
+
+
+def group_options(group: str) -> list[str]:
+    """The names a config group offers (``conf/<group>/*.yaml`` and registered nodes)."""
+    with config_context():
+        names = GlobalHydra.instance().config_loader().get_group_options(group)
+    return sorted(n for n in names if not n.startswith("base_"))
+
+
+def _prompts(text: str, field: str, llm: Optional[str] = None) -> str:
+    """The ``prompts`` resolver: one field of the decomposition of a marked prompt (or of one a
+    local language model marks, ``scene.prompt_llm``)."""
+    if llm and "[[" not in str(text):
+        return getattr(decompose_with_llm(str(text), model_path=str(llm)), field)
+    return getattr(decompose(str(text)), field)
+
+
+#: Jobs whose output is an experiment folder (their logs go to ``runs/<experiment>/logs/``).
+SWEEP_JOBS = ("grid", "tradeoff", "report")
+
+
+def _run_dir(job: str, runs_dir: str, experiment: str, cell: str, now: str) -> str:
+    """The ``run_dir`` resolver (``hydra.run.dir``): ``<runs_dir>/<experiment>/logs/<now>`` for a
+    sweep, whose cells have folders of their own, else ``<runs_dir>/<job>/<scene>-<variation>/<object>``
+    (a preview or a generation writes its files there)."""
+    if str(job) in SWEEP_JOBS:
+        return f"{runs_dir}/{experiment}/logs/{now}"
+    return f"{runs_dir}/{job}/{cell}"
+
+
+def register_configs() -> None:
+    """Register the schema with Hydra's ConfigStore and the ``prompts`` and ``run_dir`` resolvers
+    (idempotent)."""
+    if not OmegaConf.has_resolver("run_dir"):
+        OmegaConf.register_new_resolver("run_dir", _run_dir)
+    if not OmegaConf.has_resolver("prompts"):
+        OmegaConf.register_new_resolver("prompts", _prompts)
+    cs = ConfigStore.instance()
+    cs.store(name="base_config", node=Config)
+    cs.store(group="scene", name="base_scene", node=SceneConfig)
+    cs.store(group="object", name="base_object", node=ObjectConfig)
+    cs.store(group="model", name="base_model", node=ModelConfig)
+    cs.store(group="method", name="base_method", node=MethodConfig)
+    cs.store(group="depth", name="base_depth", node=DepthConfig)
+    cs.store(group="segment", name="base_segment", node=SegmentConfig)
