@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from omegaconf import DictConfig
 
+from snell_bench.config import Job, check_config
+
 __all__ = ["run_job", "JOBS"]
 
 
@@ -52,16 +54,11 @@ def _report(cfg: DictConfig) -> None:
     print(f"reports: {out} ({len(paths)} files)")
 
 
-JOBS = {"preview": _preview, "generate": _generate, "grid": _grid, "tradeoff": _tradeoff, "report": _report}
+JOBS = {Job.preview: _preview, Job.generate: _generate, Job.grid: _grid, Job.tradeoff: _tradeoff, Job.report: _report}
 
 
 def run_job(cfg: DictConfig) -> None:
-    """Run ``cfg.job`` after checking every key and value of ``cfg``
-    (:func:`snell_bench.validation.check_config`)."""
-    from snell_bench.validation import check_config
-
-    job = cfg.job
-    if job not in JOBS:
-        raise ValueError(f"unknown job {job!r}; set job= one of {sorted(JOBS)}")
+    """Run ``cfg.job`` (:data:`JOBS`) after checking every key and value of ``cfg``
+    (:func:`snell_bench.config.check_config`)."""
     check_config(cfg)
-    JOBS[job](cfg)
+    JOBS[Job(cfg.job)](cfg)

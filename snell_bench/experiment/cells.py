@@ -47,9 +47,10 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
-from snell_bench.experiment.plan import settings_diff
+from snell_bench.config import Config, OnChange
+from snell_bench.experiment.plan import ABSENT, flatten, result_settings, settings_diff, settings_hash
 from snell_bench.pipeline import Skip
-from snell_bench.utils.io import _umask_mode, write_json, write_text
+from snell_bench.utils.io import umask_mode, write_json, write_text
 
 log = logging.getLogger(__name__)
 
@@ -150,8 +151,6 @@ def files_problem(folder: Path, record: dict) -> str | None:
 
 # ---------------------------------------------------------------------------- settings of a cell
 def _saved_settings(folder: Path) -> dict | None:
-    from snell_bench.experiment.plan import result_settings
-
     try:
         return result_settings(OmegaConf.load(folder / "config.yaml"))
     except Exception:  # noqa: BLE001 - missing or unreadable: the settings are unknown
@@ -197,10 +196,7 @@ class SettingsChanged(ValueError):
 
 @functools.lru_cache(maxsize=1)
 def _schema_defaults() -> dict:
-    from snell_bench.config import Config
-    from snell_bench.experiment.plan import flatten
-
-    return flatten(OmegaConf.to_container(OmegaConf.structured(Config), resolve=False))
+    return flatten(OmegaConf.to_container(OmegaConf.structured(Config), resolve=False, enum_to_str=True))
 
 
 def _changed(cell: Cell, record: dict, current: dict, current_hash: str) -> ChangedCell | None:
@@ -214,7 +210,7 @@ def _changed(cell: Cell, record: dict, current: dict, current_hash: str) -> Chan
         k: (a, b)
         for k, (a, b) in settings_diff(old, current).items()
         # a setting added to the schema since the cell finished, at its default: the cell had that behaviour
-        if not (a == "<absent>" and k in defaults and defaults[k] == b)
+        if not (a == ABSENT and k in defaults and defaults[k] == b)
     }
     return ChangedCell(cell, diff) if diff else None
 
@@ -231,7 +227,7 @@ def claim(folder: Path) -> Iterator[bool]:
     is removed when the block ends."""
     path = folder / LOCK_NAME
     while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, _umask_mode())
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, umask_mode())
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -285,10 +281,11 @@ def run_cells(
     root: Path,
     record_name: str = "metrics.json",
     recompute: bool = False,
-    on_change: str = "error",
+    on_change: OnChange | str = OnChange.error,
     on_change_key: str = "grid.on_change",
     recompute_key: str = "grid.recompute",
     desc: str = "",
+    before: Callable[[list[Cell]], None] | None = None,
     after: Callable[[Cell], None] | None = None,
 ) -> dict:
     """Run ``cells`` (see the module docs) and write ``root/summary.json``.
@@ -303,6 +300,8 @@ def run_cells(
             (raise :class:`SettingsChanged` before any work) or ``recompute`` (redo it).
         on_change_key, recompute_key: the config keys named in that error.
         desc: the progress bar's label.
+        before: called with the cells left to compute, before the first one (work that serves
+            several cells and must come first, such as model-major passes).
         after: called after each cell's record is written (also for failed cells).
 
     Returns:
@@ -310,15 +309,11 @@ def run_cells(
         before), ``busy`` (claimed by another process running at the same time), and
         ``failures`` as ``[cell folder, reason]`` pairs.
     """
-    from snell_bench.experiment.plan import result_settings, settings_hash
-
-    if on_change not in ("error", "recompute"):
-        raise ValueError(f"{on_change_key}={on_change!r} is unknown; use error or recompute")
     settings = {id(c): result_settings(c.config) for c in cells}
     hashes = {k: settings_hash(v) for k, v in settings.items()}
 
-    def status(cell: Cell) -> str:
-        """``todo``, ``done`` or ``changed`` (finished, with other settings)."""
+    def status(cell: Cell) -> str | ChangedCell:
+        """``todo``, ``done``, or the :class:`ChangedCell` of a cell finished with other settings."""
         record = _read_record(cell.folder / record_name)
         if recompute or record is None or record.get("status") not in DONE:
             return "todo"
@@ -326,23 +321,21 @@ def run_cells(
         if problem is not None:
             log.warning("cell %s: %s; computing it again", cell.name, problem)
             return "todo"
-        return "changed" if _changed(cell, record, settings[id(cell)], hashes[id(cell)]) else "done"
+        return _changed(cell, record, settings[id(cell)], hashes[id(cell)]) or "done"
 
     states = {id(c): status(c) for c in cells}
-    changed = [c for c in cells if states[id(c)] == "changed"]
-    if changed and on_change == "error":
-        raise SettingsChanged(
-            [_changed(c, _read_record(c.folder / record_name), settings[id(c)], hashes[id(c)]) for c in changed],
-            on_change_key=on_change_key,
-            recompute_key=recompute_key,
-        )
+    changed = [s for s in states.values() if isinstance(s, ChangedCell)]
+    if changed and OnChange(on_change) is OnChange.error:
+        raise SettingsChanged(changed, on_change_key=on_change_key, recompute_key=recompute_key)
     for c in changed:
-        log.info("cell %s: settings changed; computing it again (%s=recompute)", c.name, on_change_key)
+        log.info("cell %s: settings changed; computing it again (%s=recompute)", c.cell.name, on_change_key)
     todo = [c for c in cells if states[id(c)] != "done"]
     counts = Counter({"ok": 0, "failed": 0, "skipped": 0, "busy": 0, "cached": len(cells) - len(todo)})
     failures: list[tuple[str, str]] = []
     shared = SharedCache(c.shares for c in todo)
     root.mkdir(parents=True, exist_ok=True)
+    if before is not None and todo:
+        before(todo)
     bar = tqdm(total=len(cells), desc=desc, unit="cell", initial=counts["cached"])
     for cell in todo:
         bar.set_postfix_str(cell.name)

@@ -9,14 +9,15 @@ schema is kept, and later overrides win. The method's switches are then applied
 
 from __future__ import annotations
 
-import hashlib
-import json
 from collections.abc import Sequence
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from snell_bench.config import compose, config_context, group_options
+from snell_bench.config import ConfigError, check_config, compose, config_context
+from snell_bench.config.grid import check_names, object_dir_name, object_overrides, parse_object_spec
+from snell_bench.pipeline import apply_method
+from snell_bench.utils.io import json_hash
 
 __all__ = [
     "parse_object_spec",
@@ -51,6 +52,7 @@ NOT_RESULT_KEYS = (
     "warps.cache_dir",
     "scene.cache_dir",
     "method.label",
+    "models",
 )
 
 
@@ -59,7 +61,7 @@ def result_settings(cfg: DictConfig) -> dict[str, Any]:
     ``{"sampler.steps": 20, "scene.width": 1280, ...}`` (lists kept as values); the keys of
     :data:`NOT_RESULT_KEYS` left out. A cell's identity is its folder; these are what it was
     computed with (:func:`settings_hash`)."""
-    plain = OmegaConf.to_container(cfg, resolve=False)  # typed nodes cannot drop keys
+    plain = OmegaConf.to_container(cfg, resolve=False, enum_to_str=True)  # typed nodes cannot drop keys
     for key in NOT_RESULT_KEYS:
         *parents, leaf = key.split(".")
         node = plain
@@ -88,73 +90,25 @@ def flatten(d: dict, prefix: str = "") -> dict[str, Any]:
 
 def settings_hash(settings: dict[str, Any]) -> str:
     """A short content hash of :func:`result_settings` (order-independent)."""
-    blob = json.dumps(settings, sort_keys=True, default=str)
-    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+    return json_hash(settings)
+
+
+#: What :func:`settings_diff` reports for a key only one side has.
+ABSENT = "<absent>"
 
 
 def settings_diff(old: dict[str, Any], new: dict[str, Any]) -> dict[str, tuple[Any, Any]]:
-    """``{key: (old value, new value)}`` of every key whose value differs (``<absent>`` for a key
-    only one side has)."""
-    absent = "<absent>"
+    """``{key: (old value, new value)}`` of every key whose value differs (:data:`ABSENT` for a
+    key only one side has)."""
     return {
-        k: (old.get(k, absent), new.get(k, absent))
-        for k in sorted(set(old) | set(new))
-        if old.get(k, absent) != new.get(k, absent)
+        k: (old.get(k, ABSENT), new.get(k, ABSENT))
+        for k in sorted(set(old) | set(new), key=str)
+        if old.get(k, ABSENT) != new.get(k, ABSENT)
     }
 
 
-def parse_object_spec(spec: str) -> tuple[str, float | str | None]:
-    """``"sphere"`` or ``"sphere:1.33"`` / ``"sphere:water"`` (a material override)."""
-    name, _, ior = str(spec).partition(":")
-    if not ior:
-        return name, None
-    try:
-        return name, float(ior)
-    except ValueError:
-        return name, ior
-
-
-def object_overrides(spec: str) -> list[str]:
-    """The overrides of an object spec: ``["object=sphere", "object.ior=1.33"]``."""
-    name, ior = parse_object_spec(spec)
-    return [f"object={name}"] + ([] if ior is None else [f"object.ior={ior}"])
-
-
-def object_dir_name(spec: str) -> str:
-    """The folder of an object spec: ``sphere``, ``sphere-ior1.333``."""
-    name, ior = parse_object_spec(spec)
-    if ior is None:
-        return name
-    return f"{name}-ior{format(ior, '.10g') if isinstance(ior, float) else ior}"
-
-
-def check_names(group: str, names: Sequence[str], key: str) -> None:
-    """Raise ``ValueError`` naming ``key`` unless every name is an entry of the config group."""
-    options = group_options(group)
-    for n in names:
-        if str(n) not in options:
-            raise ValueError(f"{key}: unknown {group} {str(n)!r}; choose from {options} (snell_bench/conf/{group}/)")
-
-
-def check_unique(values: Sequence, key: str, name=str) -> None:
-    """Raise ``ValueError`` naming ``key`` and the repeated entries if two entries of a list name
-    the same thing (``name`` maps an entry to what identifies it: its folder, for objects)."""
-    seen: dict[str, object] = {}
-    repeated = []
-    for v in values:
-        k = name(v)
-        if k in seen and k not in repeated:
-            repeated.append(k)
-        seen.setdefault(k, v)
-    if repeated:
-        raise ValueError(
-            f"{key} lists {', '.join(repr(r) for r in repeated)} more than once ({list(values)}); "
-            "each entry is one set of cells: remove the repeats"
-        )
-
-
 def _comparable(cfg: DictConfig) -> dict:
-    d = OmegaConf.to_container(cfg, resolve=False)
+    d = OmegaConf.to_container(cfg, resolve=False, enum_to_str=True)
     for k in _NOT_RESULTS:
         d.pop(k, None)
     return d
@@ -167,28 +121,16 @@ def check_reproducible(cfg: DictConfig) -> None:
     again = compose(list(cfg.overrides))
     a, b = _comparable(cfg), _comparable(again)
     if a != b:
-        diff = sorted(_diff_keys(a, b))
+        diff = list(settings_diff(flatten(a), flatten(b)))
         raise ValueError(
             f"the config differs from what its overrides {list(cfg.overrides)} compose, at {diff}; give every "
             "setting as an override (snell_bench.config.compose([...]) or the command line)"
         )
 
 
-def _diff_keys(a, b, prefix: str = "") -> list[str]:
-    if isinstance(a, dict) and isinstance(b, dict):
-        out = []
-        for k in sorted(set(a) | set(b), key=str):
-            out += _diff_keys(a.get(k), b.get(k), f"{prefix}{k}.")
-        return out
-    return [] if a == b else [prefix.rstrip(".")]
-
-
 def compose_cell(cfg: DictConfig, overrides: Sequence[str], *, method: bool = True) -> DictConfig:
     """The config of one cell: ``cfg.overrides`` then ``overrides``, composed; with ``method``
     the method's switches applied."""
-    from snell_bench.pipeline import apply_method
-    from snell_bench.validation import ConfigError, check_config
-
     with config_context():
         c = compose([*cfg.overrides, *overrides])
     try:

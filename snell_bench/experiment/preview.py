@@ -86,7 +86,7 @@ def run_preview(cfg: DictConfig) -> dict:
         bottom = np.concatenate([np.repeat(mask[..., None], 3, -1), warp_rgb], axis=1)
         save_png(out / "preview.png", np.concatenate([top, bottom], axis=0)[::2, ::2])
     summary = {
-        "scene": OmegaConf.to_container(cfg.scene, resolve=True),
+        "scene": OmegaConf.to_container(cfg.scene, resolve=True, enum_to_str=True),
         "object": {
             "name": obj.name,
             "ior": obj.ior,

@@ -34,18 +34,19 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from snell_bench import pipeline
+from snell_bench.config import ConfigError, check_grid_entries, compose
 from snell_bench.experiment.cells import Cell, SharedCache, run_cells
 from snell_bench.experiment.files import save_inputs
+from snell_bench.experiment.order import load_or_compute_inputs, model_major, prepare_model_major, take_unrelit
 from snell_bench.experiment.plan import (
-    check_names,
+    ABSENT,
     check_reproducible,
-    check_unique,
     compose_cell,
     object_dir_name,
     object_overrides,
-    parse_object_spec,
+    result_settings,
 )
-from snell_bench.pipeline import apply_method
+from snell_bench.pipeline import ModelPool, apply_method, scorers_of
 from snell_bench.utils.io import link_or_copy, write_json
 
 log = logging.getLogger(__name__)
@@ -65,13 +66,9 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
     """Every cell of ``cfg.grid``, composed and checked (raises ``ValueError`` before any work)."""
     g = cfg.grid
     check_reproducible(cfg)
-    check_names("method", g.methods, "grid.methods")
-    check_names("scene", g.scenes, "grid.scenes")
-    check_names("object", [parse_object_spec(o)[0] for o in g.objects], "grid.objects")
-    check_unique(list(g.methods), "grid.methods")
-    check_unique(list(g.scenes), "grid.scenes")
-    check_unique(list(g.variations), "grid.variations")
-    check_unique([str(o) for o in g.objects], "grid.objects", name=object_dir_name)
+    problems = check_grid_entries(cfg)  # names known, no repeats, variations and materials usable
+    if problems:
+        raise ConfigError(problems)
     root = Path(cfg.runs_dir) / str(cfg.experiment_name)
     cells = []
     for scene, variation, obj_spec in itertools.product(g.scenes, g.variations, g.objects):
@@ -103,23 +100,34 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
     return cells
 
 
-def _group_inputs(cell: Cell, shared: SharedCache) -> tuple[pipeline.CellInputs, dict]:
+def _group_inputs(cell: Cell, shared: SharedCache, pool: ModelPool) -> tuple[pipeline.CellInputs, dict]:
     """The group's inputs and their files in ``_inputs/`` (traced with the run's warps settings; a
-    method with its own gets its own warps in :func:`~snell_bench.pipeline.run_method`)."""
+    method with its own gets its own warps in :func:`~snell_bench.pipeline.run_method`). In
+    model-major order they are read back from ``_inputs/inputs.pkl``
+    (:mod:`snell_bench.experiment.order`)."""
 
     def compute():
-        inputs = pipeline.prepare_inputs(cell.extra["inputs_config"])
+        if pool.budget is not None:
+            inputs, _ = load_or_compute_inputs(cell, pool)
+        else:
+            inputs = pipeline.prepare_inputs(cell.extra["inputs_config"], pool=pool)
         return inputs, save_inputs(inputs, cell.shares / "_inputs")
 
     return shared.get(cell.shares, compute, by=cell.name)
 
 
-def run_cell(cell: Cell, shared: SharedCache, scorers) -> dict:
+def run_cell(cell: Cell, shared: SharedCache, scorers, pool: ModelPool | None = None) -> dict:
     """One grid cell: shared inputs linked into its folder, the method run and scored."""
-    inputs, files = _group_inputs(cell, shared)
+    pool = ModelPool() if pool is None else pool
+    inputs, files = _group_inputs(cell, shared, pool)
     for name, path in files.items():
         link_or_copy(path, cell.folder / name)
-    res = pipeline.run_method(cell.config, inputs, scorers=scorers, image_path=cell.folder / "image.png")
+    image_path = cell.folder / "image.png"
+    sampled = take_unrelit(cell)
+    if sampled is None:
+        res = pipeline.run_method(cell.config, inputs, scorers=scorers, image_path=image_path)
+    else:  # sampled ahead, while its generator was loaded (model-major order)
+        res = pipeline.finish_method(cell.config, inputs, sampled, scorers=scorers, image_path=image_path)
     return {
         **({"scene_info": inputs.scene.info} if inputs.scene.info else {}),
         **res.scores,
@@ -142,9 +150,6 @@ class _IdentityDefaults:
 
     def _part(self, key: tuple, overrides: list[str], keep) -> dict:
         if key not in self._parts:
-            from snell_bench.config import compose
-            from snell_bench.experiment.plan import result_settings
-
             cfg = compose(overrides)
             settings = result_settings(apply_method(cfg))
             self._parts[key] = {k: v for k, v in settings.items() if keep(k, cfg)}
@@ -179,8 +184,6 @@ def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") ->
 
     from omegaconf import OmegaConf
 
-    from snell_bench.experiment.plan import result_settings
-
     defaults = _IdentityDefaults()
     stored: dict[str, dict] = {}
     changed: set[str] = set()
@@ -198,12 +201,12 @@ def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") ->
             continue
         cell = str(path.parent.relative_to(root))
         stored[cell] = mine
-        changed |= {k for k, v in mine.items() if base.get(k, "<absent>") != v}
+        changed |= {k for k, v in mine.items() if base.get(k, ABSENT) != v}
     conflicts = []
     for key in sorted(changed):
         by_value: dict[str, list[str]] = {}
         for cell, mine in stored.items():
-            by_value.setdefault(repr(mine.get(key, "<absent>")), []).append(cell)
+            by_value.setdefault(repr(mine.get(key, ABSENT)), []).append(cell)
         if len(by_value) > 1:
             parts = [
                 f"{v} in {len(c)} cell{'s' if len(c) > 1 else ''} ({', '.join(c[:2])}{', ...' if len(c) > 2 else ''})"
@@ -221,24 +224,27 @@ def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") ->
 
 def run_grid(cfg: DictConfig) -> dict:
     """Run the grid of ``cfg`` (see the module docs), then build its report (``grid.report``)."""
-    from snell_bench.metrics import load_scorers
-
     exp = str(cfg.experiment_name)
     root = Path(cfg.runs_dir) / exp
     cells = plan_grid(cfg)
     g = cfg.grid
     n_groups = len(g.scenes) * len(g.variations) * len(g.objects)
     print(f"experiment {exp}: {n_groups} scene/object groups x {len(g.methods)} methods = {len(cells)} cells -> {root}")
-    scorers = load_scorers(cfg.metrics)
+    pool = ModelPool(cfg.models.memory_gb)
+    scorers = scorers_of(cfg, pool)
+    if pool.budget is not None:  # the models may not fit together: each one's cells together
+        cells = model_major(cells)
     summary = run_cells(
         cells,
-        lambda c, s: run_cell(c, s, scorers),
+        lambda c, s: run_cell(c, s, scorers, pool),
         root=root,
         recompute=bool(g.recompute),
-        on_change=str(g.on_change),
+        on_change=g.on_change,
         desc=exp,
+        before=(lambda todo: prepare_model_major(todo, pool)) if pool.budget is not None else None,
     )
-    summary = {"experiment": exp, **summary}
+    summary = {"experiment": exp, **summary, "order": "model-major" if pool.budget is not None else "group-major"}
+    summary["models"] = pool.summary()
     write_json(root / "summary.json", summary)
     print(
         f"{exp}: {summary['ok']} ok, {summary['cached']} already done, {summary['skipped']} skipped, "

@@ -71,8 +71,6 @@ Reference convergence and the converged reference:
 
 from __future__ import annotations
 
-import hashlib
-import json
 import logging
 import re
 from collections import Counter
@@ -84,6 +82,7 @@ import numpy as np
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from snell_bench import pipeline
+from snell_bench.config import ConfigError, check_tradeoff_entries
 from snell_bench.experiment.cells import Cell, SharedCache, run_cells
 from snell_bench.experiment.files import save_inputs
 from snell_bench.experiment.plan import (
@@ -108,8 +107,9 @@ from snell_bench.experiment.reports import (  # noqa: F401  (re-exported)
     tradeoff_table,
     update_spp_records,
 )
-from snell_bench.utils.io import save_npy, write_json
-from snell_bench.validation import ConfigError, check_tradeoff_entries
+from snell_bench.metrics import load_scorers
+from snell_bench.pipeline.cell import node_key
+from snell_bench.utils.io import json_hash, save_npy, write_json
 
 log = logging.getLogger(__name__)
 
@@ -183,7 +183,7 @@ class Setting:
 
 
 def _plain(v: Any) -> Any:
-    return OmegaConf.to_container(v, resolve=True) if isinstance(v, (DictConfig, ListConfig)) else v
+    return OmegaConf.to_container(v, resolve=True, enum_to_str=True) if isinstance(v, (DictConfig, ListConfig)) else v
 
 
 def _axis_settings(name: str, spec: Any) -> list[Setting]:
@@ -253,7 +253,7 @@ def build_settings(cfg: DictConfig) -> list[Setting]:
 def inputs_key(c: DictConfig) -> str:
     """SHA-256 (16 hex digits) of the resolved subtrees the shared inputs depend on."""
     payload = {k: _plain(c[k]) for k in SHARED_SUBTREES}
-    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    return json_hash(payload)
 
 
 def converged_key(c: DictConfig, spp: int) -> str:
@@ -261,7 +261,7 @@ def converged_key(c: DictConfig, spp: int) -> str:
     segment), the object, the background mesh's cut, the reference settings with ``spp`` replaced,
     and the seed."""
     ref = dict(_plain(c.reference), spp=int(spp))
-    blob = json.dumps(
+    return json_hash(
         {
             "model": _plain(c.model),
             "depth": _plain(c.depth),
@@ -271,11 +271,8 @@ def converged_key(c: DictConfig, spp: int) -> str:
             "edge_threshold": float(c.warps.edge_threshold),
             "reference": ref,
             "seed": int(c.seed),
-        },
-        sort_keys=True,
-        default=str,
+        }
     )
-    return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
 def resolved_knobs(c: DictConfig) -> dict:
@@ -359,12 +356,13 @@ class _Sweep:
 
     scorers: dict
     converged_spp: int | None
+    pool: pipeline.ModelPool = field(default_factory=pipeline.ModelPool)
     converged: dict = field(default_factory=dict)
 
 
-def _inputs(cell: Cell, shared: SharedCache) -> pipeline.CellInputs:
+def _inputs(cell: Cell, shared: SharedCache, pool: pipeline.ModelPool) -> pipeline.CellInputs:
     def compute():
-        inputs = pipeline.prepare_inputs(cell.config)
+        inputs = pipeline.prepare_inputs(cell.config, pool=pool)
         d = cell.folder.parent / "_shared" / cell.record["inputs_key"] / "_inputs"
         save_inputs(inputs, d, arrays=True)
         inputs.timings = {k: _r(v) for k, v in inputs.timings.items()}
@@ -399,7 +397,7 @@ def _run_setting(cell: Cell, shared: SharedCache, sweep: _Sweep) -> dict:
     """Sampling and metrics of one setting on its (possibly shared) inputs: the record's fields."""
     c = cell.config
     reused = cell.shares in shared.computed_by
-    inputs = _inputs(cell, shared)
+    inputs = _inputs(cell, shared, sweep.pool)
     converged = None
     if sweep.converged_spp and c.reference.enabled:
         converged = _converged_reference(cell, inputs, sweep)
@@ -458,8 +456,6 @@ def _warm_up(cfg: DictConfig, cell: Cell) -> None:
 
 def run_tradeoff(cfg: DictConfig) -> dict:
     """Run the sweep of ``cfg.tradeoff`` and build its report; returns a summary."""
-    from snell_bench.metrics import load_scorers
-
     t = cfg.tradeoff
     exp = str(cfg.experiment_name)
     root = Path(cfg.runs_dir) / exp
@@ -469,7 +465,11 @@ def run_tradeoff(cfg: DictConfig) -> dict:
     if t.recompute or any(not (c.folder / "result.json").is_file() for c in cells):
         _warm_up(cfg, cells[0])
     metrics_cfg = OmegaConf.merge(cfg.metrics, {"clip_weights": None, "image_reward_python": None})
-    sweep = _Sweep(scorers=load_scorers(metrics_cfg), converged_spp=t.converged_spp)
+    pool = pipeline.ModelPool(cfg.models.memory_gb)
+    scorers = pool.get("scorers", node_key(metrics_cfg), lambda: load_scorers(metrics_cfg), label="metrics", pin=True)[
+        0
+    ]
+    sweep = _Sweep(scorers=scorers, converged_spp=t.converged_spp, pool=pool)
     last_of_scene = {c.record["scene"]: c for c in cells}
 
     def after(cell: Cell) -> None:
@@ -482,7 +482,7 @@ def run_tradeoff(cfg: DictConfig) -> dict:
         root=root,
         record_name="result.json",
         recompute=bool(t.recompute),
-        on_change=str(t.on_change),
+        on_change=t.on_change,
         on_change_key="tradeoff.on_change",
         recompute_key="tradeoff.recompute",
         desc=f"tradeoff {exp}",
@@ -490,7 +490,7 @@ def run_tradeoff(cfg: DictConfig) -> dict:
     )
     for scene in last_of_scene:  # scenes whose last settings were already done
         update_spp_records(root / f"{scene}-{int(t.variation)}")
-    summary = {"experiment": exp, "runs": summary.pop("cells"), **summary}
+    summary = {"experiment": exp, "runs": summary.pop("cells"), **summary, "models": pool.summary()}
     write_json(root / "summary.json", summary)
     print(
         f"{exp}: {summary['ok']} ok, {summary['cached']} already done, {summary['skipped']} skipped, "

@@ -7,6 +7,7 @@ gives a new file (``0o666 & ~umask``, usually 0644), not the 0600 of :func:`temp
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import os
@@ -28,10 +29,13 @@ __all__ = [
     "link_or_copy",
     "json_default",
     "json_safe",
+    "json_hash",
+    "umask_mode",
 ]
 
 
-def _umask_mode() -> int:
+def umask_mode() -> int:
+    """The mode the process's umask gives a new file (``0o666 & ~umask``)."""
     mask = os.umask(0)
     os.umask(mask)
     return 0o666 & ~mask
@@ -53,7 +57,7 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Any], None], *, binar
     try:
         with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8"})) as f:
             write(f)
-        os.chmod(tmp, _umask_mode())
+        os.chmod(tmp, umask_mode())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -96,6 +100,12 @@ def json_safe(obj: Any) -> Any:
     if isinstance(obj, float) and not np.isfinite(obj):
         return None
     return obj
+
+
+def json_hash(obj: Any, length: int = 16) -> str:
+    """SHA-256 (its first ``length`` hex digits) of ``obj`` as JSON with sorted keys (values JSON
+    cannot hold written with ``str``): a content key for caches and settings."""
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:length]
 
 
 def write_json(path: str | os.PathLike, obj: Any) -> Path:

@@ -188,9 +188,9 @@ def test_repeated_grid_entries_fail_before_any_work(tmp_path, override, key):
 def test_ior_spec_and_cell_config():
     from omegaconf import OmegaConf
 
+    from snell_bench.config.sampler import SamplerSettings
     from snell_bench.experiment.plan import compose_cell, object_dir_name, parse_object_spec
     from snell_bench.experiment.runner import cell_overrides
-    from snell_bench.sampler.settings import SamplerSettings
 
     assert (
         parse_object_spec("sphere:1.333") == ("sphere", 1.333) and object_dir_name("sphere:1.333") == "sphere-ior1.333"

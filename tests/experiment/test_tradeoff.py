@@ -178,6 +178,8 @@ def test_unknown_preset_fails_before_work(tmp_path):
 def test_recorded_model_calls_are_the_generators_calls(overrides, expect):
     """The sampler's count against the calls the generator receives (per image in each batch)."""
     from snell_bench import pipeline
+    from snell_bench.pipeline.cell import node_key
+    from snell_bench.pipeline.methods import generator_scope
 
     base = ["preset=tiny_base", "warps.cache_dir=null", "reference.enabled=false", "reference.true_render=false"]
     cfg = pipeline.apply_method(compose([*base, *overrides, "output_dir=/tmp/x"]))
@@ -192,7 +194,7 @@ def test_recorded_model_calls_are_the_generators_calls(overrides, expect):
         return velocity(z, sigma, cond)
 
     gen.velocity = counting
-    inputs.generators[OmegaConf.to_yaml(cfg.model, resolve=True)] = (gen, 0.0)
+    inputs.pool.put("generator", node_key(cfg.model), gen, scope=generator_scope(inputs))
     res = pipeline.run_method(cfg, inputs)
     assert res.stats["model_calls"] == seen == expect
 

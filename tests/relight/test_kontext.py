@@ -7,6 +7,7 @@ os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
 
 import pytest
 import torch
+from tolerances import reordering_tolerance
 
 from snell_bench.models.errors import DeviceNotAvailableError, WeightsNotFoundError
 from snell_bench.models.tiny_flux import build_tiny_flux_pipeline
@@ -15,6 +16,10 @@ from snell_bench.relight.kontext import KontextRelighter, call_defaults, resolve
 
 H, W = 32, 48
 PROMPT = "Create soft shadows and caustics under a big glass sphere"
+#: The longest reduction of the tiny Kontext at H x W: the joint attention over the 512 T5 tokens and
+#: the packed noisy and context latents, (H / 16) (W / 16) tokens each. Two paths that compute the
+#: same float32 image in other summation orders agree to reordering_tolerance(KONTEXT_REDUCTION, image).
+KONTEXT_REDUCTION = 512 + 2 * (H // 16) * (W // 16)
 
 
 def image(h=H, w=W, seed=0):
@@ -101,7 +106,10 @@ class TestTinyKontext:
         tiny.pipe.save_pretrained(tmp_path / "kontext")
         r = KontextRelighter.from_pretrained(tmp_path / "kontext", device="cpu", steps=2)
         assert r.name == "flux_kontext" and "kontext" in r.describe()
-        torch.testing.assert_close(r.relight(image(), prompt=PROMPT, seed=5), base_output, rtol=0, atol=1e-6)
+        # the same float32 computation; weights read from safetensors lie at other memory alignments
+        # than freshly allocated ones, and the CPU kernels may then sum in another order
+        out = r.relight(image(), prompt=PROMPT, seed=5)
+        torch.testing.assert_close(out, base_output, rtol=0, atol=reordering_tolerance(KONTEXT_REDUCTION, base_output))
 
 
 class TestLoRA:
@@ -112,7 +120,9 @@ class TestLoRA:
         assert (out - base_output).abs().max() > 1e-3
         assert "LoRA" in with_lora.describe() and "scale 1" in with_lora.describe()
         off = KontextRelighter.tiny(seed=0, steps=2, lora=lora_dir, lora_scale=0.0)
-        torch.testing.assert_close(off.relight(image(), prompt=PROMPT, seed=5), base_output, rtol=0, atol=1e-5)
+        # scale 0 adds exact zeros to the base projections, in another pipeline instance: rounding only
+        atol = reordering_tolerance(KONTEXT_REDUCTION, base_output)
+        torch.testing.assert_close(off.relight(image(), prompt=PROMPT, seed=5), base_output, rtol=0, atol=atol)
 
     def test_a_file_path_and_reloading(self, lora_dir, base_output):
         files = list(lora_dir.glob("*.safetensors"))
@@ -121,7 +131,9 @@ class TestLoRA:
         a = KontextRelighter(pipe, steps=2, lora=files[0])
         b = KontextRelighter(pipe, steps=2, lora=lora_dir)  # the same adapter name, loaded again
         out_a = a.relight(image(), prompt=PROMPT, seed=5)
-        torch.testing.assert_close(b.relight(image(), prompt=PROMPT, seed=5), out_a, rtol=0, atol=1e-6)
+        # the same adapter in freshly loaded tensors: equal up to the summation order
+        atol = reordering_tolerance(KONTEXT_REDUCTION, out_a)
+        torch.testing.assert_close(b.relight(image(), prompt=PROMPT, seed=5), out_a, rtol=0, atol=atol)
         assert (out_a - base_output).abs().max() > 1e-3
 
     @pytest.mark.parametrize("lora", ["/no/such/lora.safetensors", "nobody/no-such-lora"])

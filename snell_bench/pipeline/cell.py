@@ -1,0 +1,137 @@
+"""What flows between the pipeline's stages, and the few facts of a cell's config every stage reads.
+
+Conventions: images handed between stages are ``(1, 3, H, W)`` float32 sRGB tensors in [0, 1]
+(``CellInputs.i_minus``, ``CellResult.image``) or ``(H, W, 3)`` numpy arrays where a stage works in
+numpy (``SceneInputs.image``, references); depth is camera-frame z in metres (NaN: unknown); the
+camera frame is OpenCV's.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from hydra.errors import InstantiationException
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from snell_bench.config import PromptKind
+from snell_bench.optics.warps import WarpSet
+from snell_bench.pipeline.pool import ModelPool
+from snell_bench.scene.objects import GlassObject
+from snell_bench.scene.sources import SceneInputs
+
+__all__ = [
+    "CellInputs",
+    "CellResult",
+    "Skip",
+    "apply_method",
+    "cell_seed",
+    "full_prompt",
+    "object_phrase",
+    "prompt_of",
+    "plain",
+    "node_key",
+    "build",
+    "kwargs_for",
+]
+
+
+class Skip(Exception):
+    """A method that cannot run here; the message says why."""
+
+
+@dataclass
+class CellInputs:
+    """Everything the methods of one (scene, variation, object) share."""
+
+    scene: SceneInputs
+    obj: GlassObject  #: placed, in the camera frame
+    warps: WarpSet
+    warps_config: dict  #: the resolved ``warps`` node the warps were traced with
+    i_minus: torch.Tensor  #: (1, 3, H, W) float32 sRGB
+    reference: Any = None  #: a ReferenceRender (image, mask, unobserved) or None
+    reference_reason: str | None = None  #: why there is no reference
+    true_render: np.ndarray | None = None  #: (H, W, 3) sRGB, procedural scenes only
+    timings: dict = field(default_factory=dict)
+    #: the models these inputs were prepared with (a generator that made I⁻ is reused by the methods)
+    pool: ModelPool = field(default_factory=ModelPool, repr=False, compare=False)
+
+
+@dataclass
+class CellResult:
+    """One method's output on one :class:`CellInputs`."""
+
+    image: torch.Tensor  #: (1, 3, H, W) float32 sRGB
+    panorama: torch.Tensor | None = None  #: (1, 3, h, 2h) or None
+    stats: dict = field(default_factory=dict)  #: model_calls, sampler_timings_s, decisions
+    dumps: list = field(default_factory=list)  #: intermediate estimates (sampler.dump_every)
+    scores: dict = field(default_factory=dict)  #: {"metrics": ..., "missing": ...} when scored
+    timings: dict = field(default_factory=dict)
+    warps: WarpSet | None = None  #: the warps the method used
+    unrelit: torch.Tensor | None = None  #: the image before relighting (``method.relight``)
+
+
+def apply_method(cfg: DictConfig) -> DictConfig:
+    """A copy of ``cfg`` with its method's switches (``method.sampler``, ``method.warps``) merged
+    over the ``sampler`` and ``warps`` nodes, keeping their structured schema (an unknown key is
+    an error); ``cfg`` itself is unchanged. Idempotent."""
+    c = cfg.copy()
+    c.sampler = OmegaConf.merge(c.sampler, c.method.sampler or {})
+    c.warps = OmegaConf.merge(c.warps, c.method.warps or {})
+    return c
+
+
+def cell_seed(cfg: DictConfig) -> int:
+    """The seed of a cell's sampling: ``seed + scene.variation`` (a generated I⁻ uses the same one,
+    so every method of the cell, the baselines included, starts from the seed of its scene)."""
+    return int(cfg.seed) + int(cfg.scene.variation)
+
+
+def full_prompt(cfg: DictConfig) -> str:
+    """The full prompt p of a config, ``{object}`` replaced by the object's noun."""
+    return str(cfg.scene.prompt).replace("{object}", str(cfg.object.noun))
+
+
+def object_phrase(cfg: DictConfig) -> str:
+    """The object phrase p_obj of a config (``"a big glass sphere"``), ``{object}`` replaced."""
+    return str(cfg.scene.object_phrase).replace("{object}", str(cfg.object.noun))
+
+
+def prompt_of(cfg: DictConfig, kind: PromptKind | str) -> str:
+    """The full prompt (``kind="full"``) or the object phrase (``"object"``), the two texts
+    ``method.prompt`` and ``metrics.clip_text`` choose between."""
+    return full_prompt(cfg) if PromptKind(kind) is PromptKind.full else object_phrase(cfg)
+
+
+def plain(node: Any) -> Any:
+    """A config node as plain Python (resolved; choices as their strings), anything else as is."""
+    if isinstance(node, DictConfig):
+        return OmegaConf.to_container(node, resolve=True, enum_to_str=True)
+    return node
+
+
+def node_key(node: Any) -> str:
+    """What identifies a model: the YAML of its resolved config node."""
+    return OmegaConf.to_yaml(node, resolve=True) if isinstance(node, DictConfig) else repr(node)
+
+
+def build(node: DictConfig, **kwargs: Any) -> Any:
+    """``instantiate(node, **kwargs)``, raising the constructor's own error (missing weights, no
+    GPU, a bad file) rather than Hydra's wrapper."""
+    try:
+        return instantiate(node, **kwargs)
+    except InstantiationException as e:
+        raise (e.__cause__ or e) from None
+
+
+def kwargs_for(fn: Callable, node: Any, **extra: Any) -> dict[str, Any]:
+    """The keys of a config node (as plain values) that ``fn`` takes as keyword arguments, updated
+    with ``extra``: a setting added to the node and to ``fn`` needs no third place."""
+    params = inspect.signature(fn).parameters
+    values = {k: v for k, v in plain(node).items() if k in params}
+    return {**values, **extra}

@@ -1,0 +1,317 @@
+"""Stages 1-5: what every method of one (scene, variation, object) shares.
+
+1. scene source: I⁻ (sRGB), its z-depth and camera, from a procedural scene, a photo or RGB-D
+   frame, or generated from p⁻, with a depth estimator where needed (:func:`load_scene`);
+2. where the object stands: the surface ``scene.surface`` names, segmented
+   (:func:`surface_region`); the glass object, built from ``object.factory``
+   (:func:`build_object`), placed on it (:func:`place`);
+3. ray-traced warps (:func:`trace_warps`);
+4. the reference render and its metric mask, by an independent renderer (:func:`render_reference`);
+5. the true render of the full procedural scene with the object (:func:`render_true_scene`).
+
+Every model a stage needs (a depth estimator, a segmenter, the generator of a generated I⁻) comes
+from the :class:`~snell_bench.pipeline.pool.ModelPool` handed in, so a sweep loads each once.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+from hydra.errors import InstantiationException
+from hydra.utils import instantiate
+from omegaconf import DictConfig
+
+from snell_bench.config import Source
+from snell_bench.models.segment import surface_region as segment_surface
+from snell_bench.optics.warps import WarpSet, compute_warps
+from snell_bench.pipeline.cell import CellInputs, build, cell_seed, kwargs_for, node_key, plain
+from snell_bench.pipeline.pool import ModelPool
+from snell_bench.render import render_reference as render
+from snell_bench.render import render_true
+from snell_bench.scene import sources
+from snell_bench.scene.image_source import fit_to_block, load_frame, load_image
+from snell_bench.scene.objects import GlassObject
+from snell_bench.scene.placement import place_object
+from snell_bench.scene.sources import SceneInputs
+from snell_bench.utils.paths import data_path
+from snell_bench.utils.tensors import hwc_to_bchw
+from snell_bench.utils.timing import Timer
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "load_scene",
+    "build_object",
+    "surface_region",
+    "place",
+    "trace_warps",
+    "render_reference",
+    "render_true_scene",
+    "prepare_inputs",
+    "generator_of",
+]
+
+
+# ---------------------------------------------------------------------------- 1. scene source
+def generator_of(cfg: DictConfig, pool: ModelPool, build_it=None):
+    """The generator of ``model.generator`` from the pool (``build_it``: how to build it, default
+    ``instantiate(model.generator)``) and the seconds its load took."""
+    return pool.get(
+        "generator",
+        node_key(cfg.model),
+        build_it or (lambda: build(cfg.model.generator)),
+        label=str(cfg.model.name),
+    )
+
+
+def _depth_estimator(cfg: DictConfig, pool: ModelPool, why: str):
+    if not cfg.depth.get("estimator"):
+        raise ValueError(
+            f"{why}: choose a depth estimator (depth=moge2, depth=depth_pro, depth=depth_anything_v2) or give "
+            "scene.depth"
+        )
+    return pool.get("depth", node_key(cfg.depth), lambda: build(cfg.depth.estimator), label=str(cfg.depth.name))[0]
+
+
+def _up(sc: DictConfig) -> np.ndarray | None:
+    return None if sc.up is None else np.asarray(list(sc.up), np.float64)
+
+
+def _intrinsics(sc: DictConfig) -> list | None:
+    return None if sc.intrinsics is None else list(sc.intrinsics)
+
+
+def _procedural(cfg: DictConfig, pool: ModelPool) -> SceneInputs:
+    sc = cfg.scene
+    return sources.procedural_scene(
+        sc.kind, int(sc.seed_offset) + int(sc.variation), sc.width, sc.height, sc.supersample, _up(sc)
+    )
+
+
+def _image(cfg: DictConfig, pool: ModelPool) -> SceneInputs:
+    sc = cfg.scene
+    image_file = data_path(sc.image, "scene.image", "image file")
+    if sc.depth:
+        frame = load_frame(
+            image_file,
+            data_path(sc.depth, "scene.depth", "depth file"),
+            depth_scale=sc.depth_scale,
+            depth_kind=str(sc.depth_kind),
+            intrinsics=_intrinsics(sc),
+            fov_deg=sc.fov_deg,
+            block=int(cfg.model.multiple),
+        )
+        return SceneInputs(image=frame.image, depth=frame.depth, camera=frame.camera, up=_up(sc), source=frame)
+    image = load_image(image_file)
+    depth, camera = sources.estimate_depth(
+        image,
+        _depth_estimator(cfg, pool, "scene.depth is not set"),
+        intrinsics=_intrinsics(sc),
+        fov_deg=sc.fov_deg,
+    )
+    image, depth, camera = fit_to_block(image, depth, camera, int(cfg.model.multiple))
+    return SceneInputs(image=image, depth=depth, camera=camera, up=_up(sc), source="image")
+
+
+def _generated(cfg: DictConfig, pool: ModelPool) -> SceneInputs:
+    sc = cfg.scene
+    if cfg.model.from_scene:
+        raise ValueError(
+            f"scene.source=generated needs a text-to-image generator; model={cfg.model.name} is built from the "
+            "scene itself: use model=tiny_flux (CPU, random weights) or model=flux_dev (GPU)"
+        )
+    image, info = sources.generated_image(
+        lambda: generator_of(cfg, pool)[0],
+        str(sc.prompt_minus),
+        int(sc.height),
+        int(sc.width),
+        steps=int(sc.steps),
+        seed=cell_seed(cfg),
+        schedule=str(sc.schedule),
+        cache_dir=sc.cache_dir,
+        model_key=node_key(cfg.model),
+    )
+    depth, camera = sources.estimate_depth(
+        image,
+        _depth_estimator(cfg, pool, "scene.source=generated"),
+        intrinsics=_intrinsics(sc),
+        fov_deg=sc.fov_deg,
+    )
+    return SceneInputs(image=image, depth=depth, camera=camera, up=_up(sc), source="generated", info=info)
+
+
+#: ``scene.source`` -> the loader of stage 1.
+SOURCES = {Source.procedural: _procedural, Source.image: _image, Source.generated: _generated}
+
+
+def load_scene(cfg: DictConfig, pool: ModelPool | None = None) -> SceneInputs:
+    """Stage 1: I⁻, its depth and camera from ``scene.source`` (:data:`SOURCES`;
+    :mod:`snell_bench.scene.sources`).
+
+    Args:
+        cfg: the cell's config (``scene``; ``model`` for the size rule and a generated I⁻;
+            ``depth`` for an image without depth or a generated one).
+        pool: where the depth estimator and a generator for I⁻ come from (a new pool if None).
+    """
+    return SOURCES[Source(cfg.scene.source)](cfg, ModelPool() if pool is None else pool)
+
+
+# ---------------------------------------------------------------------------- 2. the object
+def build_object(obj_cfg: DictConfig) -> GlassObject:
+    """Stage 2a: the canonical (unplaced) object, ``instantiate(object.factory, ior=object.ior)``
+    (with ``path=`` the resolved ``object.path`` for factories that read a file)."""
+    factory = obj_cfg.get("factory")
+    if not factory or "_target_" not in factory:
+        raise ValueError(
+            f"object {obj_cfg.get('name')!r} has no object.factory._target_; choose an object (object=sphere) or set "
+            "it, e.g. object.factory._target_=snell_bench.scene.objects.GlassObject.sphere"
+        )
+    kwargs: dict[str, Any] = {"ior": obj_cfg.ior}
+    if "path" in factory:
+        if not obj_cfg.path:
+            raise ValueError(f"object {obj_cfg.name!r} reads a mesh file: set object.path")
+        kwargs["path"] = data_path(obj_cfg.path, "object.path", "mesh file (.ply/.obj/.glb/.stl)")
+    try:
+        return instantiate(factory, **kwargs)
+    except InstantiationException as e:
+        cause = e.__cause__
+        if isinstance(cause, (ValueError, OSError)) and "path" in kwargs:
+            raise type(cause)(f"object {obj_cfg.name!r} (object.path={str(obj_cfg.path)!r}): {cause}") from None
+        if isinstance(cause, (ValueError, OSError)):
+            raise cause from None
+        raise ValueError(f"object.factory._target_={factory['_target_']!r} failed: {cause or e}") from None
+
+
+def surface_region(cfg: DictConfig, scene: SceneInputs, pool: ModelPool | None = None) -> np.ndarray | None:
+    """Stage 2a: where the object may stand, ``(H, W)`` bool: the surface ``scene.surface`` names,
+    segmented by ``segment.segmenter`` (SAM 3, a mask file), or ``None`` (RANSAC near the image
+    centre, the default)."""
+    if not cfg.segment.get("segmenter"):
+        return None
+    phrase = cfg.scene.surface
+    if not phrase:
+        raise ValueError(
+            f"segment={cfg.segment.name} needs the surface to find: set scene.surface (e.g. 'wooden table')"
+        )
+    pool = ModelPool() if pool is None else pool
+    segmenter = pool.get(
+        "segmenter", node_key(cfg.segment), lambda: build(cfg.segment.segmenter), label=str(cfg.segment.name)
+    )[0]
+    return segment_surface(segmenter, scene.image, str(phrase))
+
+
+def place(obj: GlassObject, scene: SceneInputs, obj_cfg: DictConfig, seed: int = 0, region=None) -> GlassObject:
+    """Stage 2b: ``obj`` standing on a supporting surface of the scene (``object.size``,
+    ``object.relative_size``, ``object.yaw_deg``), inside ``region`` when given."""
+    kwargs: dict[str, Any] = {"seed": seed, "max_tilt_deg": float(obj_cfg.max_tilt_deg)}
+    if scene.up is not None:
+        kwargs["up_hint"] = scene.up
+    if region is not None:
+        kwargs["region"] = region
+    try:
+        return place_object(
+            obj,
+            scene.depth,
+            scene.camera,
+            size=obj_cfg.size,
+            relative_size=float(obj_cfg.relative_size),
+            yaw_deg=float(obj_cfg.yaw_deg),
+            **kwargs,
+        )
+    except ValueError as e:
+        if "surface" not in str(e) or region is not None:
+            raise
+        raise ValueError(
+            f"placing object {obj_cfg.name!r}: {e}. The depth (scene.depth) must cover a horizontal surface near the "
+            "image centre; for a tilted camera set scene.up (e.g. [0, -0.87, -0.5] for 30 degrees down) or widen "
+            "object.max_tilt_deg"
+        ) from None
+
+
+# ---------------------------------------------------------------------------- 3. warps
+def trace_warps(scene: SceneInputs, obj: GlassObject, warps_cfg: DictConfig) -> WarpSet:
+    """Stage 3: :func:`~snell_bench.optics.compute_warps` with every key of the ``warps`` node."""
+    return compute_warps(scene.depth, scene.camera, obj, **kwargs_for(compute_warps, warps_cfg))
+
+
+# ---------------------------------------------------------------------------- 4-5. references
+def render_reference(cfg: DictConfig, scene: SceneInputs, obj: GlassObject, *, spp: int | None = None):
+    """Stage 4: the reference render and metric mask (every key of the ``reference`` node that the
+    renderer takes, ``spp`` replaced when given), or ``(None, reason)``."""
+    if not cfg.reference.enabled:
+        return None, "reference.enabled=false"
+    kwargs = kwargs_for(
+        render,
+        cfg.reference,
+        spp=int(cfg.reference.spp if spp is None else spp),
+        edge_threshold=float(cfg.warps.edge_threshold),
+        seed=int(cfg.seed),
+    )
+    try:  # Mitsuba is imported on the first render
+        ref = render(scene.image, scene.depth, scene.camera, obj, **kwargs)
+    except ImportError as e:
+        reason = f"reference renderer unavailable ({e}); install the render extra: make setup EXTRAS=test,render"
+        log.warning(reason)
+        return None, reason
+    return ref, None
+
+
+def render_true_scene(cfg: DictConfig, scene: SceneInputs, obj: GlassObject) -> np.ndarray | None:
+    """Stage 5: the procedural scene rendered with the object (``reference.true_render``), or None."""
+    if not (cfg.reference.true_render and Source(cfg.scene.source) is Source.procedural):
+        return None
+    bounces = cfg.reference.true_max_bounces or cfg.warps.max_bounces
+    return render_true(
+        scene.source, scene.camera, obj, spp=int(cfg.reference.true_spp), max_bounces=int(bounces), seed=int(cfg.seed)
+    )
+
+
+def prepare_inputs(cfg: DictConfig, *, references: bool = True, pool: ModelPool | None = None) -> CellInputs:
+    """Stages 1-5 for the scene, object, warps and reference settings of ``cfg``.
+
+    Args:
+        cfg: a composed config (the method's switches are not applied here: methods that change
+            the warps get their own in :func:`~snell_bench.pipeline.run_method`).
+        references: render the reference and the true render (stages 4 and 5).
+        pool: the models to use (a new pool if None); the inputs keep it for their methods.
+
+    Returns:
+        The shared inputs, with ``timings`` for ``scene``, ``warps``, ``reference``, ``true_render``.
+    """
+    pool = ModelPool() if pool is None else pool
+    t = Timer()
+    loads = len(pool.loads)
+    with t("scene"):
+        scene = load_scene(cfg, pool)
+        region = surface_region(cfg, scene, pool)
+        obj = place(build_object(cfg.object), scene, cfg.object, seed=int(cfg.seed), region=region)
+    # a generator loaded to generate I⁻ is reported as "generator" (by every method that uses it)
+    t.seconds["scene"] -= sum(x.seconds for x in pool.loads[loads:] if x.kind == "generator")
+    with t("warps"):
+        ws = trace_warps(scene, obj, cfg.warps)
+    if not ws.stats.get("object_pixels", 1):
+        raise ValueError(
+            f"object {cfg.object.name!r} covers no pixel of the {scene.camera.width}x{scene.camera.height} image "
+            f"(object.size={cfg.object.size}, object.relative_size={cfg.object.relative_size}): nothing to trace or "
+            "score; make it larger (object.size, object.relative_size) or the image larger (scene.width, scene.height)"
+        )
+    reference, reason, true = None, "not rendered", None
+    if references:
+        with t("reference"):
+            reference, reason = render_reference(cfg, scene, obj)
+        with t("true_render"):
+            true = render_true_scene(cfg, scene, obj)
+    return CellInputs(
+        scene=scene,
+        obj=obj,
+        warps=ws,
+        warps_config=plain(cfg.warps),
+        i_minus=hwc_to_bchw(scene.image),
+        reference=reference,
+        reference_reason=reason,
+        true_render=true,
+        timings=t.seconds,
+        pool=pool,
+    )

@@ -1,0 +1,249 @@
+"""Stages 6-7b: one method's image on shared inputs.
+
+6. the generator, built from ``model.generator`` (:func:`build_generator`), from the model pool;
+7. sampling with the method's settings (``method.kind``, :data:`METHODS`): the synchronized sampler
+   (``snellcaster``), the generator alone (``t2i``), FLUX Fill or its CPU stand-in (``inpaint``),
+   or another text-to-image pipeline (``external``);
+7b. relighting (``method.relight``): N candidates from the model's relighter, the one closest to
+   the un-relit image inside the object kept (:func:`relight_image`).
+
+Every model comes from the inputs' :class:`~snell_bench.pipeline.pool.ModelPool`; a method that
+cannot run here (no weights, no device) raises :class:`~snell_bench.pipeline.cell.Skip`.
+"""
+
+from __future__ import annotations
+
+import weakref
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+from scipy.ndimage import binary_dilation
+
+from snell_bench.config import InpaintMask, MethodKind, SamplerSettings
+from snell_bench.models.errors import DeviceNotAvailableError, WeightsNotFoundError
+from snell_bench.models.external import generate_external, inpaint_external, load_pipeline
+from snell_bench.optics.warps import WarpSet
+from snell_bench.pipeline.cell import (
+    CellInputs,
+    CellResult,
+    Skip,
+    build,
+    cell_seed,
+    full_prompt,
+    node_key,
+    object_phrase,
+    prompt_of,
+)
+from snell_bench.pipeline.inputs import generator_of
+from snell_bench.relight import candidate_seeds, relight
+from snell_bench.sampler.snellcaster import sample
+from snell_bench.scene.sources import panorama_prior
+from snell_bench.utils.timing import Timer
+
+__all__ = [
+    "generator_scope",
+    "build_generator",
+    "inpaint_mask",
+    "sample_method",
+    "relight_prompt",
+    "relighter_of",
+    "relight_image",
+]
+
+
+# ---------------------------------------------------------------------------- 6. generator
+def build_generator(model_cfg: DictConfig, inputs: CellInputs):
+    """Stage 6: ``instantiate(model.generator)``; a generator built from the scene
+    (``model.from_scene``) also gets ``i_minus``, ``object_mask`` and a ``panorama`` of the kind
+    ``model.pano_prior`` (:func:`~snell_bench.scene.sources.panorama_prior`)."""
+    if not model_cfg.get("generator"):
+        raise ValueError(f"model {model_cfg.name!r} has no model.generator._target_; choose a model (model=analytic)")
+    kwargs = {}
+    if model_cfg.from_scene:
+        kwargs = {
+            "i_minus": inputs.scene.image,
+            "object_mask": inputs.warps.object_mask,
+            "panorama": panorama_prior(inputs.scene, inputs.warps, inputs.i_minus, str(model_cfg.pano_prior)),
+        }
+    return build(model_cfg.generator, **kwargs)
+
+
+def generator_scope(inputs: CellInputs) -> tuple:
+    """The pool scope of generators built from ``inputs`` (``model.from_scene``)."""
+    return ("inputs", id(inputs))
+
+
+def _generator(cfg: DictConfig, inputs: CellInputs) -> tuple[Any, float]:
+    """The generator of the cell from the inputs' pool. One built from the scene lives as long as
+    the inputs (its scope); any other is shared by every cell of the sweep."""
+    pool = inputs.pool
+    if not cfg.model.from_scene:
+        return generator_of(cfg, pool, lambda: build_generator(cfg.model, inputs))
+    scope = generator_scope(inputs)
+    if not pool.in_scope(scope):  # the first use: release with the inputs
+        weakref.finalize(inputs, pool.end_scope, scope)
+    return pool.get(
+        "generator",
+        node_key(cfg.model),
+        lambda: build_generator(cfg.model, inputs),
+        label=str(cfg.model.name),
+        scope=scope,
+    )
+
+
+# ---------------------------------------------------------------------------- 7. sampling
+def inpaint_mask(cfg: DictConfig, warps: WarpSet) -> np.ndarray:
+    """The region ``method=inpaint`` repaints, boolean ``(H, W)``: the object's silhouette
+    (``method.mask=object``) or its bounding box (``box``), grown by ``method.mask_dilate_px``."""
+    m = np.asarray(warps.object_mask, bool)
+    if InpaintMask(cfg.method.mask) is InpaintMask.box:
+        ys, xs = np.nonzero(m)
+        box = np.zeros_like(m)
+        if ys.size:
+            box[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1] = True
+        m = box
+    r = int(cfg.method.mask_dilate_px)
+    if r:
+        yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
+        m = binary_dilation(m, structure=yy**2 + xx**2 <= r * r)
+    return m
+
+
+def _pipeline_call(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
+    """A baseline that is a diffusers pipeline: another text-to-image model (``external``, from
+    ``method.model_id``) or FLUX Fill (``inpaint``, from ``model.fill``), with the method's steps,
+    guidance and prompt, seeded with the cell's seed, on ``model.device``."""
+    pool = inputs.pool
+    external = MethodKind(cfg.method.kind) is MethodKind.external
+    text = prompt_of(cfg, cfg.method.prompt)
+    steps = None if cfg.method.steps is None else int(cfg.method.steps)
+    guidance = None if cfg.method.guidance is None else float(cfg.method.guidance)
+    device, dtype = cfg.model.device, cfg.model.dtype
+    try:
+        if external:
+            key = node_key(OmegaConf.create({"model_id": cfg.method.model_id, "device": device, "dtype": dtype}))
+            pipe, t.seconds["pipeline"] = pool.get(
+                "pipeline",
+                key,
+                lambda: load_pipeline(cfg.method.model_id, device=device, dtype=dtype),
+                label=str(cfg.method.model_id),
+            )
+        else:
+            pipe, t.seconds["pipeline"] = pool.get(
+                "fill", node_key(cfg.model.fill), lambda: build(cfg.model.fill), label=f"{cfg.model.name} fill"
+            )
+        with t("sampling"):
+            if external:
+                img, used = generate_external(
+                    pipe,
+                    text,
+                    warps.camera.shape,
+                    seed=cell_seed(cfg),
+                    steps=steps,
+                    guidance=guidance,
+                    return_settings=True,
+                )
+            else:
+                img, used = inpaint_external(
+                    pipe,
+                    text,
+                    inputs.i_minus,
+                    inpaint_mask(cfg, warps),
+                    seed=cell_seed(cfg),
+                    steps=steps,
+                    guidance=guidance,
+                    return_settings=True,
+                )
+    except (WeightsNotFoundError, DeviceNotAvailableError) as e:
+        raise Skip(f"{cfg.method.label} cannot run here: {e}") from None
+    return CellResult(image=img, warps=warps, stats={"pipeline": {**used.as_dict(), "prompt": text}})
+
+
+def _synchronized(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
+    """The sampler of :mod:`snell_bench.sampler.snellcaster` with the ``sampler`` node: the
+    synchronized sampler (``snellcaster``), the generator alone (``t2i``, ``sampler.sync=none``),
+    or the CPU stand-in of ``inpaint`` (the generator's image pasted into the region)."""
+    gen, t.seconds["generator"] = _generator(cfg, inputs)
+    settings = OmegaConf.to_object(cfg.sampler)
+    assert isinstance(settings, SamplerSettings)
+    prompt = full_prompt(cfg)
+    inpaint = MethodKind(cfg.method.kind) is MethodKind.inpaint
+    if inpaint:
+        prompt = prompt_of(cfg, cfg.method.prompt)
+        if cfg.method.steps is not None:
+            settings.steps = int(cfg.method.steps)
+    with t("sampling"):
+        res = sample(gen, warps, inputs.i_minus, prompt, str(cfg.scene.pano_prompt), settings, seed=cell_seed(cfg))
+    img = res.image
+    if inpaint:
+        img = torch.where(torch.from_numpy(inpaint_mask(cfg, warps))[None, None], img, inputs.i_minus)
+    stats = {
+        "model_calls": res.model_calls,
+        "sampler_timings_s": {k: round(v, 3) for k, v in res.timings.items()},
+        "decisions": res.decisions,
+    }
+    return CellResult(image=img, panorama=res.panorama, stats=stats, dumps=res.dumps, warps=warps)
+
+
+def _inpaint(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
+    """FLUX Fill from ``model.fill``, or without one the generator's CPU stand-in."""
+    return (_pipeline_call if cfg.model.get("fill") else _synchronized)(cfg, inputs, warps, t)
+
+
+#: ``method.kind`` -> stage 7.
+METHODS = {
+    MethodKind.snellcaster: _synchronized,
+    MethodKind.t2i: _synchronized,
+    MethodKind.inpaint: _inpaint,
+    MethodKind.external: _pipeline_call,
+}
+
+
+def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
+    """Stage 7: the method's image (``method.kind``, :data:`METHODS`). Raises :class:`Skip` for a
+    method that cannot run here (no weights, no device)."""
+    return METHODS[MethodKind(cfg.method.kind)](cfg, inputs, warps, t)
+
+
+# ---------------------------------------------------------------------------- 7b. relighting
+def relight_prompt(cfg: DictConfig) -> str:
+    """The relighting instruction ``relight.prompt`` with ``{object_phrase}`` replaced by p_obj."""
+    return str(cfg.relight.prompt).replace("{object_phrase}", object_phrase(cfg))
+
+
+def relighter_of(cfg: DictConfig, inputs: CellInputs) -> tuple[Any, float]:
+    """``instantiate(model.relighter)`` from the inputs' pool and the seconds its load took.
+    Raises :class:`Skip` when the model has no relighter or it cannot load here."""
+    node = cfg.model.get("relighter")
+    if not node:
+        raise Skip(f"model {cfg.model.name!r} has no relighter (model.relighter); {cfg.method.label} cannot run")
+    try:
+        return inputs.pool.get("relighter", node_key(node), lambda: build(node), label=f"{cfg.model.name} relighter")
+    except (WeightsNotFoundError, DeviceNotAvailableError) as e:
+        raise Skip(f"{cfg.method.label} cannot run here: {e}") from None
+
+
+def relight_image(cfg: DictConfig, inputs: CellInputs, result: CellResult, t: Timer) -> CellResult:
+    """Stage 7b (``method.relight``): ``relight.candidates`` candidates from the model's relighter,
+    seeded from the cell's seed; the one with the highest PSNR against the un-relit image inside
+    the object's silhouette replaces the image. Every candidate's score and the choice go to
+    ``stats["relight"]`` (JSON-safe); the un-relit image is kept as ``result.unrelit``."""
+    relighter, t.seconds["relighter"] = relighter_of(cfg, inputs)
+    warps = result.warps
+    with t("relight"):
+        res = relight(
+            result.image,
+            relighter=relighter,
+            prompt=relight_prompt(cfg),
+            seeds=candidate_seeds(cell_seed(cfg), int(cfg.relight.candidates)),
+            object_mask=warps.object_mask,
+            scene=inputs.scene,
+            obj=inputs.obj,
+            warps=warps,
+        )
+    result.unrelit = result.image
+    result.image = res.image
+    result.stats["relight"] = res.to_json()
+    return result

@@ -1,0 +1,209 @@
+"""One pool of the models a process loads: generators, FLUX Fill, relighters, pipeline baselines,
+segmenters, depth estimators and metric backbones.
+
+Convention:
+    - A model is identified by its *kind* (``generator``, ``fill``, ``relighter``, ``pipeline``,
+      ``segmenter``, ``depth``, ``scorers``) and a *key*: the YAML of the resolved config node that
+      builds it (or any string that identifies it). The same kind and key return the same object.
+    - Its lifetime is the pool's: whoever creates the pool (the runner of a sweep, one per process)
+      decides how long models live; a model is loaded at most once per pool unless the memory
+      budget forces it out.
+    - ``memory_gb`` (``models.memory_gb``; ``None``: no limit) bounds the bytes of the parameters
+      and buffers of the models held at once (:func:`model_bytes`). A model loaded for the first
+      time is assumed to need the whole budget, so every other model is released before it loads
+      (least recently used first); afterwards its measured size is known and only as many models
+      as needed are released. Models of a *scope* (a generator built from one scene's inputs) are
+      released with :meth:`ModelPool.end_scope`.
+    - Every load is recorded (:attr:`ModelPool.loads`: kind, key digest, label, seconds, bytes),
+      and so is every release; sweeps write them to ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import gc
+import hashlib
+import logging
+import time
+from collections import OrderedDict
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ModelPool", "model_bytes", "ModelLoad"]
+
+
+def _modules(obj: Any, depth: int = 2) -> list[torch.nn.Module]:
+    """The torch modules an object holds: itself, its diffusers components, or its attributes (two
+    levels down)."""
+    if isinstance(obj, torch.nn.Module):
+        return [obj]
+    if depth == 0 or obj is None or isinstance(obj, (str, bytes, int, float, bool)):
+        return []
+    found: list[torch.nn.Module] = []
+    components = getattr(obj, "components", None)
+    values = list(components.values()) if isinstance(components, dict) else []
+    if isinstance(obj, dict):
+        values += list(obj.values())
+    elif hasattr(obj, "__dict__"):
+        values += list(vars(obj).values())
+    for v in values:
+        found += _modules(v, depth - 1)
+    return found
+
+
+def model_bytes(obj: Any) -> int:
+    """Bytes of the parameters and buffers of every torch module ``obj`` holds (each tensor counted
+    once): a model's footprint in device memory, activations not included."""
+    seen: set[int] = set()
+    total = 0
+    for m in _modules(obj):
+        for t in (*m.parameters(), *m.buffers()):
+            if id(t) not in seen:
+                seen.add(id(t))
+                total += t.numel() * t.element_size()
+    return total
+
+
+@dataclass
+class ModelLoad:
+    """One load (or release) of a model."""
+
+    kind: str
+    key: str  #: a digest of the key (the resolved node's YAML)
+    label: str
+    seconds: float
+    bytes: int
+    event: str = "load"  #: ``load`` or ``release``
+
+    def as_dict(self) -> dict:
+        return {
+            "kind": self.kind,
+            "key": self.key,
+            "label": self.label,
+            "event": self.event,
+            "seconds": round(self.seconds, 3),
+            "bytes": self.bytes,
+        }
+
+
+@dataclass
+class _Entry:
+    model: Any
+    seconds: float
+    bytes: int
+    label: str
+    pinned: bool
+
+
+class ModelPool:
+    """Models by (kind, key), loaded once each; see the module docs.
+
+    Args:
+        memory_gb: the budget of model bytes held at once (GiB); ``None``: no limit.
+    """
+
+    def __init__(self, memory_gb: float | None = None) -> None:
+        if memory_gb is not None and not memory_gb > 0:
+            raise ValueError(f"models.memory_gb={memory_gb!r}: must be a positive number of GiB, or null (no limit)")
+        self.budget = None if memory_gb is None else int(float(memory_gb) * 2**30)
+        self._held: OrderedDict[tuple[str, str, Hashable], _Entry] = OrderedDict()
+        self._sizes: dict[tuple[str, str], int] = {}  #: measured sizes of models loaded before
+        self.loads: list[ModelLoad] = []
+
+    @staticmethod
+    def digest(key: str) -> str:
+        return hashlib.sha256(key.encode()).hexdigest()[:12]
+
+    def held(self, kind: str | None = None) -> list[str]:
+        """Labels of the models held now (of one kind)."""
+        return [e.label for (k, _, _), e in self._held.items() if kind in (None, k)]
+
+    def get(
+        self,
+        kind: str,
+        key: str,
+        build: Callable[[], Any],
+        *,
+        label: str = "",
+        scope: Hashable | None = None,
+        pin: bool = False,
+    ) -> tuple[Any, float]:
+        """The model of ``(kind, key)`` (within ``scope``) and the seconds its load took, reported by
+        every use so a cell's timings show the cost of the model it ran, whichever cell loaded it.
+
+        ``build()`` loads it the first time; an exception it raises propagates and nothing is kept.
+        A ``pin``-ned model (the metric backbones every cell needs) counts against the budget but
+        is never released to make room.
+        """
+        k = (kind, key, scope)
+        if k in self._held:
+            self._held.move_to_end(k)
+            e = self._held[k]
+            return e.model, e.seconds
+        self._make_room(self._sizes.get((kind, key)))
+        t0 = time.perf_counter()
+        model = build()
+        seconds = time.perf_counter() - t0
+        size = model_bytes(model)
+        self._sizes[(kind, key)] = size
+        self._held[k] = _Entry(model, seconds, size, label or kind, pin)
+        self.loads.append(ModelLoad(kind, self.digest(key), label or kind, seconds, size))
+        log.info("loaded %s %s in %.2f s (%.2f GiB)", kind, label, seconds, size / 2**30)
+        self._make_room(0, keep=k)
+        return model, seconds
+
+    def put(self, kind: str, key: str, model: Any, *, label: str = "", scope: Hashable | None = None) -> None:
+        """Hand the pool a model built elsewhere (a pipeline loaded by hand, a wrapped generator):
+        later :meth:`get` calls of ``(kind, key)`` return it."""
+        self._held[(kind, key, scope)] = _Entry(model, 0.0, model_bytes(model), label or kind, False)
+
+    def _make_room(self, need: int | None, keep: tuple | None = None) -> None:
+        """Release models, least recently used first, until ``need`` more bytes fit in the budget
+        (``None``: an unknown size, taken as the whole budget)."""
+        if self.budget is None:
+            return
+        need = self.budget if need is None else need
+        for k in list(self._held):
+            if self.held_bytes() + need <= self.budget:
+                break
+            if k != keep and not self._held[k].pinned:
+                self.release(k)
+
+    def held_bytes(self) -> int:
+        return sum(e.bytes for e in self._held.values())
+
+    def release(self, k: tuple) -> None:
+        """Drop one model (and the device memory it holds)."""
+        e = self._held.pop(k, None)
+        if e is None:
+            return
+        self.loads.append(ModelLoad(k[0], self.digest(k[1]), e.label, 0.0, e.bytes, "release"))
+        del e
+        gc.collect()
+        if torch.cuda.is_available():
+            torch.cuda.empty_cache()
+
+    def in_scope(self, scope: Hashable) -> bool:
+        """Whether any model of ``scope`` is held."""
+        return any(k[2] == scope for k in self._held)
+
+    def end_scope(self, scope: Hashable) -> None:
+        """Release the models built for ``scope`` (e.g. a generator built from one scene's inputs)."""
+        for k in [k for k in self._held if k[2] == scope and scope is not None]:
+            self.release(k)
+
+    def clear(self) -> None:
+        for k in list(self._held):
+            self.release(k)
+
+    def summary(self) -> dict:
+        """``{"budget_gb": ..., "loads": [...]}`` for ``summary.json``: every load and release in
+        order."""
+        return {
+            "budget_gb": None if self.budget is None else self.budget / 2**30,
+            "loads": [x.as_dict() for x in self.loads],
+        }

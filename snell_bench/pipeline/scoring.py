@@ -1,0 +1,93 @@
+"""Stage 8: masked metrics of a method's image against the reference, and the method's whole run
+(stages 6-8, :func:`run_method`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+from omegaconf import DictConfig
+
+from snell_bench.metrics import load_scorers, score_cell
+from snell_bench.pipeline.cell import CellInputs, CellResult, node_key, plain, prompt_of
+from snell_bench.pipeline.inputs import trace_warps
+from snell_bench.pipeline.methods import relight_image, sample_method
+from snell_bench.pipeline.pool import ModelPool
+from snell_bench.utils.io import save_png
+from snell_bench.utils.tensors import bchw_to_hwc
+from snell_bench.utils.timing import Timer
+
+__all__ = ["scorers_of", "score", "run_method", "sample_stage", "finish_method"]
+
+
+def scorers_of(cfg: DictConfig, pool: ModelPool):
+    """The metric backbones of ``metrics`` (LPIPS, CLIP, ImageReward; each missing with its reason
+    where it cannot load) from the pool, pinned: every cell of a sweep scores with them."""
+    return pool.get("scorers", node_key(cfg.metrics), lambda: load_scorers(cfg.metrics), label="metrics", pin=True)[0]
+
+
+def score(
+    cfg: DictConfig, inputs: CellInputs, image: torch.Tensor, scorers, *, image_path=None, reference=None
+) -> dict:
+    """Stage 8: masked metrics of ``image`` against the reference (``reference``: another
+    ReferenceRender to score against, e.g. a converged one) and PSNR against the true render:
+    ``{"metrics": {name: float | None}, "missing": {name: reason}}``."""
+    ref = inputs.reference if reference is None else reference
+    return score_cell(
+        bchw_to_hwc(image),
+        None if ref is None else ref.image,
+        None if ref is None else ref.mask,
+        prompt_of(cfg, cfg.metrics.clip_text),
+        scorers,
+        reference_reason=inputs.reference_reason,
+        true_render=inputs.true_render if reference is None else None,
+        object_mask=inputs.warps.object_mask,
+        generated_path=image_path,
+        protocol=str(cfg.metrics.protocol),
+    )
+
+
+def sample_stage(cfg: DictConfig, inputs: CellInputs) -> CellResult:
+    """Stages 6-7 of one method (``cfg`` with :func:`~snell_bench.pipeline.apply_method` applied),
+    before relighting. A method whose ``warps`` settings differ from those the inputs were traced
+    with gets its own warps (timed as ``warps``)."""
+    t = Timer()
+    warps = inputs.warps
+    if plain(cfg.warps) != inputs.warps_config:
+        with t("warps"):
+            warps = trace_warps(inputs.scene, inputs.obj, cfg.warps)
+    result = sample_method(cfg, inputs, warps, t)
+    result.timings = {**t.seconds, **result.timings}
+    return result
+
+
+def finish_method(
+    cfg: DictConfig, inputs: CellInputs, result: CellResult, *, scorers=None, image_path=None
+) -> CellResult:
+    """Stages 7b-8 of a method after :func:`sample_stage`: relighting (``method.relight``), the
+    image saved to ``image_path`` (and the un-relit one beside it), and the scores (with
+    ``scorers``)."""
+    t = Timer()
+    if cfg.method.relight:
+        result = relight_image(cfg, inputs, result, t)
+    if scorers is not None:
+        if image_path is not None:
+            save_png(image_path, bchw_to_hwc(result.image))
+            if result.unrelit is not None:
+                p = Path(image_path)
+                save_png(p.with_name(f"{p.stem}_unrelit{p.suffix}"), bchw_to_hwc(result.unrelit))
+        with t("metrics"):
+            result.scores = score(cfg, inputs, result.image, scorers, image_path=image_path)
+    result.timings = {**result.timings, **t.seconds}
+    return result
+
+
+def run_method(cfg: DictConfig, inputs: CellInputs, *, scorers=None, image_path=None) -> CellResult:
+    """Stages 6-8: one method (``cfg`` with :func:`~snell_bench.pipeline.apply_method` applied) on
+    shared inputs, with the models of ``inputs.pool``.
+
+    With ``scorers`` (:func:`scorers_of`, :func:`snell_bench.metrics.load_scorers`) the image is
+    scored and ``CellResult.scores`` filled; ``image_path`` is the saved image, handed to scorers
+    that read files. Raises :class:`~snell_bench.pipeline.Skip` for a method that cannot run here.
+    """
+    return finish_method(cfg, inputs, sample_stage(cfg, inputs), scorers=scorers, image_path=image_path)
