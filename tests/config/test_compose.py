@@ -130,3 +130,26 @@ def test_installed_package_runs_from_any_folder(tmp_path):
         timeout=300,
     )
     assert OmegaConf.create(out.stdout).experiment_name == "smoke"
+
+
+@pytest.mark.parametrize(
+    "overrides, run_dir, job_name",
+    [
+        (["+experiment=smoke"], "runs/smoke/logs/", "smoke"),
+        (["+experiment=ablation", "runs_dir=/data/r"], "/data/r/ablation/logs/", "ablation"),
+        (["+experiment=tradeoff"], "runs/tradeoff/logs/", "tradeoff"),
+        (["job=preview", "scene=kitchen", "object=fox"], "runs/preview/kitchen-0/fox", "default"),
+    ],
+)
+def test_a_sweep_logs_under_its_experiment(overrides, run_dir, job_name):
+    """Each sweep's Hydra log goes to ``<runs_dir>/<experiment>/logs/<time>/<experiment>.log``, so
+    no grid overwrites another's; a preview keeps its folder per scene and object."""
+    from hydra import compose as hydra_compose
+
+    from snell_bench.config import config_context
+
+    with config_context():
+        cfg = hydra_compose(config_name="config", overrides=overrides, return_hydra_config=True)
+    assert str(cfg.hydra.run.dir).startswith(run_dir), cfg.hydra.run.dir
+    assert cfg.hydra.job.name == job_name
+    assert str(cfg.hydra.sweep.dir).startswith(run_dir.split("/logs/")[0] if "/logs/" in run_dir else "runs/default")
