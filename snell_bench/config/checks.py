@@ -23,6 +23,7 @@ from typing import Any
 
 import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf.errors import InterpolationResolutionError
 
 from snell_bench.config.choices import Job, Source
 from snell_bench.config.errors import ConfigError, Problems, is_int
@@ -123,6 +124,8 @@ def _nodes(cfg: DictConfig, out: list[str]) -> None:
             OmegaConf.to_object(node)
         except ConfigError as e:
             out += e.problems
+        except InterpolationResolutionError as e:  # e.g. a prompt without its [[object phrase]]
+            out.append(f"{e.full_key}: {e.__cause__ or e}")
 
 
 def _sizes(cfg: DictConfig, out: list[str]) -> None:

@@ -8,7 +8,7 @@ import pytest
 from PIL import Image
 
 from snell_bench import pipeline
-from snell_bench.config import compose
+from snell_bench.config import ConfigError, compose
 
 REPO = Path(__file__).resolve().parents[2]
 FRAME = REPO / "datasets" / "rgbd" / "tum_fr3_office"
@@ -160,7 +160,7 @@ def test_photo_experiment_end_to_end(tmp_path):
     assert (tmp_path / "reports/photo/method_table.md").is_file()
 
 
-def test_a_prompt_without_an_object_phrase_fails_the_cell_naming_the_key(tmp_path):
+def test_a_prompt_without_an_object_phrase_fails_before_any_work_naming_the_key(tmp_path):
     from snell_bench.experiment.runner import run_grid
 
     cfg = compose(
@@ -179,11 +179,10 @@ def test_a_prompt_without_an_object_phrase_fails_the_cell_naming_the_key(tmp_pat
             f"output_dir={tmp_path}",
         ]
     )
-    summary = run_grid(cfg)
-    assert summary["failed"] == 2
-    rec = json.loads((tmp_path / "smoke/living_room-0/sphere/t2i/metrics.json").read_text())
-    assert "scene.text" in rec["reason"] and "[[" in rec["reason"]
-    assert (tmp_path / "smoke/living_room-0/sphere/t2i/config.yaml").is_file()
+    with pytest.raises(ConfigError) as e:
+        run_grid(cfg)
+    assert "scene.text" in str(e.value) and "[[" in str(e.value)
+    assert not (tmp_path / "smoke").exists()  # nothing was run
 
 
 def test_a_photo_without_depth_gets_it_from_the_depth_estimator(monkeypatch):
