@@ -17,6 +17,9 @@ Layout of an experiment ``E`` under ``runs/``::
 - Everything a (scene, variation, object) needs, I⁻, depth, warps (content-hashed cache), the
   reference renders, is computed once (:func:`snell_bench.pipeline.prepare_inputs`) and shared
   by every method of that group; the files are hard-linked into each cell.
+- Every model comes from one :class:`~snell_bench.pipeline.ModelPool` per sweep, so each loads
+  once; with a memory budget (``models.memory_gb``) the cells run model-major
+  (:mod:`snell_bench.experiment.order`). ``summary.json`` lists every load (``models``).
 - The loop (:func:`snell_bench.experiment.cells.run_cells`) writes every file atomically and
   ``metrics.json`` last, so a cell with a ``metrics.json`` is complete. Re-running skips complete
   cells (``grid.recompute=true`` redoes them); a failing cell records its error (``status:
@@ -116,9 +119,9 @@ def _group_inputs(cell: Cell, shared: SharedCache, pool: ModelPool) -> tuple[pip
     return shared.get(cell.shares, compute, by=cell.name)
 
 
-def run_cell(cell: Cell, shared: SharedCache, scorers, pool: ModelPool | None = None) -> dict:
-    """One grid cell: shared inputs linked into its folder, the method run and scored."""
-    pool = ModelPool() if pool is None else pool
+def run_cell(cell: Cell, shared: SharedCache, scorers, pool: ModelPool) -> dict:
+    """One grid cell: shared inputs linked into its folder, the method run and scored, with the
+    models of the sweep's pool."""
     inputs, files = _group_inputs(cell, shared, pool)
     for name, path in files.items():
         link_or_copy(path, cell.folder / name)
