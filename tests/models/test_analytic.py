@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import integrate_flow
+from tolerances import reordering_tolerance
 
 from snell_bench.models.analytic import AnalyticGenerator, glass_blob_prior
 from snell_bench.models.base import Generator
@@ -27,7 +28,9 @@ def test_encode_decode_round_trip_is_exact():
     img = prior(32, 48, 5)
     lat = g.encode(img)
     assert lat.shape == (1, 192, 4, 6)
-    torch.testing.assert_close(g.decode(lat), img, atol=2e-6, rtol=0)
+    # exact up to float32 rounding: two products with a 192 x 192 orthogonal matrix in sequence (their
+    # lengths add), of magnitude at most that of the latents
+    torch.testing.assert_close(g.decode(lat), img, atol=reordering_tolerance(2 * 192, lat, img), rtol=0)
     # an orthogonal transform: distances are kept (up to the 2x scale of 2x - 1)
     other = prior(32, 48, 6)
     assert float((g.encode(other) - lat).norm()) == pytest.approx(2 * float((other - img).norm()), rel=1e-5)
@@ -127,8 +130,10 @@ def test_blur_is_a_replicate_padded_separable_gaussian(sigma):
     pad = k // 2
     ref = F.conv2d(F.pad(img, (pad, pad, 0, 0), mode="replicate"), g.view(1, 1, 1, k).repeat(3, 1, 1, 1), groups=3)
     ref = F.conv2d(F.pad(ref, (0, 0, pad, pad), mode="replicate"), g.view(1, 1, k, 1).repeat(3, 1, 1, 1), groups=3)
-    assert torch.equal(_blur(img, sigma), ref)
-    assert float((_blur(torch.full_like(img, 0.3), sigma) - 0.3).abs().max()) < 1e-6  # weights sum to 1
+    # the same two k-tap passes, through kornia's convolution: equal up to the order of the 2k terms
+    torch.testing.assert_close(_blur(img, sigma), ref, rtol=0, atol=reordering_tolerance(2 * k, ref))
+    # weights summing to 1 (to rounding) keep a constant, to the rounding of the two k-tap passes
+    assert float((_blur(torch.full_like(img, 0.3), sigma) - 0.3).abs().max()) <= reordering_tolerance(2 * k, 0.3)
 
 
 def test_image_and_mask_layouts_give_the_same_prior():

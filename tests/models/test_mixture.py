@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import integrate_flow
+from tolerances import reordering_tolerance
 
 from snell_bench.models.analytic import AnalyticGenerator
 from snell_bench.models.base import Generator
@@ -91,7 +92,9 @@ def test_latent_space_and_schedule_are_the_analytic_ones():
     m = MixtureGenerator.from_scene(image(96, 160), disc(96, 160), seed=3)
     a = AnalyticGenerator(image(96, 160), seed=3)
     img = image(96, 160, 5)
-    torch.testing.assert_close(m.decode(m.encode(img)), img, atol=2e-6, rtol=0)
+    lat = m.encode(img)
+    # two products with a 192 x 192 orthogonal matrix in sequence: float32 rounding of 2 x 192 terms
+    torch.testing.assert_close(m.decode(lat), img, atol=reordering_tolerance(2 * 192, lat, img), rtol=0)
     assert torch.equal(m.encode(img), a.encode(img))
     for kind in ("flux", "linear"):
         assert torch.equal(m.sigmas(20, 96, 160, kind=kind), a.sigmas(20, 96, 160, kind=kind))

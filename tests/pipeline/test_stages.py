@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 from hydra.errors import ConfigCompositionException
+from tolerances import reordering_tolerance
 
 from snell_bench import pipeline
 from snell_bench.config import compose
@@ -252,4 +253,6 @@ def test_the_panorama_prior_is_not_the_truth_unless_asked(inputs):
         panorama_prior(sc, ws, inputs.i_minus, "oracle")
     for kind, expected in (("other", other), ("truth", truth)):
         gen = pipeline.build_generator(compose([*TINY, f"model.pano_prior={kind}"]).model, inputs)
-        np.testing.assert_allclose(gen.prior_image("pano")[0].permute(1, 2, 0).numpy(), expected, atol=1e-6)
+        # the prior is held as latents: an encode and a decode (192 x 192 products) in float32
+        atol = reordering_tolerance(2 * 192, gen._priors["pano"], expected)
+        np.testing.assert_allclose(gen.prior_image("pano")[0].permute(1, 2, 0).numpy(), expected, atol=atol)

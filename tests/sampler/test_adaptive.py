@@ -6,6 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from tolerances import reordering_tolerance
 
 from snell_bench.models.analytic import AnalyticGenerator
 from snell_bench.optics import compute_warps
@@ -91,8 +92,13 @@ def test_region_of_interest_gives_the_same_images(scene_setup):
     a = sample(gen, ws, i_minus, "p", "p360", replace(FAST, roi=False), seed=3)
     b = sample(gen, ws, i_minus, "p", "p360", replace(FAST, roi=True), seed=3)
     assert a.model_calls == b.model_calls
-    torch.testing.assert_close(a.image, b.image, atol=1e-5, rtol=0)
-    torch.testing.assert_close(a.panorama, b.panorama, atol=1e-5, rtol=0)
+    # The window runs the same operations per pixel, at other positions in the kernels' loops. Each
+    # model call chains a decode and an encode (192 x 192 products) and a warp (under 60 terms per
+    # pyramid level); the Euler steps mix the estimates convexly, so the rounding of all calls adds up
+    # to sum(1 - sigma' / sigma) calls' worth over the steps run (4.03 here, time-travel repeats included).
+    length = 5 * (2 * 192 + 60 * FAST.levels)
+    torch.testing.assert_close(a.image, b.image, atol=reordering_tolerance(length, a.image), rtol=0)
+    torch.testing.assert_close(a.panorama, b.panorama, atol=reordering_tolerance(length, a.panorama), rtol=0)
     assert b.decisions["roi"] is True and a.decisions["roi"] is False
 
 

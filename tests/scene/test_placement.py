@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+from tolerances import EPS64, reordering_tolerance
 
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.objects import GlassObject
@@ -224,8 +225,9 @@ GOLDEN = {
 @pytest.mark.parametrize("name", sorted(GOLDEN))
 def test_without_a_region_the_plane_is_what_it_was(name):
     """``region=None`` (or no region argument) gives the planes recorded before regions existed, and
-    the two calls agree bit for bit. (The recorded values are compared to 1e-12: the SVD of another
-    machine's LAPACK may round differently.)"""
+    the two calls agree bit for bit. (The recorded values were computed on another machine, whose
+    LAPACK may sum in another order: they agree to the float64 rounding of reductions over the
+    inliers.)"""
     depth, cam, kw = golden_cases()[name]
     a = find_support_plane(depth, cam, **kw)
     b = find_support_plane(depth, cam, region=None, **kw)
@@ -234,8 +236,12 @@ def test_without_a_region_the_plane_is_what_it_was(name):
         assert va.dtype == vb.dtype and va.tobytes() == vb.tobytes(), f.name
     inliers, point, normal, pixel = GOLDEN[name]
     assert a.inliers == inliers
-    np.testing.assert_allclose(a.point, point, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(a.normal, normal, rtol=0, atol=1e-12)
+    # the mean and the SVD of the centred inliers sum over them: float64 rounding of that many terms,
+    # times the point's magnitude (< 2.5) or, for the normal, the SVD's sigma_1 / sigma_2 (< 3.7 here)
+    atol = reordering_tolerance(inliers, 4.0, eps=EPS64)
+    np.testing.assert_allclose(a.point, point, rtol=0, atol=atol)
+    np.testing.assert_allclose(a.normal, normal, rtol=0, atol=atol)
+    # projected with a focal length of ~115 pixels per unit of x / z: ~1e-10 for the above
     np.testing.assert_allclose(a.pixel, pixel, rtol=0, atol=1e-9)
 
 
