@@ -1,7 +1,7 @@
 """Checks of a composed config before any work: every key known, every value usable.
 
 :func:`check_config` runs at the start of every job (and, on the command line, before Hydra
-creates its output folder or configures logging: :class:`snell_bench.preflight.Preflight`), and
+creates its output folder or configures logging: :class:`snell_bench.config.preflight.Preflight`), and
 on every cell a sweep composes, so a bad setting fails in the first second, not after the scene
 and the warps are built. Each problem names the key, the bad value and the fix; all of them are
 reported together in one :class:`ConfigError`.
@@ -10,8 +10,11 @@ reported together in one :class:`ConfigError`.
   (:mod:`snell_bench.config`) knows would be ignored silently. Free-form nodes (``_target_``
   nodes such as ``object.factory``, ``tradeoff.axes``) may hold anything; ``method.sampler`` and
   ``method.warps`` are checked against the ``sampler`` and ``warps`` schemas they override.
-- **Values.** Sizes, seeds, counts, angles, the materials, the choices of string keys, the
-  generator's size rule and the pyramid's depth, each against its documented range.
+- **Values.** Choices are enums of the schema, checked when the config is composed; here each
+  node's dataclass checks its ranges (``__post_init__``, the warps with ``method.warps`` applied,
+  the sampler with ``method.sampler``), then what depends on several nodes (the image size and the
+  generator's block, the pyramid's depth against the image and the panorama), the files a config
+  names, the devices and dtypes, and the grid's and the sweep's lists.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import InterpolationResolutionError
 
-from snell_bench.config.choices import Job, Source
+from snell_bench.config.choices import DTYPE_NAMES, Job, Source, dtype_name
 from snell_bench.config.errors import ConfigError, Problems, is_int
 from snell_bench.config.grid import check_names, check_unique, object_dir_name, parse_object_spec
 from snell_bench.config.materials import MATERIALS, resolve_ior
@@ -41,10 +44,6 @@ __all__ = [
     "check_grid_entries",
     "check_tradeoff_entries",
 ]
-
-#: torch dtypes a config may name (``model.dtype``), as :func:`snell_bench.models.devices.parse_dtype` reads them.
-DTYPE_NAMES = ("bfloat16", "bf16", "float16", "fp16", "half", "float32", "fp32", "float")
-
 
 # ---------------------------------------------------------------------------- unknown keys
 #: Nodes that override another node's schema: their keys must be keys of that node.
@@ -120,6 +119,8 @@ def _nodes(cfg: DictConfig, out: list[str]) -> None:
         node = cfg.get(name)
         if not isinstance(node, DictConfig):
             continue
+        if name == "warps":  # with the method's switches applied, as the method traces them
+            node = OmegaConf.merge(node, _get(cfg, "method.warps") or {})
         try:
             OmegaConf.to_object(node)
         except ConfigError as e:
@@ -230,10 +231,13 @@ def _devices(cfg: DictConfig, out: list[str]) -> None:
         elif dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
             out.append(f"{key}={value!r}: there are {torch.cuda.device_count()} CUDA devices; use cuda:0 ...")
     dtype = _get(cfg, "model.dtype")
-    if dtype is not None and str(dtype).lower().removeprefix("torch.") not in DTYPE_NAMES:
-        out.append(
-            f"model.dtype={dtype!r} is unknown; use one of {list(DTYPE_NAMES[:6])} (or null: the device's default)"
-        )
+    if dtype is not None:
+        try:
+            dtype_name(dtype)
+        except KeyError:
+            out.append(
+                f"model.dtype={dtype!r} is unknown; use one of {list(DTYPE_NAMES)} (or null: the device's default)"
+            )
 
 
 def check_grid_entries(cfg: DictConfig) -> list[str]:

@@ -13,6 +13,7 @@ from enum import Enum
 __all__ = [
     "Choice",
     "Job",
+    "SWEEP_JOBS",
     "Source",
     "DepthKind",
     "Normals",
@@ -23,6 +24,8 @@ __all__ = [
     "Protocol",
     "RefSampler",
     "OnChange",
+    "DTYPE_NAMES",
+    "dtype_name",
 ]
 
 
@@ -39,6 +42,15 @@ class Choice(str, Enum):
     def values(cls) -> tuple[str, ...]:
         return tuple(m.value for m in cls)
 
+    @classmethod
+    def of(cls, value, key: str):
+        """The member ``value`` names (a member or its string; a config read back from YAML holds
+        strings). Raises ``ValueError`` naming ``key`` and the choices for any other value."""
+        try:
+            return cls(str(value))
+        except ValueError:
+            raise ValueError(f"{key}={value!r} is unknown; use one of {list(cls.values())}") from None
+
 
 class Job(Choice):
     """What ``python -m snell_bench`` runs (``job``)."""
@@ -48,6 +60,11 @@ class Job(Choice):
     grid = "grid"
     tradeoff = "tradeoff"
     report = "report"
+
+
+#: Jobs whose output is an experiment folder under ``runs_dir`` (their logs go to
+#: ``runs/<experiment>/logs/``).
+SWEEP_JOBS = (Job.grid, Job.tradeoff, Job.report)
 
 
 class Source(Choice):
@@ -128,3 +145,23 @@ class OnChange(Choice):
 
     error = "error"
     recompute = "recompute"
+
+
+#: The dtype names ``model.dtype`` takes (case-insensitive, optionally prefixed with ``torch.``),
+#: each to the name of its ``torch`` dtype (:func:`snell_bench.models.devices.parse_dtype`).
+DTYPE_NAMES: dict[str, str] = {
+    "bfloat16": "bfloat16",
+    "bf16": "bfloat16",
+    "float16": "float16",
+    "fp16": "float16",
+    "half": "float16",
+    "float32": "float32",
+    "fp32": "float32",
+    "float": "float32",
+}
+
+
+def dtype_name(value: str) -> str:
+    """The canonical torch dtype name of a ``model.dtype`` value (``" BF16"`` -> ``"bfloat16"``).
+    Raises ``KeyError`` for an unknown name."""
+    return DTYPE_NAMES[str(value).strip().lower().removeprefix("torch.")]

@@ -18,6 +18,7 @@ from hydra.core.config_store import ConfigStore
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf
 
+from snell_bench.config.choices import SWEEP_JOBS
 from snell_bench.config.schema import (
     Config,
     DepthConfig,
@@ -27,8 +28,6 @@ from snell_bench.config.schema import (
     SceneConfig,
     SegmentConfig,
 )
-from snell_bench.scene.prompt_llm import decompose_with_llm
-from snell_bench.scene.prompt_rules import decompose
 
 __all__ = ["CONFIG_MODULE", "config_context", "compose", "group_options", "register_configs"]
 
@@ -78,13 +77,14 @@ def group_options(group: str) -> list[str]:
 def _prompts(text: str, field: str, llm: Optional[str] = None) -> str:
     """The ``prompts`` resolver: one field of the decomposition of a marked prompt (or of one a
     local language model marks, ``scene.prompt_llm``)."""
+    # imported on the first prompt resolved, so that importing the config does not load the
+    # scene package (Open3D, trimesh) and the models package it imports
+    from snell_bench.scene.prompt_llm import decompose_with_llm
+    from snell_bench.scene.prompt_rules import decompose
+
     if llm and "[[" not in str(text):
         return getattr(decompose_with_llm(str(text), model_path=str(llm)), field)
     return getattr(decompose(str(text)), field)
-
-
-#: Jobs whose output is an experiment folder (their logs go to ``runs/<experiment>/logs/``).
-SWEEP_JOBS = ("grid", "tradeoff", "report")
 
 
 def _run_dir(job: str, runs_dir: str, experiment: str, cell: str, now: str) -> str:

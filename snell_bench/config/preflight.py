@@ -14,13 +14,12 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 from snell_bench.config.checks import check_config
-from snell_bench.config.choices import Job
+from snell_bench.config.choices import SWEEP_JOBS, Job
 
 __all__ = ["Preflight", "check_writable", "output_folders"]
 
 #: Jobs that write under ``runs_dir`` and ``reports_dir``.
 _RUNS_JOBS = (Job.grid, Job.tradeoff)
-_REPORT_JOBS = (Job.grid, Job.tradeoff, Job.report)
 
 
 def check_writable(folder: str | os.PathLike, key: str) -> None:
@@ -48,7 +47,7 @@ def output_folders(cfg: DictConfig) -> list[tuple[str, str]]:
     job = cfg.get("job")
     if job in _RUNS_JOBS:
         out.append(("runs_dir", str(cfg.runs_dir)))
-    if job in _REPORT_JOBS:
+    if job in SWEEP_JOBS:
         out.append(("reports_dir", str(cfg.reports_dir)))
     return out
 

@@ -309,6 +309,7 @@ def run_cells(
         before), ``busy`` (claimed by another process running at the same time), and
         ``failures`` as ``[cell folder, reason]`` pairs.
     """
+    on_change = OnChange.of(on_change, on_change_key)
     settings = {id(c): result_settings(c.config) for c in cells}
     hashes = {k: settings_hash(v) for k, v in settings.items()}
 
@@ -325,7 +326,7 @@ def run_cells(
 
     states = {id(c): status(c) for c in cells}
     changed = [s for s in states.values() if isinstance(s, ChangedCell)]
-    if changed and OnChange(on_change) is OnChange.error:
+    if changed and on_change is OnChange.error:
         raise SettingsChanged(changed, on_change_key=on_change_key, recompute_key=recompute_key)
     for c in changed:
         log.info("cell %s: settings changed; computing it again (%s=recompute)", c.cell.name, on_change_key)

@@ -2,52 +2,49 @@
 
 Without a memory budget (``models.memory_gb: null``) every model stays loaded and cells run group
 by group (scene x variation x object), each group's inputs computed once and dropped after its last
-method. With a budget the models may not fit together, so the sweep runs *model-major*:
+method. With a budget the models may not fit together, so the sweep runs *model-major*
+(:class:`ModelMajor`):
 
-1. the inputs pass: every group's inputs (stages 1-5) are computed, with the models those stages
-   need, and written to ``_inputs/inputs.pkl``; for generated scenes all I⁻ are generated first
-   (cached in ``scene.cache_dir``) so the generator and the depth estimator load once each;
-2. the sampling pass of relit cells: a cell that samples with the generator and relights with the
-   relighter samples here, while the generator is loaded, and keeps its un-relit result beside it
-   (``.unrelit.pt``, a hidden file);
-3. the cells, ordered by the model they need last (generator, relighter, fill, each pipeline
-   baseline, in order of first use), the group inputs read back from ``_inputs/inputs.pkl``.
+1. the inputs pass: every group's inputs (stages 1-5) are computed with the models those stages
+   need and kept in ``_inputs/inputs-<settings hash>.pkl`` (generated I⁻ are generated first, into
+   ``scene.cache_dir``);
+2. the sampling pass of relit cells: a cell that samples with one model and relights with another
+   samples here, grouped by its sampling model, and keeps its un-relit result beside it
+   (``.unrelit.pt``, hidden) until its turn;
+3. the cells, ordered by the model they need last, starting with the one the sampling pass left
+   loaded; each cell reads its group's inputs back from the pickle.
 
-Read back, the inputs are the very arrays a group computes (pickled), so results do not depend on
-the order.
+The inputs read back are the very arrays the group computed, so the results do not depend on the
+order (``tests/pipeline/test_pool.py`` checks every file of a grid run both ways). Each model then
+loads once, with two exceptions: a generator that makes I⁻ (``scene.source=generated``) and also
+samples loads once for each, when the budget does not hold it beside the depth estimator; and
+relit cells that sample with different models may reload one of them. A generator built from the
+scene (the CPU stand-ins) is rebuilt per cell in this order: it is the group's, not the sweep's.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import pickle
+from dataclasses import replace
 from pathlib import Path
 
 import torch
 from omegaconf import DictConfig
 
 from snell_bench.config import MethodKind, Source
-from snell_bench.experiment.cells import Cell
+from snell_bench.experiment.cells import Cell, claim
+from snell_bench.experiment.files import save_inputs
+from snell_bench.experiment.plan import result_settings, settings_hash
 from snell_bench.pipeline import CellInputs, CellResult, ModelPool, prepare_inputs, sample_stage
-from snell_bench.pipeline.cell import cell_seed, node_key
-from snell_bench.pipeline.inputs import generator_of
-from snell_bench.scene import sources
+from snell_bench.pipeline.cell import node_key
+from snell_bench.pipeline.inputs import generate_i_minus
 from snell_bench.utils.io import atomic_write
 
 log = logging.getLogger(__name__)
 
-__all__ = [
-    "cell_models",
-    "model_major",
-    "load_or_compute_inputs",
-    "prepare_model_major",
-    "take_unrelit",
-    "INPUTS_FILE",
-    "UNRELIT_FILE",
-]
+__all__ = ["cell_models", "ModelMajor", "UNRELIT_FILE"]
 
-INPUTS_FILE = "inputs.pkl"
 UNRELIT_FILE = ".unrelit.pt"
 
 
@@ -68,93 +65,131 @@ def cell_models(c: DictConfig) -> list[tuple[str, str]]:
     return out
 
 
-def model_major(cells: list[Cell]) -> list[Cell]:
-    """``cells`` ordered by the model each needs last (in order of first use); stable otherwise."""
-    rank: dict[tuple[str, str], int] = {}
-    for cell in cells:
-        for m in cell_models(cell.config):
-            rank.setdefault(m, len(rank))
-    last = {id(c): (rank[cell_models(c.config)[-1]] if cell_models(c.config) else -1) for c in cells}
-    return sorted(cells, key=lambda c: last[id(c)])
+def _relit(cell: Cell) -> bool:
+    return bool(cell.config.method.relight) and len(cell_models(cell.config)) > 1
 
 
-def _save(path: Path, inputs: CellInputs) -> None:
-    atomic_write(path, lambda f: pickle.dump(dataclasses.replace(inputs, pool=None), f, protocol=5), binary=True)
+class ModelMajor:
+    """The model-major order of one sweep (see the module docs) and what its passes keep.
 
+    Args:
+        pool: the sweep's models.
+    """
 
-def load_or_compute_inputs(cell: Cell, pool: ModelPool) -> tuple[CellInputs, bool]:
-    """The group inputs of ``cell`` read back from ``_inputs/inputs.pkl``, or computed with the
-    pool's models and written there; and whether they were computed."""
-    path = Path(cell.shares) / "_inputs" / INPUTS_FILE
-    try:
-        with open(path, "rb") as f:
-            inputs = pickle.load(f)
-        inputs.pool = pool
-        return inputs, False
-    except (OSError, EOFError, pickle.UnpicklingError, AttributeError) as e:
-        if path.exists():
-            log.warning("%s cannot be read (%s); computing the inputs again", path, e)
-    inputs = prepare_inputs(cell.extra["inputs_config"], pool=pool)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    _save(path, inputs)
-    return inputs, True
+    def __init__(self, pool: ModelPool) -> None:
+        self.pool = pool
+        self._unrelit: dict[Path, Path] = {}  #: cell folder -> the result this process sampled ahead
 
+    # ------------------------------------------------------------------------ the order
+    def order(self, cells: list[Cell]) -> list[Cell]:
+        """``cells`` by the model each needs last, the sampling pass's last model first; stable."""
+        first_use: list[tuple[str, str]] = []
+        for cell in cells:
+            for m in cell_models(cell.config):
+                if m not in first_use:
+                    first_use.append(m)
+        sampling = self._sampling_models([c for c in cells if _relit(c)])
+        if sampling:  # continue with the model the sampling pass leaves loaded
+            first_use.remove(sampling[-1])
+            first_use.insert(0, sampling[-1])
+        rank = {m: i for i, m in enumerate(first_use)}
+        return sorted(cells, key=lambda c: rank[cell_models(c.config)[-1]] if cell_models(c.config) else -1)
 
-def _pregenerate(cells: list[Cell], pool: ModelPool) -> None:
-    """Generate the I⁻ of every generated scene first (into ``scene.cache_dir``), so the generator
-    is loaded once before the depth estimator."""
-    for cell in cells:
-        c = cell.extra["inputs_config"]
-        if Source(c.scene.source) is not Source.generated or not c.scene.cache_dir or c.model.from_scene:
-            continue
-        sc = c.scene
-        sources.generated_image(
-            lambda c=c: generator_of(c, pool)[0],
-            str(sc.prompt_minus),
-            int(sc.height),
-            int(sc.width),
-            steps=int(sc.steps),
-            seed=cell_seed(c),
-            schedule=str(sc.schedule),
-            cache_dir=sc.cache_dir,
-            model_key=node_key(c.model),
-        )
+    @staticmethod
+    def _sampling_models(relit: list[Cell]) -> list[tuple[str, str]]:
+        out: list[tuple[str, str]] = []
+        for cell in relit:
+            m = cell_models(cell.config)[0]
+            if m not in out:
+                out.append(m)
+        return out
 
+    # ------------------------------------------------------------------------ inputs
+    @staticmethod
+    def _inputs_file(cell: Cell) -> Path:
+        key = settings_hash(result_settings(cell.extra["inputs_config"]))
+        return Path(cell.shares) / "_inputs" / f"inputs-{key}.pkl"
 
-def prepare_model_major(todo: list[Cell], pool: ModelPool) -> None:
-    """Passes 1 and 2 of the module docs on the cells left to compute. A failure is logged and
-    left to the cell, which computes (and fails) on its own."""
-    groups = {}
-    for cell in todo:
-        groups.setdefault(cell.shares, cell)
-    try:
-        _pregenerate(list(groups.values()), pool)
-    except Exception as e:  # noqa: BLE001 - the cells of that scene fail with the reason
-        log.warning("generating I- ahead failed (%s); each cell generates its own", e)
-    for cell in groups.values():
+    def inputs(self, cell: Cell) -> tuple[CellInputs, dict[str, Path]]:
+        """The group inputs of ``cell`` and their files in ``_inputs/``: read back from the pickle
+        its settings name, or computed with the pool's models and kept there (a pickle of other
+        settings is removed; one that cannot be read is computed again)."""
+        path = self._inputs_file(cell)
         try:
-            load_or_compute_inputs(cell, pool)
-        except Exception as e:  # noqa: BLE001
-            log.warning("inputs of %s failed (%s); its cells will say why", cell.shares, e)
-    relit = [c for c in todo if c.config.method.relight]
-    for cell in relit:
-        try:
-            inputs, _ = load_or_compute_inputs(cell, pool)
-            result = sample_stage(cell.config, inputs)
-        except Exception as e:  # noqa: BLE001
-            log.warning("sampling %s ahead of relighting failed (%s); the cell will say why", cell.name, e)
-            continue
+            with open(path, "rb") as f:
+                kept = pickle.load(f)
+            inputs, files = kept["inputs"], {name: path.parent / name for name in kept["files"]}
+            if all(p.is_file() for p in files.values()):
+                inputs.pool = self.pool
+                return inputs, files
+        except FileNotFoundError:
+            pass
+        except Exception as e:  # noqa: BLE001 - any unreadable pickle: computed again
+            log.warning("%s cannot be read (%s: %s); computing the inputs again", path, type(e).__name__, e)
+        inputs = prepare_inputs(cell.extra["inputs_config"], pool=self.pool)
+        files = save_inputs(inputs, path.parent)
+        for old in path.parent.glob("inputs-*.pkl"):
+            old.unlink(missing_ok=True)
+        kept = {"inputs": replace(inputs, pool=None), "files": sorted(files)}
+        atomic_write(path, lambda f: pickle.dump(kept, f, protocol=5), binary=True)
+        return inputs, files
+
+    # ------------------------------------------------------------------------ the passes
+    def prepare(self, todo: list[Cell]) -> None:
+        """Passes 1 and 2 on the cells left to compute. A failure is logged and left to its cells,
+        which compute (and fail) on their own."""
+        groups: dict = {}
+        for cell in todo:
+            groups.setdefault(cell.shares, cell)
+        for cell in groups.values():  # generated I⁻ first: the generator before the depth estimator
+            c = cell.extra["inputs_config"]
+            if Source(c.scene.source) is Source.generated and c.scene.cache_dir and not c.model.from_scene:
+                try:
+                    generate_i_minus(c, self.pool)
+                except Exception as e:  # noqa: BLE001
+                    log.warning("generating I- of %s failed (%s); its cells will say why", cell.shares, e)
+        for cell in groups.values():
+            try:
+                self.inputs(cell)
+            except Exception as e:  # noqa: BLE001
+                log.warning("inputs of %s failed (%s); its cells will say why", cell.shares, e)
+        relit = [c for c in todo if _relit(c)]
+        for model in self._sampling_models(relit):
+            for cell in (c for c in relit if cell_models(c.config)[0] == model):
+                self._sample_ahead(cell)
+
+    def _sample_ahead(self, cell: Cell) -> None:
         cell.folder.mkdir(parents=True, exist_ok=True)
-        atomic_write(cell.folder / UNRELIT_FILE, lambda f, r=result: torch.save(r, f), binary=True)
+        with claim(cell.folder) as mine:
+            if not mine:  # another process computes it
+                return
+            try:
+                inputs, _ = self.inputs(cell)
+                result = sample_stage(cell.config, inputs)
+            except Exception as e:  # noqa: BLE001
+                log.warning("sampling %s ahead of relighting failed (%s); the cell will say why", cell.name, e)
+                return
+            path = cell.folder / UNRELIT_FILE
+            atomic_write(path, lambda f: torch.save(result, f), binary=True)
+            self._unrelit[cell.folder] = path
 
+    def take_unrelit(self, cell: Cell) -> CellResult | None:
+        """The result this process sampled ahead for ``cell`` in this sweep (removed once read), or
+        None (then the cell samples itself)."""
+        path = self._unrelit.pop(cell.folder, None)
+        if path is None:
+            return None
+        try:
+            return torch.load(path, weights_only=False)
+        except Exception as e:  # noqa: BLE001
+            log.warning("%s cannot be read (%s); sampling again", path, e)
+            return None
+        finally:
+            path.unlink(missing_ok=True)
 
-def take_unrelit(cell: Cell) -> CellResult | None:
-    """The sampling result pass 2 kept for ``cell`` (removed once read), or None."""
-    path = cell.folder / UNRELIT_FILE
-    if not path.is_file():
-        return None
-    try:
-        result = torch.load(path, weights_only=False)
-    finally:
-        path.unlink(missing_ok=True)
-    return result
+    def close(self) -> None:
+        """Remove what the sampling pass kept for cells that did not use it (another process
+        finished them)."""
+        for path in self._unrelit.values():
+            path.unlink(missing_ok=True)
+        self._unrelit.clear()

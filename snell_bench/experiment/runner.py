@@ -31,16 +31,17 @@ Layout of an experiment ``E`` under ``runs/``::
 from __future__ import annotations
 
 import itertools
+import json
 import logging
 from pathlib import Path
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from snell_bench import pipeline
 from snell_bench.config import ConfigError, check_grid_entries, compose
 from snell_bench.experiment.cells import Cell, SharedCache, run_cells
 from snell_bench.experiment.files import save_inputs
-from snell_bench.experiment.order import load_or_compute_inputs, model_major, prepare_model_major, take_unrelit
+from snell_bench.experiment.order import ModelMajor
 from snell_bench.experiment.plan import (
     ABSENT,
     check_reproducible,
@@ -105,31 +106,31 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
 
 def _group_inputs(cell: Cell, shared: SharedCache, pool: ModelPool) -> tuple[pipeline.CellInputs, dict]:
     """The group's inputs and their files in ``_inputs/`` (traced with the run's warps settings; a
-    method with its own gets its own warps in :func:`~snell_bench.pipeline.run_method`). In
-    model-major order they are read back from ``_inputs/inputs.pkl``
-    (:mod:`snell_bench.experiment.order`)."""
+    method with its own gets its own warps in :func:`~snell_bench.pipeline.run_method`)."""
 
     def compute():
-        if pool.budget is not None:
-            inputs, _ = load_or_compute_inputs(cell, pool)
-        else:
-            inputs = pipeline.prepare_inputs(cell.extra["inputs_config"], pool=pool)
+        inputs = pipeline.prepare_inputs(cell.extra["inputs_config"], pool=pool)
         return inputs, save_inputs(inputs, cell.shares / "_inputs")
 
     return shared.get(cell.shares, compute, by=cell.name)
 
 
-def run_cell(cell: Cell, shared: SharedCache, scorers, pool: ModelPool) -> dict:
+def run_cell(cell: Cell, shared: SharedCache, scorers, pool: ModelPool, order: ModelMajor | None = None) -> dict:
     """One grid cell: shared inputs linked into its folder, the method run and scored, with the
-    models of the sweep's pool."""
-    inputs, files = _group_inputs(cell, shared, pool)
+    models of the sweep's pool; in model-major ``order`` the inputs are read back and a relit
+    cell finishes the result sampled ahead."""
+    if order is None:
+        inputs, files = _group_inputs(cell, shared, pool)
+        sampled = None
+    else:
+        inputs, files = order.inputs(cell)
+        sampled = order.take_unrelit(cell)
     for name, path in files.items():
         link_or_copy(path, cell.folder / name)
     image_path = cell.folder / "image.png"
-    sampled = take_unrelit(cell)
     if sampled is None:
         res = pipeline.run_method(cell.config, inputs, scorers=scorers, image_path=image_path)
-    else:  # sampled ahead, while its generator was loaded (model-major order)
+    else:
         res = pipeline.finish_method(cell.config, inputs, sampled, scorers=scorers, image_path=image_path)
     return {
         **({"scene_info": inputs.scene.info} if inputs.scene.info else {}),
@@ -183,10 +184,6 @@ def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") ->
     A cell's own settings are its recorded ``config.yaml``; the run's are where it differs from
     what the cell's identity alone (scene, variation, object, method) composes. Every cell must
     agree on every key any run changed."""
-    import json
-
-    from omegaconf import OmegaConf
-
     defaults = _IdentityDefaults()
     stored: dict[str, dict] = {}
     changed: set[str] = set()
@@ -234,19 +231,23 @@ def run_grid(cfg: DictConfig) -> dict:
     n_groups = len(g.scenes) * len(g.variations) * len(g.objects)
     print(f"experiment {exp}: {n_groups} scene/object groups x {len(g.methods)} methods = {len(cells)} cells -> {root}")
     pool = ModelPool(cfg.models.memory_gb)
-    scorers = scorers_of(cfg, pool)
-    if pool.budget is not None:  # the models may not fit together: each one's cells together
-        cells = model_major(cells)
-    summary = run_cells(
-        cells,
-        lambda c, s: run_cell(c, s, scorers, pool),
-        root=root,
-        recompute=bool(g.recompute),
-        on_change=g.on_change,
-        desc=exp,
-        before=(lambda todo: prepare_model_major(todo, pool)) if pool.budget is not None else None,
-    )
-    summary = {"experiment": exp, **summary, "order": "model-major" if pool.budget is not None else "group-major"}
+    scorers = scorers_of(cfg.metrics, pool)
+    order = ModelMajor(pool) if pool.budget is not None else None  # the models may not fit together
+    try:
+        summary = run_cells(
+            cells if order is None else order.order(cells),
+            lambda c, s: run_cell(c, s, scorers, pool, order),
+            root=root,
+            recompute=bool(g.recompute),
+            on_change=g.on_change,
+            on_change_key="grid.on_change",
+            desc=exp,
+            before=None if order is None else order.prepare,
+        )
+    finally:
+        if order is not None:
+            order.close()
+    summary = {"experiment": exp, **summary, "order": "group-major" if order is None else "model-major"}
     summary["models"] = pool.summary()
     write_json(root / "summary.json", summary)
     print(

@@ -79,6 +79,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from snell_bench import pipeline
@@ -107,8 +108,7 @@ from snell_bench.experiment.reports import (  # noqa: F401  (re-exported)
     tradeoff_table,
     update_spp_records,
 )
-from snell_bench.metrics import load_scorers
-from snell_bench.pipeline.cell import node_key
+from snell_bench.pipeline.cell import plain
 from snell_bench.utils.io import json_hash, save_npy, write_json
 
 log = logging.getLogger(__name__)
@@ -177,18 +177,15 @@ class Setting:
 
     def override_values(self) -> dict:
         """``{key: value}`` of the overrides (values typed as Hydra parses them)."""
-        from hydra.core.override_parser.overrides_parser import OverridesParser
-
         return {o.key_or_group: o.value() for o in OverridesParser.create().parse_overrides(list(self.overrides))}
 
 
 def _plain(v: Any) -> Any:
-    return OmegaConf.to_container(v, resolve=True, enum_to_str=True) if isinstance(v, (DictConfig, ListConfig)) else v
+    return OmegaConf.to_container(v, resolve=True, enum_to_str=True) if isinstance(v, ListConfig) else plain(v)
 
 
 def _axis_settings(name: str, spec: Any) -> list[Setting]:
     """The settings of one axis (format: the module docs)."""
-    from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import OverrideParseException
 
     where = f"tradeoff.axes.{name}"
@@ -224,8 +221,6 @@ def _axis_settings(name: str, spec: Any) -> list[Setting]:
 
 def _typed(text: str) -> Any:
     """A sweep value as Hydra types it (``"8"`` -> 8)."""
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
     return OverridesParser.create().parse_override(f"x={text}").value()
 
 
@@ -466,10 +461,7 @@ def run_tradeoff(cfg: DictConfig) -> dict:
         _warm_up(cfg, cells[0])
     metrics_cfg = OmegaConf.merge(cfg.metrics, {"clip_weights": None, "image_reward_python": None})
     pool = pipeline.ModelPool(cfg.models.memory_gb)
-    scorers = pool.get("scorers", node_key(metrics_cfg), lambda: load_scorers(metrics_cfg), label="metrics", pin=True)[
-        0
-    ]
-    sweep = _Sweep(scorers=scorers, converged_spp=t.converged_spp, pool=pool)
+    sweep = _Sweep(scorers=pipeline.scorers_of(metrics_cfg, pool), converged_spp=t.converged_spp, pool=pool)
     last_of_scene = {c.record["scene"]: c for c in cells}
 
     def after(cell: Cell) -> None:

@@ -14,21 +14,14 @@ from __future__ import annotations
 
 import torch
 
+from snell_bench.config.choices import DTYPE_NAMES as CONFIG_DTYPE_NAMES
+
 from .errors import DeviceNotAvailableError
 
 __all__ = ["DTYPE_NAMES", "default_dtype", "dtype_kwarg", "parse_dtype", "resolve_device"]
 
-#: Accepted dtype names -> dtype.
-DTYPE_NAMES: dict[str, torch.dtype] = {
-    "bfloat16": torch.bfloat16,
-    "bf16": torch.bfloat16,
-    "float16": torch.float16,
-    "fp16": torch.float16,
-    "half": torch.float16,
-    "float32": torch.float32,
-    "fp32": torch.float32,
-    "float": torch.float32,
-}
+#: Accepted dtype names -> dtype (the names are the config's, :data:`snell_bench.config.choices.DTYPE_NAMES`).
+DTYPE_NAMES: dict[str, torch.dtype] = {name: getattr(torch, dt) for name, dt in CONFIG_DTYPE_NAMES.items()}
 
 
 def _accepted() -> str:

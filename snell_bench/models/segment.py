@@ -38,6 +38,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from snell_bench.utils.paths import data_path
+
 from .errors import WeightsNotFoundError
 from .tiny_text import clip_tokenizer_from_open_clip_vocab
 
@@ -56,8 +58,6 @@ __all__ = [
 
 #: The Hugging Face id of SAM 3 (gated: the licence must be accepted on the hub).
 SAM3_ID = "facebook/sam3"
-#: The checkout's root: relative mask paths not found in the working folder are looked up there.
-_CHECKOUT = Path(__file__).resolve().parents[2]
 #: The tiny SAM 3's input size (square, as SAM 3's 1008 x 1008) and ViT patch size (SAM 3's).
 _TINY_IMAGE_SIZE = 56
 _TINY_PATCH_SIZE = 14
@@ -179,11 +179,7 @@ class MaskFileSegmenter:
     def __init__(self, path: str | os.PathLike | None):
         if path is None or not str(path).strip():
             raise ValueError("segment=mask needs a mask file: set segment.mask=PATH (a PNG, nonzero = surface)")
-        p = Path(os.fspath(path)).expanduser()
-        if not p.is_absolute() and not p.exists():
-            p = _CHECKOUT / p
-        if not p.is_file():
-            raise FileNotFoundError(f"segment.mask={str(path)!r}: no such file; set segment.mask to a mask image (PNG)")
+        p = Path(data_path(Path(os.fspath(path)).expanduser(), "segment.mask", "mask image (PNG)"))
         self.path = p
         try:
             self.mask = read_mask(p)

@@ -6,7 +6,7 @@ these and wires no stage itself::
     pool = ModelPool(cfg.models.memory_gb)          # the models, loaded once each
     inputs = prepare_inputs(cfg, pool=pool)         # 1-5: what every method of a (scene, object) shares
     result = run_method(apply_method(cfg), inputs,  # 6-8: one method's image, scored
-                        scorers=scorers_of(cfg, pool))
+                        scorers=scorers_of(cfg.metrics, pool))
 
 1. scene source: I⁻, its depth and camera (:func:`load_scene`);
 2. where the object stands (:func:`surface_region`), the object (:func:`build_object`) placed on it
@@ -22,7 +22,7 @@ these and wires no stage itself::
 Modules: :mod:`.cell` (what flows between stages), :mod:`.inputs` (1-5), :mod:`.methods` (6-7b),
 :mod:`.scoring` (8 and :func:`run_method`), :mod:`.pool` (the model pool). Stage times are wall
 seconds in ``timings``, keyed ``scene``, ``warps``, ``reference``, ``true_render`` (inputs) and
-``generator``, ``pipeline``, ``sampling``, ``relighter``, ``relight``, ``metrics`` (a method); a
+``generator`` (loading the method's model), ``sampling``, ``relighter``, ``relight``, ``metrics`` (a method); a
 model's load time is reported by every cell that uses it.
 """
 

@@ -102,10 +102,11 @@ def object_phrase(cfg: DictConfig) -> str:
     return str(cfg.scene.object_phrase).replace("{object}", str(cfg.object.noun))
 
 
-def prompt_of(cfg: DictConfig, kind: PromptKind | str) -> str:
+def prompt_of(cfg: DictConfig, kind: PromptKind | str, key: str = "method.prompt") -> str:
     """The full prompt (``kind="full"``) or the object phrase (``"object"``), the two texts
-    ``method.prompt`` and ``metrics.clip_text`` choose between."""
-    return full_prompt(cfg) if PromptKind(kind) is PromptKind.full else object_phrase(cfg)
+    ``method.prompt`` and ``metrics.clip_text`` choose between (``key`` names the setting in the
+    error for any other value)."""
+    return full_prompt(cfg) if PromptKind.of(kind, key) is PromptKind.full else object_phrase(cfg)
 
 
 def plain(node: Any) -> Any:

@@ -51,6 +51,7 @@ __all__ = [
     "render_true_scene",
     "prepare_inputs",
     "generator_of",
+    "generate_i_minus",
 ]
 
 
@@ -115,14 +116,17 @@ def _image(cfg: DictConfig, pool: ModelPool) -> SceneInputs:
     return SceneInputs(image=image, depth=depth, camera=camera, up=_up(sc), source="image")
 
 
-def _generated(cfg: DictConfig, pool: ModelPool) -> SceneInputs:
-    sc = cfg.scene
+def generate_i_minus(cfg: DictConfig, pool: ModelPool) -> tuple[np.ndarray, dict]:
+    """I⁻ generated from p⁻ at the cell's seed by ``model.generator`` (cached by content in
+    ``scene.cache_dir``; the generator is loaded only on a cache miss), and what the source
+    records."""
     if cfg.model.from_scene:
         raise ValueError(
             f"scene.source=generated needs a text-to-image generator; model={cfg.model.name} is built from the "
             "scene itself: use model=tiny_flux (CPU, random weights) or model=flux_dev (GPU)"
         )
-    image, info = sources.generated_image(
+    sc = cfg.scene
+    return sources.generated_image(
         lambda: generator_of(cfg, pool)[0],
         str(sc.prompt_minus),
         int(sc.height),
@@ -133,6 +137,11 @@ def _generated(cfg: DictConfig, pool: ModelPool) -> SceneInputs:
         cache_dir=sc.cache_dir,
         model_key=node_key(cfg.model),
     )
+
+
+def _generated(cfg: DictConfig, pool: ModelPool) -> SceneInputs:
+    sc = cfg.scene
+    image, info = generate_i_minus(cfg, pool)
     depth, camera = sources.estimate_depth(
         image,
         _depth_estimator(cfg, pool, "scene.source=generated"),
@@ -155,7 +164,7 @@ def load_scene(cfg: DictConfig, pool: ModelPool | None = None) -> SceneInputs:
             ``depth`` for an image without depth or a generated one).
         pool: where the depth estimator and a generator for I⁻ come from (a new pool if None).
     """
-    return SOURCES[Source(cfg.scene.source)](cfg, ModelPool() if pool is None else pool)
+    return SOURCES[Source.of(cfg.scene.source, "scene.source")](cfg, ModelPool() if pool is None else pool)
 
 
 # ---------------------------------------------------------------------------- 2. the object

@@ -13,7 +13,6 @@ cannot run here (no weights, no device) raises :class:`~snell_bench.pipeline.cel
 
 from __future__ import annotations
 
-import weakref
 from typing import Any
 
 import numpy as np
@@ -82,8 +81,7 @@ def _generator(cfg: DictConfig, inputs: CellInputs) -> tuple[Any, float]:
     if not cfg.model.from_scene:
         return generator_of(cfg, pool, lambda: build_generator(cfg.model, inputs))
     scope = generator_scope(inputs)
-    if not pool.in_scope(scope):  # the first use: release with the inputs
-        weakref.finalize(inputs, pool.end_scope, scope)
+    pool.end_with(inputs, scope)  # released with the inputs
     return pool.get(
         "generator",
         node_key(cfg.model),
@@ -98,13 +96,15 @@ def inpaint_mask(cfg: DictConfig, warps: WarpSet) -> np.ndarray:
     """The region ``method=inpaint`` repaints, boolean ``(H, W)``: the object's silhouette
     (``method.mask=object``) or its bounding box (``box``), grown by ``method.mask_dilate_px``."""
     m = np.asarray(warps.object_mask, bool)
-    if InpaintMask(cfg.method.mask) is InpaintMask.box:
+    if InpaintMask.of(cfg.method.mask, "method.mask") is InpaintMask.box:
         ys, xs = np.nonzero(m)
         box = np.zeros_like(m)
         if ys.size:
             box[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1] = True
         m = box
     r = int(cfg.method.mask_dilate_px)
+    if r < 0:
+        raise ValueError(f"method.mask_dilate_px must be >= 0, got {r}")
     if r:
         yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
         m = binary_dilation(m, structure=yy**2 + xx**2 <= r * r)
@@ -124,14 +124,14 @@ def _pipeline_call(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer
     try:
         if external:
             key = node_key(OmegaConf.create({"model_id": cfg.method.model_id, "device": device, "dtype": dtype}))
-            pipe, t.seconds["pipeline"] = pool.get(
+            pipe, t.seconds["generator"] = pool.get(
                 "pipeline",
                 key,
                 lambda: load_pipeline(cfg.method.model_id, device=device, dtype=dtype),
                 label=str(cfg.method.model_id),
             )
         else:
-            pipe, t.seconds["pipeline"] = pool.get(
+            pipe, t.seconds["generator"] = pool.get(
                 "fill", node_key(cfg.model.fill), lambda: build(cfg.model.fill), label=f"{cfg.model.name} fill"
             )
         with t("sampling"):
@@ -204,7 +204,7 @@ METHODS = {
 def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
     """Stage 7: the method's image (``method.kind``, :data:`METHODS`). Raises :class:`Skip` for a
     method that cannot run here (no weights, no device)."""
-    return METHODS[MethodKind(cfg.method.kind)](cfg, inputs, warps, t)
+    return METHODS[MethodKind.of(cfg.method.kind, "method.kind")](cfg, inputs, warps, t)
 
 
 # ---------------------------------------------------------------------------- 7b. relighting

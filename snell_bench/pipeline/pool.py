@@ -24,6 +24,7 @@ import gc
 import hashlib
 import logging
 import time
+import weakref
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass
@@ -112,6 +113,7 @@ class ModelPool:
         self.budget = None if memory_gb is None else int(float(memory_gb) * 2**30)
         self._held: OrderedDict[tuple[str, str, Hashable], _Entry] = OrderedDict()
         self._sizes: dict[tuple[str, str], int] = {}  #: measured sizes of models loaded before
+        self._finalized: set = set()  #: scopes whose end is already tied to an object's lifetime
         self.loads: list[ModelLoad] = []
 
     @staticmethod
@@ -158,8 +160,25 @@ class ModelPool:
 
     def put(self, kind: str, key: str, model: Any, *, label: str = "", scope: Hashable | None = None) -> None:
         """Hand the pool a model built elsewhere (a pipeline loaded by hand, a wrapped generator):
-        later :meth:`get` calls of ``(kind, key)`` return it."""
-        self._held[(kind, key, scope)] = _Entry(model, 0.0, model_bytes(model), label or kind, False)
+        later :meth:`get` calls of ``(kind, key)`` return it. It is recorded as a load of 0 s,
+        replaces (releases) a model held under the same key, and counts against the budget."""
+        k = (kind, key, scope)
+        self.release(k)
+        size = model_bytes(model)
+        self._make_room(size)
+        self._sizes[(kind, key)] = size
+        self._held[k] = _Entry(model, 0.0, size, label or kind, False)
+        self.loads.append(ModelLoad(kind, self.digest(key), label or kind, 0.0, size))
+
+    def end_with(self, obj: Any, scope: Hashable) -> None:
+        """Release the models of ``scope`` when ``obj`` is garbage-collected (once per scope)."""
+        if scope not in self._finalized:
+            self._finalized.add(scope)
+            weakref.finalize(obj, self._end_finalized, scope)
+
+    def _end_finalized(self, scope: Hashable) -> None:
+        self._finalized.discard(scope)
+        self.end_scope(scope)
 
     def _make_room(self, need: int | None, keep: tuple | None = None) -> None:
         """Release models, least recently used first, until ``need`` more bytes fit in the budget
@@ -170,7 +189,8 @@ class ModelPool:
         for k in list(self._held):
             if self.held_bytes() + need <= self.budget:
                 break
-            if k != keep and not self._held[k].pinned:
+            e = self._held.get(k)  # a finalizer may have released it meanwhile
+            if e is not None and k != keep and not e.pinned:
                 self.release(k)
 
     def held_bytes(self) -> int:

@@ -20,10 +20,10 @@ from snell_bench.utils.timing import Timer
 __all__ = ["scorers_of", "score", "run_method", "sample_stage", "finish_method"]
 
 
-def scorers_of(cfg: DictConfig, pool: ModelPool):
-    """The metric backbones of ``metrics`` (LPIPS, CLIP, ImageReward; each missing with its reason
-    where it cannot load) from the pool, pinned: every cell of a sweep scores with them."""
-    return pool.get("scorers", node_key(cfg.metrics), lambda: load_scorers(cfg.metrics), label="metrics", pin=True)[0]
+def scorers_of(metrics_cfg: DictConfig, pool: ModelPool):
+    """The metric backbones of a ``metrics`` node (LPIPS, CLIP, ImageReward; each missing with its
+    reason where it cannot load) from the pool, pinned: every cell of a sweep scores with them."""
+    return pool.get("scorers", node_key(metrics_cfg), lambda: load_scorers(metrics_cfg), label="metrics", pin=True)[0]
 
 
 def score(
@@ -37,7 +37,7 @@ def score(
         bchw_to_hwc(image),
         None if ref is None else ref.image,
         None if ref is None else ref.mask,
-        prompt_of(cfg, cfg.metrics.clip_text),
+        prompt_of(cfg, cfg.metrics.clip_text, "metrics.clip_text"),
         scorers,
         reference_reason=inputs.reference_reason,
         true_render=inputs.true_render if reference is None else None,

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 
+from snell_bench.models.devices import resolve_device
 from snell_bench.models.errors import WeightsNotFoundError
 from snell_bench.scene.prompt_rules import CLOSE, EXAMPLE, LLM_KEY, OPEN, TEXT_KEY, Prompts, decompose
 
@@ -63,8 +64,6 @@ def _load_llm(model_path: str, device: str):
         source = model_path
     else:
         raise WeightsNotFoundError(_llm_weights_help(model_path, f"no folder {model_path!r}"))
-
-    from snell_bench.models.devices import resolve_device
 
     dev = resolve_device(
         device,

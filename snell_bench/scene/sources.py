@@ -22,7 +22,8 @@ import numpy as np
 
 from snell_bench.config.choices import PanoPrior
 from snell_bench.scene.camera import Camera
-from snell_bench.utils.io import json_hash
+from snell_bench.utils.io import json_hash, save_npy, save_png, write_json
+from snell_bench.utils.tensors import bchw_to_hwc
 
 log = logging.getLogger(__name__)
 
@@ -125,9 +126,6 @@ def generated_image(
         ``(image (H, W, 3) float32 sRGB, info)`` with ``seed``, ``prompt``, ``cache`` (the file or
         ``None``) and ``cached`` (whether it was read from the cache).
     """
-    from snell_bench.utils.io import save_npy, save_png, write_json
-    from snell_bench.utils.tensors import bchw_to_hwc
-
     meta = {
         "prompt": prompt,
         "height": int(height),

@@ -170,3 +170,23 @@ def test_the_order_changes_no_result(grids):
         assert ma["settings_hash"] == mb["settings_hash"], rel  # the budget changes no result
     assert not list(b.rglob(".unrelit.pt"))  # kept only until the cell is written
     assert np.isfinite([json.loads(p.read_text())["metrics"]["psnr"] for p in b.rglob("metrics.json")]).all()
+
+
+def test_model_major_order_continues_with_the_model_the_sampling_pass_left_loaded(tmp_path):
+    """Fill first in the plan, a relit method last: the relit cells sample with the generator ahead,
+    so the generator's cells come first, then Fill's, then the relighter's."""
+    from snell_bench.experiment.order import ModelMajor, cell_models
+    from snell_bench.experiment.runner import plan_grid
+
+    cfg = compose(
+        [
+            *GRID,
+            "grid.scenes=[living_room,kitchen]",
+            "grid.methods=[inpaint,snellcaster,snellcaster_relit]",
+            f"runs_dir={tmp_path}",
+            "models.memory_gb=1",
+        ]
+    )
+    order = ModelMajor(ModelPool(1.0)).order(plan_grid(cfg))
+    last = [cell_models(c.config)[-1][0] for c in order]
+    assert last == ["generator"] * 2 + ["fill"] * 2 + ["relighter"] * 2
