@@ -18,14 +18,9 @@ are in :mod:`snell_bench.models.depth_base`; this module gathers every backend u
 one the ``depth`` config group's ``_target_`` entries use.
 
 Convention:
-    - Input: ``(H, W, 3)`` float sRGB in [0, 1] (any size: each model's image processor resizes it, and
-      the depth comes back at ``(H, W)``).
-    - Output: :class:`DepthEstimate` with ``depth`` ``(H, W)`` float32, the camera-frame z coordinate
-      (not the ray length) in metres at pixel centres, NaN where the model marks a pixel invalid or
-      gives a non-finite or non-positive value; ``intrinsics`` ``(fx, fy, cx, cy)`` in pixels of the
-      input image with *integer pixel centres* (the convention of :mod:`snell_bench.scene.camera`: the
-      centre of a ``W``-wide image is ``cx = (W - 1) / 2``), or ``None`` when the model does not
-      estimate them (Depth Anything).
+    - Input and output as :mod:`snell_bench.models.depth_base` states them (``(H, W, 3)`` sRGB in;
+      camera-frame z in metres, NaN where invalid, and intrinsics with integer pixel centres out);
+      Depth Anything estimates no intrinsics.
     - Depth Pro: depth and focal length come from transformers'
       ``DepthProImageProcessor.post_process_depth_estimation``: ``f = 0.5 W / tan(fov / 2)`` from the
       predicted horizontal field of view (degrees), ``depth = f / (W * canonical_inverse_depth)``
