@@ -12,10 +12,12 @@ Conventions:
       ``(H, W, 3)``, sRGB-encoded, in [0, 1]. Masks: bool ``(H, W)`` or ``(B, 1, H, W)``.
     - Protocol (config key ``metrics.protocol``): ``"paper"`` (the paper's text, the default):
       grayscale ``0.299 R + 0.587 G + 0.114 B``; inside the mask the generated image's histogram is
-      matched to the reference's; PSNR ``= 10 log10(1 / MSE)`` and MAE over the mask; LPIPS (VGG)
-      averaged over the mask of its spatial map. ``"authors"`` (the authors' released code): the
-      matched values rescaled linearly to the generated image's own masked range before PSNR / MAE;
-      LPIPS on the RGB images multiplied by the mask, averaged over the whole image. Both: CLIP score
+      matched to the reference's; PSNR ``= 10 log10(1 / MSE)`` and MAE over the mask; LPIPS (VGG) of
+      the RGB images, its spatial map averaged over the mask. ``"authors"`` (the authors' released
+      ``eval/masked_metrics.py``, reproduced on the 8-bit images snell_bench writes): their 256-bin
+      matching in float32 (:func:`authors_metrics`), ``lpips`` the spatial LPIPS of the images
+      multiplied by the mask averaged over the mask, and ``lpips_box`` (this protocol only) the plain
+      LPIPS of the mask's bounding box. Both: CLIP score
       ``= 100 max(cos, 0)`` with ViT-B/16 and ImageReward, on the text the caller passes (the full
       prompt or the object phrase, config key ``metrics.clip_text``).
     - Every metric returns a ``float`` or raises :class:`MetricUnavailable` with a reason (empty
@@ -28,31 +30,48 @@ Conventions:
 """
 
 from .alignment import (
+    AUTHORS_ONLY_METRICS,
     IMAGE_REWARD_WORKER,
     METRIC_NAMES,
     CLIPScore,
     ImageRewardScorer,
     ScoreResult,
+    metric_names,
     resolve_clip_checkpoint,
     score_all,
 )
-from .fidelity import MaskedLPIPS, MaskedMAE, MaskedPSNR
+from .fidelity import MaskedLPIPS, MaskedMAE, MaskedPSNR, authors_lpips, authors_lpips_box, masked_lpips
 from .functional import (
     EMPTY_MASK_REASON,
     GRAY_WEIGHTS,
     NON_FINITE_REASON,
     PROTOCOL_CONFIG_KEY,
     PROTOCOLS,
+    AuthorsScores,
     MetricUnavailable,
+    authors_histogram_matching,
+    authors_metrics,
     check_protocol,
     masked_mae,
     masked_psnr,
     match_histogram_masked,
+    quantize_8bit,
     to_gray,
 )
-from .scoring import PROMPT_METRICS, REFERENCE_METRICS, SCORER_NAMES, CellScores, Scorers, load_scorers, score_cell
+from .scoring import (
+    PROMPT_METRICS,
+    REFERENCE_METRICS,
+    SCORER_NAMES,
+    CellScores,
+    Scorers,
+    load_scorers,
+    reference_metrics,
+    score_cell,
+)
 
 __all__ = [
+    "AUTHORS_ONLY_METRICS",
+    "AuthorsScores",
     "CLIPScore",
     "CellScores",
     "EMPTY_MASK_REASON",
@@ -72,11 +91,19 @@ __all__ = [
     "SCORER_NAMES",
     "ScoreResult",
     "Scorers",
+    "authors_histogram_matching",
+    "authors_lpips",
+    "authors_lpips_box",
+    "authors_metrics",
     "check_protocol",
     "load_scorers",
+    "masked_lpips",
     "masked_mae",
     "masked_psnr",
     "match_histogram_masked",
+    "metric_names",
+    "quantize_8bit",
+    "reference_metrics",
     "resolve_clip_checkpoint",
     "score_all",
     "score_cell",

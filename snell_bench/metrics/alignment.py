@@ -33,17 +33,32 @@ from .fidelity import MaskedLPIPS
 from .functional import MetricUnavailable, check_protocol, masked_mae, masked_psnr
 
 __all__ = [
+    "AUTHORS_ONLY_METRICS",
     "IMAGE_REWARD_WORKER",
     "METRIC_NAMES",
     "CLIPScore",
     "ImageRewardScorer",
     "ScoreResult",
+    "metric_names",
     "resolve_clip_checkpoint",
     "score_all",
 ]
 
-#: The metrics :func:`score_all` reports, in order.
+#: The metrics :func:`score_all` reports under ``metrics.protocol=paper``, in order.
 METRIC_NAMES = ("psnr", "mae", "lpips", "clip", "image_reward")
+
+#: The metrics only the authors' evaluation has (``lpips_box``: their bounding-box LPIPS).
+AUTHORS_ONLY_METRICS = ("lpips_box",)
+
+
+def metric_names(protocol: str = "paper") -> tuple[str, ...]:
+    """The metrics :func:`score_all` reports under ``protocol``, in order: :data:`METRIC_NAMES`, and
+    under ``"authors"`` also ``lpips_box`` (after ``lpips``). Under ``"paper"`` ``lpips_box`` is not
+    reported at all (the paper has no such metric)."""
+    if check_protocol(protocol) == "authors":
+        i = METRIC_NAMES.index("lpips") + 1
+        return METRIC_NAMES[:i] + AUTHORS_ONLY_METRICS + METRIC_NAMES[i:]
+    return METRIC_NAMES
 
 
 def _to_pil(image: Any):
@@ -386,27 +401,30 @@ def score_all(
     """All metrics of one generated image: ``{"metrics": {...}, "missing": {...}}``.
 
     Convention:
-        - PSNR, MAE, LPIPS: masked, under ``protocol`` (``"paper"``: grayscale, histogram-matched,
-          LPIPS averaged over the mask; ``"authors"``: matched values rescaled to the generated range,
-          LPIPS on the masked RGB images averaged over the whole image; see
+        - The names of :func:`metric_names` (``protocol``), in order.
+        - PSNR, MAE, LPIPS: masked, under ``protocol`` (``"paper"``: grayscale, histogram-matched PSNR
+          and MAE in float64, LPIPS of the RGB images averaged over the mask of its spatial map;
+          ``"authors"``: the authors' evaluation on the 8-bit images, ``lpips`` their spatial LPIPS of
+          the masked images averaged over the mask and ``lpips_box`` their bounding-box LPIPS; see
           :func:`~snell_bench.metrics.functional.masked_psnr` and
           :class:`~snell_bench.metrics.fidelity.MaskedLPIPS`). An unknown ``protocol`` raises
           ``ValueError`` naming ``metrics.protocol``. The LPIPS scorer is called as
-          ``lpips(generated, reference, mask, histogram_match=...)`` under ``paper`` and as
-          ``lpips(generated, reference, mask, protocol="authors")`` under ``authors``.
+          ``lpips(generated, reference, mask)`` under ``paper`` and as ``lpips(generated, reference,
+          mask, protocol="authors")`` and ``lpips(..., protocol="authors", box=True)`` under ``authors``.
+          ``histogram_match`` applies to PSNR and MAE only.
         - CLIP and ImageReward: the full image against ``prompt``, the text exactly as given (the
           caller picks the full prompt or the object phrase, config key ``metrics.clip_text``).
         - A scorer given as ``None`` is missing with reason ``"not configured (set <config key>)"``;
           one given as a :class:`MetricUnavailable` (what its constructor raised) is missing with that
-          reason. An empty mask makes PSNR, MAE and LPIPS missing. Other errors propagate.
+          reason (both LPIPS values use the LPIPS scorer). An empty mask makes PSNR, MAE and LPIPS
+          missing. Other errors propagate.
         - ``generated_path``: the generated image's file, handed to ImageReward as is (else a
           temporary PNG of ``generated`` is written).
     """
-    check_protocol(protocol)
-    metrics: dict[str, float | None] = {name: None for name in METRIC_NAMES}
+    metrics: dict[str, float | None] = {name: None for name in metric_names(protocol)}
     missing: dict[str, str] = {}
     fidelity = dict(histogram_match=histogram_match, protocol=protocol)
-    lpips_kwargs = dict(histogram_match=histogram_match) if protocol == "paper" else dict(protocol=protocol)
+    lpips_kwargs = {} if protocol == "paper" else dict(protocol=protocol)
 
     def run(name, fn):
         try:
@@ -425,6 +443,13 @@ def score_all(
     run("psnr", lambda: masked_psnr(generated, reference, mask, **fidelity))
     run("mae", lambda: masked_mae(generated, reference, mask, **fidelity))
     run_scorer("lpips", lpips, MaskedLPIPS.CONFIG_KEY, lambda s: s(generated, reference, mask, **lpips_kwargs))
+    if "lpips_box" in metrics:
+        run_scorer(
+            "lpips_box",
+            lpips,
+            MaskedLPIPS.CONFIG_KEY,
+            lambda s: s(generated, reference, mask, **lpips_kwargs, box=True),
+        )
     run_scorer("clip", clip, CLIPScore.CONFIG_KEY, lambda s: s(generated, prompt))
     run_scorer(
         "image_reward",

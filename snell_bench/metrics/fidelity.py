@@ -8,16 +8,19 @@ Convention:
       ``(B, 1, H, W)`` (or one mask for the whole batch) in ``update``, score each image with the
       functional form and ``compute`` the mean over the images with a value; images without one
       (empty mask, non-finite pixels) are counted in ``missing`` and their reasons kept.
-    - Protocol (config key ``metrics.protocol``) for LPIPS:
+    - Protocol (config key ``metrics.protocol``) for LPIPS (VGG), computed by the pure functions
+      :func:`masked_lpips`, :func:`authors_lpips` and :func:`authors_lpips_box` around a network
+      callable (:data:`LpipsNetwork`), wrapped by :class:`MaskedLPIPS`:
 
-      * ``"paper"`` (the paper's text): LPIPS on the matched grayscale full images, its spatial map
-        averaged over the mask.
-      * ``"authors"`` (the authors' released evaluation code): LPIPS on the RGB images (neither gray
-        nor matched), both multiplied by the mask (black outside it), averaged over the whole image.
+      * ``"paper"`` (the paper's text, "LPIPS (VGG) averaged over the mask of its spatial map"): the
+        spatial LPIPS map of the two RGB images as they are (full frame, neither masked, gray nor
+        matched), averaged over the mask pixels.
+      * ``"authors"`` (``eval/masked_metrics.py``), on the 8-bit images and mask as they read them
+        (:func:`~snell_bench.metrics.functional.authors_inputs`): ``lpips``: the spatial map of the
+        images multiplied by the mask (black outside it), averaged over the mask pixels;
+        ``lpips_box``: the plain (non-spatial) LPIPS of the bounding-box crop of those masked images.
 
-    - LPIPS: the spatial LPIPS map (``spatial=True``) of the preprocessed full images, averaged over
-      the mask (``paper``), or the plain LPIPS value of the masked images (``authors``). Its value at a
-      masked pixel also depends on the pixels of its receptive field. No gradients.
+    - Every LPIPS value at a pixel also depends on the pixels of its receptive field. No gradients.
     - Results: a Python ``float`` (never NaN), or :class:`~snell_bench.metrics.functional.MetricUnavailable`
       with a ``reason``.
 """
@@ -38,13 +41,23 @@ from snell_bench.metrics.functional import (
     MetricUnavailable,
     _match_values,
     _prepare_pair,
+    authors_inputs,
     check_protocol,
     masked_mae,
     masked_psnr,
 )
 from snell_bench.utils.tensors import as_tensor, hwc_to_bchw
 
-__all__ = ["MaskedLPIPS", "MaskedMAE", "MaskedPSNR"]
+__all__ = [
+    "BOX_PAPER_REASON",
+    "LpipsNetwork",
+    "MaskedLPIPS",
+    "MaskedMAE",
+    "MaskedPSNR",
+    "authors_lpips",
+    "authors_lpips_box",
+    "masked_lpips",
+]
 
 
 def _iter_batch(generated, reference, mask):
@@ -124,19 +137,114 @@ _BACKBONE_FILES = {
 }
 
 
+#: The network interface of the LPIPS functions: ``net(in0, in1, spatial)`` with ``in0`` the
+#: generated and ``in1`` the reference input, both ``(1, 3, H, W)``; returns the spatial distance map
+#: ``(1, 1, H, W)`` when ``spatial`` is True, else the plain LPIPS value (any shape with one element).
+#: Inputs are passed as given (``lpips.LPIPS`` reads them as [-1, 1]; no ``normalize``).
+LpipsNetwork = Callable[[torch.Tensor, torch.Tensor, bool], torch.Tensor]
+
+#: The reason reported under ``paper`` for the authors' bounding-box LPIPS.
+BOX_PAPER_REASON = "the bounding-box LPIPS is part of the authors' evaluation only (metrics.protocol=authors)"
+
+
+def masked_lpips(net: LpipsNetwork, generated, reference, mask) -> float:
+    """LPIPS of the paper's protocol: the spatial LPIPS map of the two RGB images averaged over the
+    mask.
+
+    The paper's text says "LPIPS (VGG) averaged over the mask of its spatial map" and names no other
+    preprocessing for LPIPS (the grayscale conversion and the histogram matching are stated for PSNR
+    and MAE), so the inputs are the full RGB images as they are, scaled to [-1, 1] (``2 x - 1``): the
+    network sees the object in its context, and the mask only selects which pixels of the map count.
+
+    Convention:
+        Images and masks as in :mod:`snell_bench.metrics.functional` (float in [0, 1], not
+        quantised; one-channel images repeated to 3 channels). ``net`` as :data:`LpipsNetwork`. The
+        map's mean over the mask pixels in float64. Raises :class:`MetricUnavailable` for an empty
+        mask or non-finite pixel values.
+    """
+    g, r, m = _prepare_pair(generated, reference, mask, False)
+    if not m.any():
+        raise MetricUnavailable(EMPTY_MASK_REASON)
+    if not (np.isfinite(g).all() and np.isfinite(r).all()):
+        raise MetricUnavailable(NON_FINITE_REASON)
+    lp = net(_lpips_input(g), _lpips_input(r), True)
+    return float(lp.reshape(m.shape).detach().cpu().to(torch.float64)[torch.from_numpy(m)].mean())
+
+
+def _lpips_input(a: np.ndarray) -> torch.Tensor:
+    """``(H, W, C)`` in [0, 1] -> ``(1, 3, H, W)`` float32 in [-1, 1]."""
+    t = hwc_to_bchw(a)
+    if t.shape[1] == 1:
+        t = t.expand(-1, 3, -1, -1)
+    return t * 2.0 - 1.0
+
+
+def _authors_masked_inputs(generated, reference, mask):
+    """The authors' LPIPS inputs: the 8-bit images times the mask, scaled ``x 2 - 1`` (float32)."""
+    g, r, valid = authors_inputs(generated, reference, mask)
+    m = valid.to(g.dtype).expand_as(g)
+    return (g * m) * 2.0 - 1.0, (r * m) * 2.0 - 1.0, valid
+
+
+def authors_lpips(net: LpipsNetwork, generated, reference, mask) -> float:
+    """The authors' ``lpips_spatial``: the spatial LPIPS map of the masked images, averaged over the
+    mask.
+
+    Steps (float32): the images and mask as the authors read their PNGs
+    (:func:`~snell_bench.metrics.functional.authors_inputs`); both images multiplied by the mask
+    (black outside it) and scaled ``x 2 - 1``; ``net(gen, ref, spatial=True)``; the map's mean over
+    the mask pixels. Unlike :func:`masked_lpips` the network sees black around the object.
+
+    Convention:
+        As :func:`~snell_bench.metrics.functional.authors_metrics` for the inputs; ``net`` as
+        :data:`LpipsNetwork`. Raises :class:`MetricUnavailable` for an empty mask or non-finite
+        values.
+    """
+    g, r, valid = _authors_masked_inputs(generated, reference, mask)
+    lp = net(g, r, True).detach().cpu()
+    return float(lp.reshape(valid.shape)[valid].mean())
+
+
+def authors_lpips_box(net: LpipsNetwork, generated, reference, mask) -> float:
+    """The authors' ``lpips_non_spatial``: the plain LPIPS of the mask's bounding box.
+
+    Steps (float32): the masked images in [-1, 1] as in :func:`authors_lpips`; the crop
+    ``[y_min, y_max] x [x_min, x_max]`` (inclusive) of the mask pixels; the crop mapped back with
+    ``(x + 1) / 2`` to [0, 1] and given to ``net(gen, ref, spatial=False)`` AS IT IS: ``lpips.LPIPS``
+    reads its inputs as [-1, 1] and the authors do not pass ``normalize=True``, so the network sees
+    images half as contrasted and centred on mid-grey instead of black. This is the authors'
+    behaviour, reproduced; the value is the network's mean over the crop (black pixels of the box
+    outside the mask included).
+
+    Convention:
+        As :func:`authors_lpips`. The crop must be large enough for the network (VGG: 16 pixels a
+        side; :class:`MaskedLPIPS` reports a smaller box as missing).
+    """
+    g, r, valid = _authors_masked_inputs(generated, reference, mask)
+    rows = torch.nonzero(valid[0, 0].any(dim=1)).flatten()
+    cols = torch.nonzero(valid[0, 0].any(dim=0)).flatten()
+    y0, y1 = int(rows.min()), int(rows.max()) + 1
+    x0, x1 = int(cols.min()), int(cols.max()) + 1
+    g_crop = (g[:, :, y0:y1, x0:x1] + 1.0) / 2.0
+    r_crop = (r[:, :, y0:y1, x0:x1] + 1.0) / 2.0
+    return float(net(g_crop, r_crop, False).detach().cpu().reshape(()))
+
+
+#: Smallest input side each backbone accepts (VGG16: four 2x2 max-pools before its last layer;
+#: the others found by trying every size).
+_MIN_SIDE = {"vgg": 16, "alex": 31, "squeeze": 17}
+
+
 class MaskedLPIPS(torch.nn.Module):
     """LPIPS (VGG) of a masked region, under the paper's protocol or the authors'.
 
-    - ``protocol="paper"``: both images converted to grayscale, the generated image's masked
-      histogram matched to the reference's (as for PSNR; pixels outside the mask keep their gray
-      values), the gray images repeated to 3 channels and scaled to [-1, 1]; the value is the mean of
-      the ``(H, W)`` spatial LPIPS map over the masked pixels.
-    - ``protocol="authors"``: both RGB images (neither gray nor matched) multiplied by the mask (zero,
-      i.e. black, outside it), scaled to [-1, 1], and given to LPIPS as they are: the value is what
-      ``lpips.LPIPS(net, spatial=False)(gen * mask, ref * mask, normalize=True)`` returns, each
-      layer's distance map averaged over the WHOLE image. Pixels outside the mask are black in both
-      inputs and add little distance, so the value shrinks with the mask's share of the image: it is
-      comparable only between images scored with the same mask.
+    - ``protocol="paper"``: :func:`masked_lpips`: the spatial LPIPS map of the two RGB images as they
+      are (full frame, unmasked, not gray, not matched) averaged over the mask pixels. The options
+      ``grayscale=True`` / ``histogram_match=True`` (snell_bench's, off by default) score the gray
+      images, the generated one matched to the reference inside the mask, instead.
+    - ``protocol="authors"``: :func:`authors_lpips` (``box=False``, their ``lpips_spatial``, reported
+      as ``lpips``) or :func:`authors_lpips_box` (``box=True``, their ``lpips_non_spatial``, reported
+      as ``lpips_box``), on the 8-bit images.
 
     Convention:
         - Backbone weights (never downloaded): ``weights_path`` (config key ``metrics.lpips_weights``),
@@ -147,11 +255,11 @@ class MaskedLPIPS(torch.nn.Module):
         - ``allow_random_backbone=True`` (with ``weights_path=None``) builds a randomly initialised
           backbone (seeded, no cache lookup) for plumbing tests only: its values are meaningless.
         - Inputs follow the module's image/mask convention. ``grayscale``, ``histogram_match`` and
-          ``method`` are options of the ``paper`` preprocessing (``False`` skips a step); ``authors``
-          fixes its own (RGB, unmatched) and does not read them.
-        - ``forward`` returns a float (see above); an empty mask or non-finite pixel values raise
-          :class:`MetricUnavailable`; an unknown ``protocol`` raises ``ValueError`` naming
-          ``metrics.protocol``.
+          ``method`` are options of the ``paper`` protocol only, ``box`` of ``authors`` only; the other
+          combinations raise ``ValueError``.
+        - ``forward`` returns a float; an empty mask, non-finite pixel values or an input smaller than
+          the backbone accepts raise :class:`MetricUnavailable`; an unknown ``protocol`` raises
+          ``ValueError`` naming ``metrics.protocol``.
     """
 
     CONFIG_KEY = "metrics.lpips_weights"
@@ -224,11 +332,33 @@ class MaskedLPIPS(torch.nn.Module):
         except RuntimeError as e:
             raise ValueError(f"{path} does not fit the LPIPS backbone: {e}") from e
 
-    def _inputs(self, generated, reference, mask, grayscale: bool, histogram_match: bool, method: str, protocol: str):
-        """The LPIPS inputs ``(1, 3, H, W)`` in [-1, 1] of ``protocol`` and the bool mask ``(H, W)``."""
-        check_protocol(protocol)
-        if protocol == "authors":
-            grayscale, histogram_match = False, False
+    @torch.no_grad()
+    def network(self, in0: torch.Tensor, in1: torch.Tensor, spatial: bool) -> torch.Tensor:
+        """``lpips.LPIPS(in0, in1)`` with ``spatial`` set for this call (:data:`LpipsNetwork`).
+
+        Convention:
+            Inputs ``(1, 3, H, W)`` passed as given (read as [-1, 1]), moved to the model's device;
+            returns the map ``(1, 1, H, W)`` or the value ``(1, 1, 1, 1)`` on the CPU. An input side
+            below what the backbone accepts raises :class:`MetricUnavailable`.
+        """
+        side = min(in0.shape[-2:])
+        if side < _MIN_SIDE[self.net]:
+            raise MetricUnavailable(
+                f"LPIPS input {tuple(in0.shape[-2:])} is smaller than the {self.net} backbone accepts "
+                f"({_MIN_SIDE[self.net]} pixels a side)"
+            )
+        device = next(self.model.parameters()).device
+        previous = self.model.spatial
+        self.model.spatial = spatial
+        try:
+            return self.model(in0.to(device), in1.to(device)).cpu()
+        finally:
+            self.model.spatial = previous
+
+    def _paper_pair(self, generated, reference, mask, grayscale: bool, histogram_match: bool, method: str):
+        """The ``paper`` inputs: RGB as given, or gray (and matched) with snell_bench's options."""
+        if not (grayscale or histogram_match):
+            return generated, reference
         g, r, m = _prepare_pair(generated, reference, mask, grayscale)
         if not (np.isfinite(g).all() and np.isfinite(r).all()):
             raise MetricUnavailable(NON_FINITE_REASON)
@@ -236,17 +366,19 @@ class MaskedLPIPS(torch.nn.Module):
             g = g.copy()
             for c in range(g.shape[-1]):
                 g[..., c][m] = _match_values(g[..., c][m], r[..., c][m], method)
-        if protocol == "authors":
-            g, r = g * m[..., None], r * m[..., None]
-        device = next(self.model.parameters()).device
+        return g, r
 
-        def to_tensor(a: np.ndarray) -> torch.Tensor:
-            t = hwc_to_bchw(a)
-            if t.shape[1] == 1:
-                t = t.expand(-1, 3, -1, -1)
-            return (t * 2.0 - 1.0).to(device)
-
-        return to_tensor(g), to_tensor(r), m
+    @staticmethod
+    def _check_options(protocol: str, grayscale: bool, histogram_match: bool, method: str, box: bool) -> str:
+        protocol = check_protocol(protocol)
+        if protocol == "authors" and (grayscale or histogram_match or method != "cdf"):
+            raise ValueError(
+                "grayscale, histogram_match and method are options of metrics.protocol='paper'; the "
+                "authors' LPIPS scores the masked RGB images: leave them at their defaults"
+            )
+        if protocol == "paper" and box:
+            raise ValueError(f"box=True: {BOX_PAPER_REASON}")
+        return protocol
 
     @torch.no_grad()
     def spatial_map(
@@ -255,28 +387,35 @@ class MaskedLPIPS(torch.nn.Module):
         reference,
         mask,
         *,
-        grayscale: bool = True,
-        histogram_match: bool = True,
+        grayscale: bool = False,
+        histogram_match: bool = False,
         method: str = "cdf",
         protocol: str = "paper",
     ) -> torch.Tensor:
-        """The spatial LPIPS map ``(H, W)`` of the pair preprocessed as ``protocol`` does.
+        """The spatial LPIPS map ``(H, W)`` whose mean over the mask is :meth:`forward`'s value.
 
         Convention:
-            ``paper``: the mask drives the histogram matching; ``authors``: the map of the masked RGB
-            images (its mean is close to, not exactly, the ``authors`` value of :meth:`forward`).
+            ``paper``: the map of the (preprocessed) full images; ``authors``: the map of the masked
+            8-bit images.
         """
-        g, r, _ = self._inputs(generated, reference, mask, grayscale, histogram_match, method, protocol)
-        return self.model(g, r)[0, 0].cpu()
+        recorded: list[torch.Tensor] = []
 
-    def _whole_image(self, g: torch.Tensor, r: torch.Tensor) -> float:
-        """``lpips.LPIPS`` with ``spatial=False``: each layer's map averaged over the whole image."""
-        spatial = self.model.spatial
-        self.model.spatial = False
-        try:
-            return float(self.model(g, r).reshape(()).double())
-        finally:
-            self.model.spatial = spatial
+        def keep(in0, in1, spatial):
+            out = self.network(in0, in1, spatial)
+            recorded.append(out)
+            return out
+
+        self.forward(
+            generated,
+            reference,
+            mask,
+            grayscale=grayscale,
+            histogram_match=histogram_match,
+            method=method,
+            protocol=protocol,
+            _network=keep,
+        )
+        return recorded[0][0, 0]
 
     @torch.no_grad()
     def forward(
@@ -285,16 +424,18 @@ class MaskedLPIPS(torch.nn.Module):
         reference,
         mask,
         *,
-        grayscale: bool = True,
-        histogram_match: bool = True,
+        grayscale: bool = False,
+        histogram_match: bool = False,
         method: str = "cdf",
         protocol: str = "paper",
+        box: bool = False,
+        _network: LpipsNetwork | None = None,
     ) -> float:
-        """LPIPS of the pair under ``protocol`` (see the class); :class:`MetricUnavailable` for an empty mask."""
-        g, r, m = self._inputs(generated, reference, mask, grayscale, histogram_match, method, protocol)
-        if not m.any():
-            raise MetricUnavailable(EMPTY_MASK_REASON)
+        """LPIPS of the pair under ``protocol`` (see the class); ``box`` selects the authors'
+        bounding-box LPIPS."""
+        protocol = self._check_options(protocol, grayscale, histogram_match, method, box)
+        net = self.network if _network is None else _network
         if protocol == "authors":
-            return self._whole_image(g, r)
-        lp = self.model(g, r)[0, 0].cpu().to(torch.float64)
-        return float(lp[torch.from_numpy(m)].mean())
+            return (authors_lpips_box if box else authors_lpips)(net, generated, reference, mask)
+        g, r = self._paper_pair(generated, reference, mask, grayscale, histogram_match, method)
+        return masked_lpips(net, g, r, mask)

@@ -5,7 +5,7 @@ of one cell with the reason for each missing one.
   ``metrics`` config. A scorer that cannot be built, for any reason (weights not configured, a
   broken weights file), is kept as the :class:`~snell_bench.metrics.functional.MetricUnavailable`
   that says why: building never raises.
-- :func:`score_cell` scores one image: the metrics of :data:`METRIC_NAMES` against the reference
+- :func:`score_cell` scores one image: the metrics of :func:`metric_names` against the reference
   and the prompt, and ``psnr_true`` against the true render over the object mask, under one
   evaluation protocol (config key ``metrics.protocol``: ``"paper"`` or ``"authors"``, see
   :mod:`snell_bench.metrics.functional` and :mod:`snell_bench.metrics.fidelity`), recorded in its
@@ -24,25 +24,38 @@ import torch
 
 from snell_bench.utils.tensors import bchw_to_hwc
 
-from .alignment import METRIC_NAMES, CLIPScore, ImageRewardScorer, ScoreResult, score_all
+from .alignment import METRIC_NAMES, CLIPScore, ImageRewardScorer, ScoreResult, metric_names, score_all
 from .fidelity import MaskedLPIPS
 from .functional import MetricUnavailable, check_protocol, masked_psnr
 
 __all__ = [
     "PROMPT_METRICS",
     "REFERENCE_METRICS",
+    "SCORER_METRICS",
     "SCORER_NAMES",
     "CellScores",
     "Scorers",
     "load_scorers",
+    "reference_metrics",
     "score_cell",
 ]
 
 #: The metrics of :data:`METRIC_NAMES` scored against the prompt alone (no reference needed).
 PROMPT_METRICS = ("clip", "image_reward")
 
-#: The metrics of :data:`METRIC_NAMES` scored against the reference over the metric mask.
+#: The metrics of :data:`METRIC_NAMES` scored against the reference over the metric mask (under
+#: ``metrics.protocol=authors`` also ``lpips_box``: see :func:`reference_metrics`).
 REFERENCE_METRICS = tuple(name for name in METRIC_NAMES if name not in PROMPT_METRICS)
+
+#: The metrics each scorer computes (a scorer missing makes all of them missing with its reason).
+SCORER_METRICS = {"lpips": ("lpips", "lpips_box"), "clip": ("clip",), "image_reward": ("image_reward",)}
+
+
+def reference_metrics(protocol: str = "paper") -> tuple[str, ...]:
+    """The metrics of :func:`~snell_bench.metrics.alignment.metric_names` (``protocol``) scored
+    against the reference."""
+    return tuple(name for name in metric_names(protocol) if name not in PROMPT_METRICS)
+
 
 #: The metrics whose scorer needs weights or a program (built by :func:`load_scorers`).
 SCORER_NAMES = ("lpips", "clip", "image_reward")
@@ -169,14 +182,15 @@ def score_cell(
 ) -> CellScores:
     """Every metric of one generated image, each a float or None with the reason.
 
-    With a reference, the metrics of :data:`METRIC_NAMES` are those of :func:`score_all` under
-    ``protocol`` (PSNR, MAE, LPIPS: masked; ``"paper"``: grayscale, histogram-matched, LPIPS
-    averaged over the mask; ``"authors"``: matched values rescaled to the generated image's masked
-    range, LPIPS on the RGB images multiplied by the mask and averaged over the whole image; CLIP
-    and ImageReward: the full image against ``prompt``). Without one (``reference is None``), PSNR,
-    MAE and LPIPS are None with ``reference_reason`` (default ``"no reference"``), CLIP is still
-    scored, and ImageReward is None. Then, for each scorer that could not be built, its reason
-    replaces the recorded one wherever its metric has no value. With ``true_render``,
+    With a reference, the metrics of :func:`~snell_bench.metrics.alignment.metric_names`
+    (``protocol``) are those of :func:`score_all` under ``protocol`` (PSNR, MAE, LPIPS: masked;
+    ``"paper"``: grayscale, histogram-matched PSNR and MAE, LPIPS of the RGB images averaged over the
+    mask of its spatial map; ``"authors"``: the authors' evaluation on the 8-bit images, with
+    ``lpips_box``, their bounding-box LPIPS, after ``lpips``; CLIP and ImageReward: the full image
+    against ``prompt``). Without one (``reference is None``), PSNR, MAE and LPIPS are None with
+    ``reference_reason`` (default ``"no reference"``), CLIP is still scored, and ImageReward is None.
+    Then, for each scorer that could not be built, its reason replaces the recorded one wherever one
+    of its metrics (:data:`SCORER_METRICS`) has no value. With ``true_render``,
     ``psnr_true`` is the masked PSNR (same protocol) of the image against it over ``object_mask``.
     Last, NaN and infinite values (e.g. the PSNR of identical pixels) become None, with a reason.
 
@@ -202,7 +216,8 @@ def score_cell(
 
     Returns:
         ``{"metrics": {name: float | None}, "missing": {name: reason}, "protocol": protocol}``: the
-        names of :data:`METRIC_NAMES` in order, then ``psnr_true`` when ``true_render`` is given.
+        names of ``metric_names(protocol)`` in order (``lpips_box`` under ``"authors"`` only), then
+        ``psnr_true`` when ``true_render`` is given.
 
     Raises:
         ValueError: ``true_render`` without ``object_mask``; an unknown ``protocol`` (the message
@@ -214,8 +229,8 @@ def score_cell(
     scorers = scorers if isinstance(scorers, Scorers) else Scorers(scorers or {})
     gen = _hwc(generated)
     if reference is None:
-        metrics: dict[str, float | None] = {name: None for name in METRIC_NAMES}
-        missing = {name: reference_reason or "no reference" for name in REFERENCE_METRICS}
+        metrics: dict[str, float | None] = {name: None for name in metric_names(protocol)}
+        missing = {name: reference_reason or "no reference" for name in reference_metrics(protocol)}
         if scorers.clip is not None:
             try:
                 metrics["clip"] = float(scorers.clip(gen, prompt))
@@ -234,9 +249,10 @@ def score_cell(
             protocol=protocol,
         )
         metrics, missing = out["metrics"], out["missing"]
-    for name, reason in scorers.reasons.items():
-        if metrics.get(name) is None:
-            missing[name] = reason
+    for scorer_name, reason in scorers.reasons.items():
+        for name in SCORER_METRICS.get(scorer_name, (scorer_name,)):
+            if name in metrics and metrics[name] is None:
+                missing[name] = reason
     if true_render is not None:
         try:
             metrics["psnr_true"] = float(masked_psnr(gen, true_render, object_mask, protocol=protocol))

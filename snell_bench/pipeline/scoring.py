@@ -30,8 +30,11 @@ def score(
     cfg: DictConfig, inputs: CellInputs, image: torch.Tensor, scorers, *, image_path=None, reference=None
 ) -> dict:
     """Stage 8: masked metrics of ``image`` against the reference (``reference``: another
-    ReferenceRender to score against, e.g. a converged one) and PSNR against the true render:
-    ``{"metrics": {name: float | None}, "missing": {name: reason}}``."""
+    ReferenceRender to score against, e.g. a converged one) and PSNR against the true render, under
+    ``metrics.protocol``: ``{"metrics": {name: float | None}, "missing": {name: reason}, "protocol":
+    ...}`` with ``lpips_box`` under ``authors`` only. Under ``authors`` the in-memory image and
+    reference are scored as their 8-bit PNGs (``save_png``'s rounding), so the numbers equal those of
+    the files written next to ``metrics.json``."""
     ref = inputs.reference if reference is None else reference
     return score_cell(
         bchw_to_hwc(image),

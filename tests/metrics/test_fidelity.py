@@ -1,6 +1,5 @@
 """Masked fidelity metrics against independent references (numpy, scikit-image, torchmetrics)."""
 
-import copy
 import math
 import os
 
@@ -270,20 +269,30 @@ class TestMaskedLPIPS:
         assert random_lpips(to_bchw(ref), to_bchw(ref), tmask) == pytest.approx(0.0, abs=1e-7)
 
     def test_masked_mean_equals_hand_computed(self, random_lpips, pair):
+        gen, ref, mask = pair
+        # the paper's LPIPS: the spatial map of the two RGB images as they are, in [-1, 1]
+        to_in = lambda a: torch.from_numpy(a).permute(2, 0, 1)[None].float() * 2 - 1  # noqa: E731
+        with torch.no_grad():
+            lp_map = random_lpips.model(to_in(gen), to_in(ref))[0, 0].double().numpy()
+        assert lp_map.shape == (H, W) and (lp_map[mask] > 0).all()
+        expected = lp_map[mask].mean()
+        assert random_lpips(gen, ref, mask) == pytest.approx(expected, rel=1e-5)
+        np.testing.assert_allclose(random_lpips.spatial_map(gen, ref, mask).numpy(), lp_map, rtol=1e-5, atol=1e-7)
+
+    def test_gray_matched_option(self, random_lpips, pair):
         from skimage.exposure import match_histograms
 
         gen, ref, mask = pair
-        # preprocessing written independently: gray, skimage matching of the masked values, [-1, 1]
+        # snell_bench's option: gray images, the generated one matched inside the mask (skimage), [-1, 1]
         g, r = gray_ref(gen), gray_ref(ref)
         g_matched = g.copy()
         g_matched[mask] = match_histograms(g[mask], r[mask])
         to_in = lambda a: torch.from_numpy(a).float()[None, None].expand(1, 3, H, W) * 2 - 1  # noqa: E731
         with torch.no_grad():
             lp_map = random_lpips.model(to_in(g_matched), to_in(r))[0, 0].double().numpy()
-        assert lp_map.shape == (H, W) and (lp_map[mask] > 0).all()
-        expected = lp_map[mask].mean()
-        assert random_lpips(gen, ref, mask) == pytest.approx(expected, rel=1e-5)
-        np.testing.assert_allclose(random_lpips.spatial_map(gen, ref, mask).numpy(), lp_map, rtol=1e-5, atol=1e-7)
+        ours = random_lpips(gen, ref, mask, grayscale=True, histogram_match=True)
+        assert ours == pytest.approx(lp_map[mask].mean(), rel=1e-5)
+        assert ours != pytest.approx(random_lpips(gen, ref, mask), rel=1e-3)
 
     def test_full_mask_equals_lpips_spatial_average(self, random_lpips):
         torch.manual_seed(0)
@@ -360,133 +369,12 @@ def test_lpips_with_real_vgg_weights():
 
 
 # ------------------------------------------------------------------------------------------
-# The authors' protocol
+# Protocol selection (the authors' protocol itself: test_authors_protocol.py)
 # ------------------------------------------------------------------------------------------
 
 
-def authors_matched(g, r):
-    """The authors' matching written independently: skimage's CDF matching of the masked values, then
-    an explicit linear rescale onto the generated values' own range."""
-    from skimage.exposure import match_histograms
-
-    m = match_histograms(g, r)
-    return g.min() + (m - m.min()) * (g.max() - g.min()) / (m.max() - m.min())
-
-
-class TestAuthorsProtocol:
-    def test_hand_computed_2x2(self):
-        gen = np.array([[0.3, 0.5], [0.4, 0.7]])
-        ref = np.array([[0.0, 0.2], [0.6, 1.0]])
-        full = np.ones((2, 2), bool)
-        # ranks of gen (0.3, 0.5, 0.4, 0.7) -> (0, 2, 1, 3): matched onto ref's values (0, 0.6, 0.2, 1)
-        paper = match_histogram_masked(gen, ref, full)
-        np.testing.assert_allclose(paper, [[0.0, 0.6], [0.2, 1.0]], atol=1e-12)
-        # differences (0, 0.4, -0.4, 0): MSE 0.08, MAE 0.2
-        assert masked_psnr(gen, ref, full) == pytest.approx(10 * math.log10(12.5))  # 10.9691 dB
-        assert masked_mae(gen, ref, full) == pytest.approx(0.2)
-        # authors: the matched (0, 0.6, 0.2, 1) rescaled from [0, 1] onto gen's range [0.3, 0.7]
-        authors = match_histogram_masked(gen, ref, full, protocol="authors")
-        np.testing.assert_allclose(authors, [[0.3, 0.54], [0.38, 0.7]], atol=1e-12)
-        # differences (0.3, 0.34, -0.22, -0.3): MSE 0.344 / 4 = 0.086, MAE 1.16 / 4 = 0.29
-        assert masked_psnr(gen, ref, full, protocol="authors") == pytest.approx(10 * math.log10(1 / 0.086))  # 10.6550
-        assert masked_mae(gen, ref, full, protocol="authors") == pytest.approx(0.29)
-
-    def test_hand_computed_4x4_constant_images(self):
-        mask = np.zeros((4, 4), bool)
-        mask[1, 1:3] = mask[2, 1:3] = True
-        # outside the mask: values that would change every number if they were read
-        outside = np.random.default_rng(2).random((4, 4))
-        gen = np.where(mask, 0.25, outside)  # constant inside the mask: zero range
-        ref = outside.copy()
-        ref[1, 1], ref[1, 2], ref[2, 1], ref[2, 2] = 0.05, 0.25, 0.45, 0.65
-        # paper: every generated value maps to the reference's top quantile 0.65;
-        # differences (0.6, 0.4, 0.2, 0): MSE 0.14, MAE 0.3
-        np.testing.assert_allclose(match_histogram_masked(gen, ref, mask)[mask], 0.65, atol=1e-12)
-        assert masked_psnr(gen, ref, mask) == pytest.approx(10 * math.log10(1 / 0.14))  # 8.5387 dB
-        assert masked_mae(gen, ref, mask) == pytest.approx(0.3)
-        # authors: the zero range cannot be stretched: the rescale leaves the generated constant 0.25;
-        # differences (-0.2, 0, 0.2, 0.4): MSE 0.06, MAE 0.2 (= the unmatched pair)
-        matched = match_histogram_masked(gen, ref, mask, protocol="authors")
-        np.testing.assert_array_equal(matched[mask], 0.25)
-        np.testing.assert_array_equal(matched[~mask], gen[~mask])
-        assert masked_psnr(gen, ref, mask, protocol="authors") == pytest.approx(10 * math.log10(1 / 0.06))  # 12.2185
-        assert masked_mae(gen, ref, mask, protocol="authors") == pytest.approx(0.2)
-        # a constant reference 0.9 against gen (0.2, 0.4, 0.6, 0.8): paper matches everything to 0.9
-        # (identical: inf); authors clips the constant 0.9 into gen's range [0.2, 0.8] -> 0.8:
-        # differences 0.1 everywhere, MSE 0.01, PSNR 20 dB
-        gen2 = outside.copy()
-        gen2[1, 1], gen2[1, 2], gen2[2, 1], gen2[2, 2] = 0.2, 0.4, 0.6, 0.8
-        ref2 = np.where(mask, 0.9, outside)
-        assert masked_psnr(gen2, ref2, mask) == math.inf and masked_mae(gen2, ref2, mask) == 0.0
-        np.testing.assert_allclose(match_histogram_masked(gen2, ref2, mask, protocol="authors")[mask], 0.8)
-        assert masked_psnr(gen2, ref2, mask, protocol="authors") == pytest.approx(20.0)
-        assert masked_mae(gen2, ref2, mask, protocol="authors") == pytest.approx(0.1)
-        for g, r in ((gen, ref), (gen2, ref2), (gen, np.where(mask, 0.7, outside))):
-            for fn in (masked_psnr, masked_mae):
-                assert not math.isnan(fn(g, r, mask, protocol="authors"))
-
-    def test_affine_change_is_forgiven_by_paper_not_by_authors(self, pair):
-        _, ref, mask = pair
-        gen = 0.5 * ref + 0.2  # an affine change of the reference, inside and outside the mask
-        r = gray_ref(ref)[mask]
-        # paper: matching carries gen's values back onto ref's exactly
-        assert masked_psnr(gen, ref, mask) > 100 and masked_mae(gen, ref, mask) < 1e-9
-        # authors: matched in shape, rescaled to gen's range: gen itself, i.e. the unmatched pair
-        expected_mse = np.mean((0.2 - 0.5 * r) ** 2)
-        ours = masked_psnr(gen, ref, mask, protocol="authors")
-        assert ours == pytest.approx(10 * math.log10(1 / expected_mse), abs=1e-9)
-        assert ours == pytest.approx(masked_psnr(gen, ref, mask, histogram_match=False), abs=1e-9)
-        assert ours < 20
-        assert masked_mae(gen, ref, mask, protocol="authors") == pytest.approx(np.mean(np.abs(0.2 - 0.5 * r)))
-
-    def test_noisy_affine_equals_independent_numpy(self, pair):
-        _, ref, mask = pair
-        rng = np.random.default_rng(4)
-        gen = 0.5 * ref + 0.2 + 0.03 * rng.standard_normal(ref.shape)
-        g, r = gray_ref(gen)[mask], gray_ref(ref)[mask]
-        out = authors_matched(g, r)
-        mse = np.mean((out - r) ** 2)
-        assert masked_psnr(gen, ref, mask, protocol="authors") == pytest.approx(10 * np.log10(1 / mse), abs=1e-9)
-        assert masked_mae(gen, ref, mask, protocol="authors") == pytest.approx(np.mean(np.abs(out - r)), abs=1e-12)
-        np.testing.assert_allclose(
-            match_histogram_masked(gray_ref(gen), gray_ref(ref), mask, protocol="authors")[mask], out
-        )
-        # the two protocols differ on this pair: paper forgives the contrast change, authors do not
-        assert masked_psnr(gen, ref, mask) > masked_psnr(gen, ref, mask, protocol="authors") + 5
-        # float64 torch inputs and the class forms give the same numbers
-        tg, tr = (torch.from_numpy(a).permute(2, 0, 1)[None] for a in (gen, ref))
-        assert masked_psnr(tg, tr, mask, protocol="authors") == pytest.approx(10 * np.log10(1 / mse), abs=1e-9)
-        metric = MaskedPSNR(protocol="authors")
-        metric.update(tg, tr, torch.from_numpy(mask)[None, None])
-        assert metric.compute() == pytest.approx(10 * np.log10(1 / mse), abs=1e-9)
-
-    def test_rgb_mode_rescales_each_channel(self, pair):
-        gen, ref, mask = pair
-        gv, rv = np.asarray(gen)[mask], np.asarray(ref)[mask]
-        out = np.stack([authors_matched(gv[:, c], rv[:, c]) for c in range(3)], axis=1)
-        expected = 10 * np.log10(1 / np.mean((out - rv) ** 2))
-        assert masked_psnr(gen, ref, mask, grayscale=False, protocol="authors") == pytest.approx(expected, abs=1e-9)
-
-    def test_identical_empty_and_non_finite(self, pair):
-        gen, ref, mask = pair
-        assert masked_psnr(ref, ref, mask, protocol="authors") == math.inf
-        assert masked_mae(ref, ref, mask, protocol="authors") == 0.0
-        for fn in (masked_psnr, masked_mae):
-            with pytest.raises(MetricUnavailable) as exc:
-                fn(gen, ref, np.zeros_like(mask), protocol="authors")
-            assert exc.value.reason == EMPTY_MASK_REASON
-        bad = gen.copy()
-        bad[mask.nonzero()[0][0], mask.nonzero()[1][0]] = np.nan
-        for protocol in PROTOCOLS:
-            for fn in (masked_psnr, masked_mae):
-                with pytest.raises(MetricUnavailable) as exc:
-                    fn(bad, ref, mask, protocol=protocol)
-                assert exc.value.reason == NON_FINITE_REASON
-        outside = gen.copy()
-        outside[~mask] = np.nan  # never read
-        assert masked_psnr(outside, ref, mask, protocol="authors") == masked_psnr(gen, ref, mask, protocol="authors")
-
-    def test_paper_is_the_default(self, pair):
+class TestProtocolSelection:
+    def test_paper_is_the_default(self, pair, random_lpips):
         gen, ref, mask = pair
         assert masked_psnr(gen, ref, mask, protocol="paper") == masked_psnr(gen, ref, mask)
         assert masked_mae(gen, ref, mask, protocol="paper") == masked_mae(gen, ref, mask)
@@ -494,8 +382,14 @@ class TestAuthorsProtocol:
             match_histogram_masked(gray_ref(gen), gray_ref(ref), mask, protocol="paper"),
             match_histogram_masked(gray_ref(gen), gray_ref(ref), mask),
         )
+        assert random_lpips(gen, ref, mask, protocol="paper") == random_lpips(gen, ref, mask)
 
-    def test_unknown_protocol_names_the_config_key(self, pair):
+    def test_the_protocols_differ(self, pair, random_lpips):
+        gen, ref, mask = pair
+        for fn in (masked_psnr, masked_mae, random_lpips):
+            assert fn(gen, ref, mask, protocol="authors") != pytest.approx(fn(gen, ref, mask), rel=1e-3)
+
+    def test_unknown_protocol_names_the_config_key(self, pair, random_lpips):
         gen, ref, mask = pair
         for call in (
             lambda: masked_psnr(gen, ref, mask, protocol="author"),
@@ -503,79 +397,18 @@ class TestAuthorsProtocol:
             lambda: match_histogram_masked(gray_ref(gen), gray_ref(ref), mask, protocol=None),
             lambda: MaskedMAE(protocol="official"),
             lambda: check_protocol("text"),
+            lambda: random_lpips(gen, ref, mask, protocol="author"),
+            lambda: score_all(gen, ref, mask, "a glass sphere", protocol="author"),
         ):
             with pytest.raises(ValueError, match=r"metrics\.protocol.*'paper', 'authors'"):
                 call()
 
-
-@pytest.fixture(scope="module")
-def plain_lpips(random_lpips):
-    """``lpips.LPIPS`` as the authors call it (no spatial map), with the same weights."""
-    model = copy.deepcopy(random_lpips.model)
-    model.spatial = False
-    return model
-
-
-class TestMaskedLPIPSAuthors:
-    @staticmethod
-    def masked_input(img_hwc, mask):
-        return to_bchw(np.asarray(img_hwc, np.float64) * mask[..., None])
-
-    def test_equals_lpips_on_the_masked_rgb_pair(self, random_lpips, plain_lpips, pair):
+    def test_non_finite_pixels_under_both_protocols(self, pair, random_lpips):
         gen, ref, mask = pair
-        with torch.no_grad():
-            expected = plain_lpips(self.masked_input(gen, mask), self.masked_input(ref, mask), normalize=True).item()
-        assert expected > 0
-        assert random_lpips(gen, ref, mask, protocol="authors") == pytest.approx(expected, rel=1e-6)
-        # RGB and unmatched: the paper's preprocessing options are not read
-        assert random_lpips(gen, ref, mask, protocol="authors", grayscale=True, histogram_match=True) == pytest.approx(
-            expected, rel=1e-6
-        )
-        # the spatial map is that of the masked pair; its whole-image mean is close to the value
-        lp_map = random_lpips.spatial_map(gen, ref, mask, protocol="authors")
-        assert lp_map.shape == (H, W)
-        assert lp_map.double().mean().item() == pytest.approx(expected, rel=1e-3)
-        assert random_lpips.model.spatial  # the module is left as it was
-
-    def test_paper_is_unchanged_and_differs(self, random_lpips, pair):
-        gen, ref, mask = pair
-        paper = random_lpips(gen, ref, mask)
-        assert random_lpips(gen, ref, mask, protocol="paper") == paper
-        assert random_lpips(gen, ref, mask, protocol="authors") != pytest.approx(paper, rel=1e-2)
-
-    def test_pixels_outside_the_mask_do_not_matter(self, random_lpips, pair):
-        gen, ref, mask = pair
-        rng = np.random.default_rng(9)
-        gen2, ref2 = gen.copy(), ref.copy()
-        gen2[~mask] = rng.random(((~mask).sum(), 3))
-        ref2[~mask] = rng.random(((~mask).sum(), 3))
-        assert random_lpips(gen2, ref2, mask, protocol="authors") == random_lpips(gen, ref, mask, protocol="authors")
-
-    def test_degenerate_cases(self, random_lpips, pair):
-        gen, ref, mask = pair
-        assert random_lpips(ref, ref, mask, protocol="authors") == pytest.approx(0.0, abs=1e-7)
-        with pytest.raises(MetricUnavailable) as exc:
-            random_lpips(gen, ref, np.zeros((H, W), bool), protocol="authors")
-        assert exc.value.reason == EMPTY_MASK_REASON
         bad = gen.copy()
-        bad[0, 0] = np.nan
+        bad[mask.nonzero()[0][0], mask.nonzero()[1][0]] = np.nan
         for protocol in PROTOCOLS:
-            with pytest.raises(MetricUnavailable) as exc:
-                random_lpips(bad, ref, mask, protocol=protocol)
-            assert exc.value.reason == NON_FINITE_REASON
-        with pytest.raises(ValueError, match=r"metrics\.protocol"):
-            random_lpips(gen, ref, mask, protocol="author")
-
-    def test_score_all_passes_the_protocol(self, random_lpips, pair):
-        gen, ref, mask = pair
-        res = score_all(gen, ref, mask, "a glass sphere", lpips=random_lpips, protocol="authors")
-        assert res["metrics"]["lpips"] == random_lpips(gen, ref, mask, protocol="authors")
-        assert res["metrics"]["psnr"] == masked_psnr(gen, ref, mask, protocol="authors")
-        assert res["metrics"]["mae"] == masked_mae(gen, ref, mask, protocol="authors")
-        # missing weights: the metric is missing with its reason under both protocols
-        why = MetricUnavailable("no LPIPS vgg16 backbone weights on this machine: set metrics.lpips_weights")
-        for protocol in PROTOCOLS:
-            res = score_all(gen, ref, mask, "a glass sphere", lpips=why, protocol=protocol)
-            assert res["metrics"]["lpips"] is None and res["missing"]["lpips"] == why.reason
-        with pytest.raises(ValueError, match=r"metrics\.protocol"):
-            score_all(gen, ref, mask, "a glass sphere", protocol="author")
+            for fn in (masked_psnr, masked_mae, random_lpips):
+                with pytest.raises(MetricUnavailable) as exc:
+                    fn(bad, ref, mask, protocol=protocol)
+                assert exc.value.reason == NON_FINITE_REASON

@@ -203,11 +203,13 @@ def test_authors_protocol_is_passed_down(cell):
     assert m["psnr"] == masked_psnr(gen, ref, mask, protocol="authors") != masked_psnr(gen, ref, mask)
     assert m["mae"] == masked_mae(gen, ref, mask, protocol="authors")
     assert m["psnr_true"] == masked_psnr(gen, true, obj, protocol="authors")
-    assert lp.calls == [{"protocol": "authors"}]
+    assert lp.calls == [{"protocol": "authors"}, {"protocol": "authors", "box": True}]
+    assert tuple(m) == ("psnr", "mae", "lpips", "lpips_box", "clip", "image_reward", "psnr_true")
     assert m["clip"] == fake_clip(gen, PROMPT)  # the text scores do not depend on the protocol
-    # the paper protocol calls the LPIPS scorer as before
-    score_cell(gen, ref, mask, PROMPT, Scorers(lpips=lp))
-    assert lp.calls[-1] == {"histogram_match": True}
+    # the paper protocol calls the LPIPS scorer once, with no option, and has no lpips_box
+    paper = score_cell(gen, ref, mask, PROMPT, Scorers(lpips=lp))
+    assert lp.calls[-1] == {} and len(lp.calls) == 3
+    assert "lpips_box" not in paper["metrics"] and "lpips_box" not in paper["missing"]
 
 
 def test_unknown_protocol_is_a_value_error_naming_the_config_key(cell, scorers):
@@ -238,8 +240,11 @@ def test_load_scorers_reads_the_protocol(tmp_path):
 def test_identical_and_constant_images_never_give_nan(cell, protocol):
     gen, ref, mask, _, obj = cell
     res = score_cell(gen, gen.copy(), mask, PROMPT, None, true_render=gen.copy(), object_mask=obj, protocol=protocol)
-    assert res["metrics"]["psnr"] is None and res["metrics"]["psnr_true"] is None and res["metrics"]["mae"] == 0.0
-    assert res["missing"]["psnr"].startswith("infinite PSNR") and res["missing"]["psnr_true"].startswith("infinite")
+    if protocol == "paper":
+        assert res["metrics"]["psnr"] is None and res["metrics"]["psnr_true"] is None and res["metrics"]["mae"] == 0.0
+        assert res["missing"]["psnr"].startswith("infinite PSNR") and res["missing"]["psnr_true"].startswith("infinite")
+    else:  # the authors' matching is not the identity on identical images (test_authors_protocol.py)
+        assert all(math.isfinite(res["metrics"][k]) for k in ("psnr", "mae", "psnr_true"))
     flat = np.full_like(gen, 0.4)
     res = score_cell(flat, ref, mask, PROMPT, None, protocol=protocol)
     assert all(isinstance(res["metrics"][k], float) and math.isfinite(res["metrics"][k]) for k in ("psnr", "mae"))
