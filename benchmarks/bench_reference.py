@@ -17,12 +17,21 @@ limit, grayscale and RGB, inside the metric mask: ``ReferenceRender.self_noise_d
 after / before. The one-time costs (importing Mitsuba, probing the LLVM variant, compiling the first
 kernels) are paid by a warm-up render first and reported apart.
 
+With ``--reflection``, instead: per preset and cell, the reference with ``reference.reflection``
+true (the physically complete dielectric) and false (refraction only, the paper's Blender reference
+and the authors' ``render_gt``), the same seed, and how much they differ: the mean absolute
+difference inside the object mask (sRGB and linear, all channels), the mean signed difference of
+the grayscale (refraction only minus with reflection), the PSNR of one against the other inside the
+metric mask (grayscale, as the metrics; as rendered and histogram-matched) beside each one's
+self-noise.
+
 Convention:
     Inputs are built by ``snell_bench.pipeline.prepare_inputs(cfg, references=False)`` from the
     composed config of each cell, and the reference by ``pipeline.render_reference`` with the
     overrides above; times are medians over ``--repeat`` renders. Usage:
     ``python benchmarks/bench_reference.py [--presets fast,balanced,paper]
-    [--cells living_room,kitchen,tum_office] [--repeat 1] [--fallback] [--procedural-size 640x360]``.
+    [--cells living_room,kitchen,tum_office] [--repeat 1] [--fallback] [--procedural-size 640x360]
+    [--reflection]``.
 """
 
 from __future__ import annotations
@@ -31,6 +40,7 @@ import argparse
 import contextlib
 import io
 import logging
+import math
 import os
 import platform
 import statistics
@@ -116,6 +126,46 @@ def row(label: str, r: dict) -> str:
     )
 
 
+def reflection_effect(args) -> None:
+    """The reference with and without the first-surface reflection (see the module's docstring)."""
+    import numpy as np
+
+    from snell_bench.imaging.color import srgb_to_linear
+    from snell_bench.metrics import masked_psnr
+
+    luma = np.array([0.299, 0.587, 0.114])
+    for preset in args.presets.split(","):
+        for cell in args.cells.split(","):
+            base = [*CELLS[cell], f"preset={preset}", "object=sphere", "output_dir=/tmp/bench_reference"]
+            if args.procedural_size and cell != "tum_office":
+                w, h = args.procedural_size.lower().split("x")
+                base += [f"scene.width={int(w)}", f"scene.height={int(h)}"]
+            inputs = pipeline.prepare_inputs(compose(base), references=False)
+            rows = {
+                r: render([*base, f"reference.reflection={r}"], inputs, None, args.repeat) for r in ("true", "false")
+            }
+            a, b = rows["true"]["ref"], rows["false"]["ref"]
+            m, mm = a.object_mask, a.mask & b.mask
+            d = b.image.astype(np.float64) - a.image
+            dl = srgb_to_linear(b.image.astype(np.float64)) - srgb_to_linear(a.image.astype(np.float64))
+            pairs = [(False, "as rendered"), (True, "histogram-matched")]
+            psnr = {k: masked_psnr(b.image, a.image, mm, histogram_match=k) if mm.any() else math.nan for k, _ in pairs}
+            H, W = inputs.scene.camera.shape
+            print(f"  {preset} / {cell} ({W}x{H}, {int(m.sum())} object pixels, {int(mm.sum())} mask pixels)")
+            print(
+                f"    wall s: reflection {rows['true']['wall']:.1f}, refraction only {rows['false']['wall']:.1f}; "
+                f"self-noise dB: {fmt_db(a.self_noise_db)}, {fmt_db(b.self_noise_db)}"
+            )
+            print(
+                f"    inside the object: mean |difference| sRGB {np.abs(d[m]).mean():.4f}, linear "
+                f"{np.abs(dl[m]).mean():.4f}; mean signed grayscale (false - true) {(d[m] @ luma).mean():+.4f}"
+            )
+            print(
+                "    PSNR of one against the other in the metric mask (grayscale): "
+                + ", ".join(f"{label} {psnr[k]:.2f} dB" for k, label in pairs)
+            )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", default="fast,balanced,paper")
@@ -125,6 +175,7 @@ def main() -> None:
     ap.add_argument("--before-variant", default="scalar_rgb", help="a Mitsuba variant, or 'probe'")
     ap.add_argument("--fallback", action="store_true", help="also the after settings on scalar_rgb")
     ap.add_argument("--procedural-size", default=None, help="WxH of the procedural cells (default: the preset's)")
+    ap.add_argument("--reflection", action="store_true", help="compare reference.reflection true and false")
     args = ap.parse_args()
     sys.stdout.reconfigure(line_buffering=True)  # progress shows when piped
     logging.basicConfig(level=logging.ERROR)
@@ -147,6 +198,8 @@ def main() -> None:
         "CPU s (all threads), self-noise dB (grayscale, RGB; the reference vs its noise-free limit, inside the "
         "metric mask), stages s"
     )
+    if args.reflection:
+        return reflection_effect(args)
     summary = []
     for preset in args.presets.split(","):
         b_spp = args.before_spp or BEFORE_SPP[preset]

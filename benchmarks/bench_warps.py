@@ -5,7 +5,8 @@ Prints, from one run on this machine, the median time of
       cast of every camera ray (the floor set by the ray engine), and
   (b) compute_warps: depth mesh, both acceleration structures, object mask, multi-bounce refraction,
       reflection, the panorama warps and all visibility checks,
-and their ratio. Usage: python benchmarks/bench_warps.py [--height 720 --width 1280 --pano 1024 --repeat 3]
+and their ratio, and the share of the whole-frame π⁻¹ (stage ``frame``: one re-cast per pixel from
+the panorama centre). Usage: python benchmarks/bench_warps.py [--height 720 --width 1280 --pano 1024 --repeat 3]
 """
 
 from __future__ import annotations
@@ -114,6 +115,10 @@ def main() -> None:
     keys = stages[0].keys()
     med = {k: statistics.median(s[k] for s in stages) for k in keys}
     print("  WarpSet stages: " + ", ".join(f"{k} {v:.3f} s" for k, v in med.items()))
+    print(
+        f"  whole-frame π⁻¹ (stage frame)         : {med['frame']:7.3f} s ({100 * med['frame'] / full_t:.1f} % of the "
+        f"WarpSet; {float(ws.pano_refraction_frame_valid.mean()):.3f} of the pixels valid)"
+    )
     probe = omp_wait_policy_probe()
     print(
         "OpenMP wait policy, one small torch op (54k x 3, float64; snell_bench sets PASSIVE unless OMP_WAIT_POLICY is set):"

@@ -263,6 +263,58 @@ class SceneTracer:
             out[ok] = hit.t >= dist[ok] * (1.0 - rel_tol)
         return out
 
+    def unoccluded_from(self, origin: np.ndarray, points: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+        """Whether background points are seen from ``origin`` through the glass-free scene.
+
+        A straight ray is cast from ``origin`` towards each point, against the background and the
+        box (not the object). The point is seen unless the ray hits something more than ``tol``
+        before it, or ``origin`` is behind the surface at the point (it would see the back side of
+        the depth mesh, the inside of whatever solid I⁻ shows the front of). A ray that slips past
+        the point (a hit beyond it: a ray aimed at a mesh vertex may pass between its triangles)
+        has nothing in front of it.
+
+        Tolerance (from float32 rounding, ``u = 2⁻²⁴``): the point ``p`` is exact (a float32 mesh
+        vertex); rounding the origin ``c`` and the unit direction to float32 moves the ray across
+        itself by at most ``√3 u (|c| + |p - c|)`` at ``p``, and Embree's float32 intersection adds a
+        few ulps of the coordinates, together below ``8 u (|c| + |p|)``. Along the ray that becomes
+        that over ``|n · r|``, the sine of the angle between the ray and the triangle it hits; with
+        a factor 2 of margin, ``tol = 16 u (|c| + |p|) / max(|n · r|, 2⁻⁶)`` (grazing hits, below
+        about 0.9°, get the cap: at most ``1024 u (|c| + |p|)``, about ``6e-5 (|c| + |p|)``).
+
+        Args:
+            origin: ``(3,)`` the viewpoint (camera frame).
+            points: ``(N, 3)`` finite background points.
+            normals: ``(N, 3)`` normals of the surface at the points, on its front side (the side
+                the camera sees; zero where unknown); ``None``: the side is that of the triangle the
+                ray hits at the point (unknown where it slips past).
+
+        Returns:
+            ``(N,)`` bool (False for non-finite points and points at ``origin``).
+        """
+        c = np.asarray(origin, np.float64).reshape(3)
+        p = np.asarray(points, np.float64)
+        v = p - c
+        dist = np.sqrt(_dot(v, v))
+        ok = np.isfinite(dist) & (dist > 0)
+        out = np.zeros(len(v), bool)
+        if not ok.any():
+            return out
+        r = dist[ok]
+        d = v[ok] / r[:, None]
+        hit = self._bg.cast_rays(_o3d_rays(np.broadcast_to(c, d.shape), d), nthreads=self.nthreads)
+        t = hit["t_hit"].numpy()  # float32, inf where nothing is hit
+        cos = _dot(hit["primitive_normals"].numpy().astype(np.float64), d)
+        scale = float(np.linalg.norm(c)) + np.sqrt(_dot(p[ok], p[ok]))
+        tol = 16.0 * 2.0**-24 * scale / np.maximum(np.abs(cos), 2.0**-6)
+        seen = t >= r - tol
+        if normals is None:  # the side of the triangle hit at the point (faces wound towards the camera)
+            at = seen & (t <= r + tol)
+            seen &= ~at | ((hit["geometry_ids"].numpy() == _BACKGROUND) & (cos < 0))
+        else:
+            seen &= _dot(np.asarray(normals, np.float64)[ok], d) <= 0  # zero normal: unknown, seen
+        out[ok] = seen
+        return out
+
     # ------------------------------------------------------------------ one interaction
     def _interact(
         self, d: np.ndarray, ns: np.ndarray, ng: np.ndarray

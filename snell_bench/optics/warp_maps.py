@@ -11,7 +11,7 @@ from snell_bench.imaging.equirect import PanoramaCamera
 from snell_bench.optics.far_field import POINT_AT_INFINITY, AtInfinity
 from snell_bench.optics.tracer import BackgroundHit, HitKind, RefractionTrace, SceneTracer
 from snell_bench.scene.camera import Camera
-from snell_bench.scene.depth_mesh import BackgroundMesh
+from snell_bench.scene.depth_mesh import BackgroundMesh, valid_depth_mask
 
 __all__ = [
     "RayScene",
@@ -23,6 +23,8 @@ __all__ = [
     "panorama_warps",
     "pano_coords",
     "pano_to_persp_warp",
+    "pano_refraction_frame_warp",
+    "vertex_normals",
     "self_warp",
 ]
 
@@ -241,6 +243,85 @@ def pano_to_persp_warp(
     near[:, 1] = near[:, 1].clip(0, H - 1)
     pano_to_persp_object = pok & primary.mask[near[:, 1] * W + near[:, 0]]
     return {"pano_to_persp": pano_to_persp, "pano_to_persp_valid": pok, "pano_to_persp_object": pano_to_persp_object}
+
+
+# ---------------------------------------------------------------------------------------------
+# stage 7b: π⁻¹ over the whole frame
+# ---------------------------------------------------------------------------------------------
+def pano_refraction_frame_warp(
+    pano: PanoramaCamera,
+    camera: Camera,
+    scene: RayScene,
+    depth: np.ndarray,
+    primary: PrimaryRays,
+    pano_refraction: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """π⁻¹ for every perspective pixel: the panorama pixel that sees what the pixel shows.
+
+    Object pixels keep :func:`panorama_warps`' ``pano_refraction`` (the refracted ray's end). Every
+    other pixel shows the background point ``p`` its straight camera ray sees: the depth mesh's
+    vertex at the pixel centre (the unprojected depth), or, for far background
+    (:mod:`~snell_bench.optics.far_field`), the point at infinity along the pixel's ray. Its
+    panorama pixel is ``p`` seen from the panorama centre (:func:`pano_coords`), valid where the
+    straight segment from the centre to ``p`` is free in the glass-free scene and the centre is
+    on the front side of the surface at ``p`` (its :func:`vertex_normals`;
+    :meth:`~snell_bench.optics.tracer.SceneTracer.unoccluded_from`; a point at infinity: the ray
+    from the centre along its direction leaves the scene's geometry and resolves to far
+    background). NaN where the pixel has no depth or the point is hidden from the centre.
+
+    Args:
+        pano: the panorama centred at the object.
+        camera: the camera of I⁻.
+        scene: the ray-casting scene (the object is not hit: the scene is glass-free).
+        depth: ``(H, W)`` z-depth of I⁻.
+        primary: the object pixels.
+        pano_refraction: flat ``(H * W, 2)`` π⁻¹ of the object pixels (:func:`panorama_warps`).
+
+    Returns:
+        Flat ``(H * W, ...)`` arrays ``pano_refraction_frame`` (float32, NaN where invalid) and
+        ``pano_refraction_frame_valid``.
+    """
+    n = camera.height * camera.width
+    out = np.full((n, 2), np.nan, np.float32)
+    out[primary.pixels] = pano_refraction[primary.pixels]
+    has = valid_depth_mask(depth).reshape(-1) & ~primary.mask
+    far = scene.at_inf.far & has if scene.at_inf is not None else np.zeros(n, bool)
+    near = np.flatnonzero(has & ~far)
+    if len(near):
+        p = scene.background.vertices[near].astype(np.float64)
+        normals = vertex_normals(scene.background.vertices, scene.background.faces)[near]
+        seen = scene.tracer.unoccluded_from(pano.center, p, normals)
+        out[near[seen]] = pano.project_points(p[seen]).astype(np.float32)
+    idx = np.flatnonzero(far)
+    if len(idx):
+        d = camera.pixel_rays().reshape(-1, 3)[idx]
+        h = scene.tracer.cast_background(np.broadcast_to(pano.center, d.shape), d)
+        scene.at_inf.resolve(h.kind, h.point, d, h.on_box)
+        inf = (h.kind == HitKind.OBSERVED) & (np.linalg.norm(np.nan_to_num(h.point), axis=1) > POINT_AT_INFINITY / 10)
+        out[idx[inf]] = pano.project_directions(d[inf]).astype(np.float32)
+    return {"pano_refraction_frame": out, "pano_refraction_frame_valid": np.isfinite(out).all(axis=1)}
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals of a triangle mesh (not normalised).
+
+    Args:
+        vertices: ``(V, 3)`` positions.
+        faces: ``(F, 3)`` vertex indices; a face's normal is ``(v1 - v0) x (v2 - v0)`` (for the depth
+            mesh: towards the camera).
+
+    Returns:
+        ``(V, 3)`` float64 sums of the normals of the faces at each vertex (twice their areas,
+        computed in float32: meant for side tests), zero for a vertex of no face.
+    """
+    v = np.asarray(vertices, np.float32)
+    f = np.asarray(faces, np.int64)
+    out = np.zeros((len(v), 3))
+    if len(f):
+        fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]).astype(np.float64)
+        for k in range(3):
+            out[:, k] = sum(np.bincount(f[:, j], weights=fn[:, k], minlength=len(v)) for j in range(3))
+    return out
 
 
 def self_warp(

@@ -8,19 +8,22 @@ Convention:
     (:class:`~snell_bench.imaging.PanoramaCamera`, gravity-aligned with the scene's up direction,
     its centre column looking along the camera's horizontal forward direction).
 
-    =====================  ==========  ======================================================
-    field                  paper       meaning
-    =====================  ==========  ======================================================
-    ``refraction``         π^R         object pixel -> pixel of I⁻ the refracted ray ends on;
-                                       identity outside the object
-    ``pano_refraction``    π⁻¹         object pixel -> panorama pixel of the refracted ray's
-                                       end
-    ``pano_reflection``    π^-R        object pixel -> panorama pixel of the first-bounce
-                                       mirror ray's end
-    ``pano_to_persp``      π           panorama pixel -> perspective pixel (straight rays from
-                                       the panorama centre, through the glass-free scene)
-    ``reflection``         —           object pixel -> pixel of I⁻ the mirror ray ends on
-    =====================  ==========  ======================================================
+    =========================  ========  ======================================================
+    field                      paper     meaning
+    =========================  ========  ======================================================
+    ``refraction``             π^R       object pixel -> pixel of I⁻ the refracted ray ends on;
+                                         identity outside the object
+    ``pano_refraction``        π⁻¹       object pixel -> panorama pixel of the refracted ray's
+                                         end
+    ``pano_refraction_frame``  π⁻¹       every pixel: ``pano_refraction`` on the object, else
+                                         the panorama pixel of the background point the pixel
+                                         shows (NaN where the panorama centre cannot see it)
+    ``pano_reflection``        π^-R      object pixel -> panorama pixel of the first-bounce
+                                         mirror ray's end
+    ``pano_to_persp``          π         panorama pixel -> perspective pixel (straight rays from
+                                         the panorama centre, through the glass-free scene)
+    ``reflection``             —         object pixel -> pixel of I⁻ the mirror ray ends on
+    =========================  ========  ======================================================
 
     Panorama coordinates of a ray are those of *its end point* seen from the panorama centre
     (exact parallax for the scene's geometry); only a ray that hits nothing uses its direction.
@@ -42,7 +45,8 @@ Stages of :func:`compute_warps`:
     4. trace the refracted paths through the object: π^R, bounces, Fresnel reflectance;
     5. cast the first-bounce mirror rays: the reflection warp;
     6. project both ray ends into the panorama: π⁻¹ and π^-R;
-    7. cast the panorama's straight rays through the glass-free scene: π;
+    7. cast the panorama's straight rays through the glass-free scene: π; re-cast from the
+       panorama centre to every background point the image shows: π⁻¹ over the whole frame;
     8. gather the masks and statistics into a :class:`WarpSet` (and save it to the cache).
 """
 
@@ -60,6 +64,7 @@ from snell_bench.optics.tracer import SceneTracer
 from snell_bench.optics.warp_maps import (
     PrimaryRays,
     RayScene,
+    pano_refraction_frame_warp,
     pano_to_persp_warp,
     panorama_warps,
     reflection_warps,
@@ -214,6 +219,8 @@ def compute_warps(
     # 7. the panorama seen through the glass-free scene
     with timer("panorama"):
         arrays |= pano_to_persp_warp(pano, camera, scene, primary, verify_visibility)
+    with timer("frame"):
+        arrays |= pano_refraction_frame_warp(pano, camera, scene, depth, primary, arrays["pano_refraction"])
     # 8. masks, statistics, the WarpSet
     arrays["object_mask"] = primary.mask
     stats = _warp_stats(timer, scene, primary, roi)

@@ -19,8 +19,10 @@ from snell_bench.utils.io import atomic_write
 
 __all__ = ["WarpSet", "warp_inputs_hash", "assemble", "WARPS_VERSION", "ARRAY_FIELDS", "PANO_FIELDS"]
 
-#: Bump when the meaning or computation of any warp changes (invalidates caches).
-WARPS_VERSION = 1
+#: Bump when the meaning or computation of any warp changes, or a field is added (invalidates
+#: caches: the version is part of the cache key, and :meth:`WarpSet.load` refuses other versions).
+#: 2: ``pano_refraction_frame`` (π⁻¹ over the whole frame).
+WARPS_VERSION = 2
 
 ARRAY_FIELDS = (
     "object_mask",
@@ -33,6 +35,8 @@ ARRAY_FIELDS = (
     "reflection_valid",
     "pano_refraction",
     "pano_refraction_valid",
+    "pano_refraction_frame",
+    "pano_refraction_frame_valid",
     "pano_reflection",
     "pano_reflection_valid",
     "pano_to_persp",
@@ -84,6 +88,13 @@ class WarpSet:
     #: (H, W, 2) float32 π⁻¹: panorama pixel of the refracted ray (object pixels), NaN elsewhere.
     pano_refraction: np.ndarray
     pano_refraction_valid: np.ndarray
+    #: (H, W, 2) float32 π⁻¹ over the whole frame: ``pano_refraction`` on object pixels; elsewhere
+    #: the panorama pixel that sees the background point the pixel shows, NaN where the pixel has
+    #: no depth or the point is hidden from the panorama centre (re-cast through the glass-free
+    #: scene; :func:`~snell_bench.optics.warp_maps.pano_refraction_frame_warp`).
+    pano_refraction_frame: np.ndarray
+    #: (H, W) bool: ``pano_refraction_frame`` is finite.
+    pano_refraction_frame_valid: np.ndarray
     #: (H, W, 2) float32 π^-R: panorama pixel of the mirror ray (object pixels), NaN elsewhere.
     pano_reflection: np.ndarray
     pano_reflection_valid: np.ndarray
@@ -180,7 +191,7 @@ class WarpSet:
         Returns:
             A JSON-serialisable dict: object pixels, valid refraction in the object, the end kinds of
             the refracted rays, the most bounces, the mean Fresnel reflectance in the object and the
-            valid fraction of π.
+            valid fractions of π and of the whole-frame π⁻¹.
         """
         m = self.object_mask
         n = int(m.sum())
@@ -192,6 +203,7 @@ class WarpSet:
             "max_bounces_used": int(self.bounces.max()) if n else 0,
             "mean_fresnel_in_object": float(self.fresnel[m].mean()) if n else float("nan"),
             "pano_to_persp_valid_fraction": float(self.pano_to_persp_valid.mean()),
+            "pano_refraction_frame_valid_fraction": float(self.pano_refraction_frame_valid.mean()),
         }
 
     def __repr__(self) -> str:

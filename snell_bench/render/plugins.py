@@ -1,10 +1,11 @@
-"""Mitsuba plugins written in Python: the refraction-path BSDF and a pinhole sensor of any
-intrinsics.
+"""Mitsuba plugins written in Python: the refraction-path BSDF, the refraction-only glass of the
+paper's reference and a pinhole sensor of any intrinsics.
 
 A plugin class subclasses a type of the current Mitsuba variant (``mi.BSDF``, ``mi.Sensor``), which
 exists only once a variant is set, so each class is built by a factory from the ``mitsuba`` module
-(:func:`refraction_path_bsdf_class`, :func:`pinhole_sensor_class`) and :func:`register_plugins`
-registers both for the current variant, once per variant
+(:func:`refraction_path_bsdf_class`, :func:`refraction_only_bsdf_class`,
+:func:`pinhole_sensor_class`) and :func:`register_plugins` registers them for the current variant,
+once per variant
 (:func:`~snell_bench.render.variants.set_variant` calls it). Importing this module does not import
 Mitsuba.
 
@@ -12,6 +13,19 @@ Convention:
     - ``snell_refraction_path`` (:data:`REFRACTION_PATH_BSDF`): Mitsuba's smooth ``dielectric``
       (``int_ior``, ``ext_ior``) that follows the refraction path deterministically, with weight 1:
       transmission at every interface, reflection only under total internal reflection.
+    - ``snell_refraction_only`` (:data:`REFRACTION_ONLY_BSDF`): glass whose camera rays only
+      refract, every other ray meeting Mitsuba's smooth ``dielectric`` (``int_ior``, ``ext_ior``).
+      A camera ray's first hit on the object transmits deterministically, with weight 1 (no
+      first-surface reflection and no Fresnel loss: the transmitted weight is 1, not ``1 - F``);
+      inside and after, the dielectric reflects with probability ``F`` and transmits with ``1 - F``
+      (so Fresnel loss at the exit, internal reflections and total internal reflection all stay).
+      This is the paper's refraction-only Blender reference as the authors' ``render_gt`` builds
+      it: a mix shader that gives camera rays (Blender's *Is Camera Ray*) a Refraction BSDF
+      (transmission only, of unit colour) and every other ray a Glass BSDF. A ray is a camera
+      ray when its origin ``o = p + t wi`` (``p`` the hit, ``t`` the distance, ``wi`` towards the
+      origin) has ``z < camera_z``: camera rays start on the near clip plane, every other ray on a
+      surface, so ``camera_z`` between the near clip plane and the nearest geometry separates them
+      exactly.
     - ``snell_pinhole`` (:data:`PINHOLE_SENSOR`): a pinhole camera at the origin of the camera frame
       of :mod:`snell_bench.scene.camera` (OpenCV: x right, y down, z forward; no ``to_world``) with
       any intrinsics, given as the first two rows of ``K⁻¹`` (properties ``inv_k_ij``, ``i < 2``). The
@@ -26,14 +40,18 @@ from __future__ import annotations
 
 __all__ = [
     "PINHOLE_SENSOR",
+    "REFRACTION_ONLY_BSDF",
     "REFRACTION_PATH_BSDF",
     "pinhole_sensor_class",
+    "refraction_only_bsdf_class",
     "refraction_path_bsdf_class",
     "register_plugins",
 ]
 
 #: The plugin name of the refraction-path BSDF.
 REFRACTION_PATH_BSDF = "snell_refraction_path"
+#: The plugin name of the refraction-only glass (camera rays refract only).
+REFRACTION_ONLY_BSDF = "snell_refraction_only"
 #: The plugin name of the pinhole sensor.
 PINHOLE_SENSOR = "snell_pinhole"
 
@@ -88,6 +106,62 @@ def refraction_path_bsdf_class(mi) -> type:
             return f"RefractionPathBSDF[{self._inner}]"
 
     return RefractionPathBSDF
+
+
+def refraction_only_bsdf_class(mi) -> type:
+    """The refraction-only glass (see the module's conventions) for the current variant.
+
+    Args:
+        mi: the ``mitsuba`` module, set to a variant.
+
+    Returns:
+        A subclass of ``mi.BSDF`` whose constructor takes the plugin's ``mi.Properties``
+        (``int_ior``, ``ext_ior``, ``camera_z``).
+    """
+    import drjit as dr
+
+    class RefractionOnlyBSDF(mi.BSDF):
+        """Mitsuba's smooth dielectric, except that camera rays (origin at ``z < camera_z``) always
+        transmit, with weight 1."""
+
+        def __init__(self, props):
+            mi.BSDF.__init__(self, props)
+            self._inner = mi.load_dict(
+                {"type": "dielectric", "int_ior": props.get("int_ior", 1.5), "ext_ior": props.get("ext_ior", 1.0)}
+            )
+            self._camera_z = float(props.get("camera_z"))
+            sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
+            refl = mi.BSDFFlags.DeltaReflection | sides
+            trans = mi.BSDFFlags.DeltaTransmission | sides
+            self.m_components = [refl, trans]
+            self.m_flags = refl | trans
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            # the ray's origin: the hit point moved back along the ray by its length
+            origin_z = si.p.z + si.t * si.to_world(si.wi).z
+            camera = origin_z < self._camera_z
+            # the dielectric reflects iff sample1 <= Fresnel reflectance: with 1 only under TIR
+            return self._inner.sample(ctx, si, dr.select(camera, sample1 * 0.0 + 1.0, sample1), sample2, active)
+
+        def eval(self, ctx, si, wo, active=True):
+            return self._inner.eval(ctx, si, wo, active)  # zero: delta lobes
+
+        def pdf(self, ctx, si, wo, active=True):
+            return self._inner.pdf(ctx, si, wo, active)
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            return self._inner.eval_pdf(ctx, si, wo, active)
+
+        def traverse(self, callback):
+            pass
+
+        def parameters_changed(self, keys):
+            pass
+
+        def to_string(self):
+            return f"RefractionOnlyBSDF[camera_z={self._camera_z}, {self._inner}]"
+
+    return RefractionOnlyBSDF
 
 
 def pinhole_sensor_class(mi) -> type:
@@ -171,8 +245,8 @@ def pinhole_sensor_class(mi) -> type:
 
 
 def register_plugins(mi) -> None:
-    """Register ``snell_refraction_path`` and ``snell_pinhole`` for the current variant of ``mi``
-    (once per variant; later calls for that variant do nothing).
+    """Register ``snell_refraction_path``, ``snell_refraction_only`` and ``snell_pinhole`` for the
+    current variant of ``mi`` (once per variant; later calls for that variant do nothing).
 
     Args:
         mi: the ``mitsuba`` module, set to a variant.
@@ -182,6 +256,8 @@ def register_plugins(mi) -> None:
         return
     bsdf = refraction_path_bsdf_class(mi)
     mi.register_bsdf(REFRACTION_PATH_BSDF, lambda props: bsdf(props))
+    only = refraction_only_bsdf_class(mi)
+    mi.register_bsdf(REFRACTION_ONLY_BSDF, lambda props: only(props))
     sensor = pinhole_sensor_class(mi)
     mi.register_sensor(PINHOLE_SENSOR, lambda props: sensor(props))
     _registered.add(variant)

@@ -8,8 +8,8 @@ Convention:
     - Frames, pixels and sensor: see :mod:`snell_bench.render.pieces`; randomness and render
       windows: see :mod:`snell_bench.render.integrator`; the background, its flaps at depth edges,
       the object's normals and ``object_mask``: see :mod:`snell_bench.render.geometry`.
-    - Object BSDFs: Mitsuba's ``dielectric``, or the refraction-path BSDF of
-      :mod:`snell_bench.render.plugins`.
+    - Object BSDFs: Mitsuba's ``dielectric``, or the refraction-only glass or the refraction-path
+      BSDF of :mod:`snell_bench.render.plugins`.
     - Background: its front side is an ``area`` emitter textured with I⁻ decoded to linear RGB,
       texel-exact; its BSDF is black.
     - Unobserved: the back sides of the background (a copy with flipped faces just behind it) and the
@@ -17,7 +17,14 @@ Convention:
     - Passes (both linear; Mitsuba is linear in emission):
       (a) ``image``: observed surfaces emit I⁻, the unobserved box and back sides are black; the object
       is Mitsuba's ``dielectric`` (``int_ior = obj.ior``, ``ext_ior = 1``), so reflection, refraction,
-      Fresnel and internal bounces are all sampled by Mitsuba. Encoded to sRGB.
+      Fresnel and internal bounces are all sampled by Mitsuba (``reflection=True``), or the
+      refraction-only glass of the paper's Blender reference and the authors' ``render_gt``
+      (``reflection=False``): the camera ray's first hit on the object transmits with weight 1
+      (no first-surface reflection, no Fresnel loss there), every later interaction is the
+      dielectric's (Fresnel split at the exit, internal reflections, total internal reflection).
+      At normal incidence on a sphere in front of a background of radiance ``L`` (and nothing
+      behind the camera) that gives ``L (1 - F) / (1 + F)`` with reflection and ``L / (1 + F)``
+      without (``F = 0.04`` at IOR 1.5: 0.923 L and 0.962 L). Encoded to sRGB.
       (b) ``unobserved``: observed surfaces emit (0, 1, 0), unobserved ones (1, 0, 0), and the object
       follows the *refraction path* (refract at every interface; reflect only under total internal
       reflection), the path that the metric mask is defined on. ``unobserved = R / (R + G)``: the share
@@ -93,7 +100,7 @@ from snell_bench.render.pieces import (
     sample_count,
     texture_emitter,
 )
-from snell_bench.render.plugins import REFRACTION_PATH_BSDF
+from snell_bench.render.plugins import REFRACTION_ONLY_BSDF, REFRACTION_PATH_BSDF
 from snell_bench.render.variants import set_variant
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.depth_mesh import build_background, valid_depth_mask
@@ -136,6 +143,8 @@ class ReferenceRender:
         self_noise_rgb_db: the same on the RGB channels.
         self_noise_halves_db: PSNR (dB, grayscale, inside ``mask``) between the two halves.
         halves: ``(n1, n2)``, the samples per pixel of the two halves; ``None``: one render.
+        reflection: whether the image pass shows the first-surface reflection (see the module's
+            conventions; ``False`` also with ``fresnel=False``).
     """
 
     image: np.ndarray
@@ -155,10 +164,12 @@ class ReferenceRender:
     self_noise_rgb_db: float | None = None
     self_noise_halves_db: float | None = None
     halves: tuple | None = None
+    reflection: bool = True
 
     def summary(self) -> dict:
-        """What a results file records about this reference: variant, sampler, counts, window and
-        self-noise (dB, ``None`` where not measured; see the module's conventions)."""
+        """What a results file records about this reference: variant, sampler, counts, window,
+        self-noise (dB, ``None`` where not measured; see the module's conventions) and whether it
+        shows the first-surface reflection."""
 
         def db(v):
             return None if v is None else round(float(v), 3)
@@ -173,6 +184,7 @@ class ReferenceRender:
             "self_noise_db": db(self.self_noise_db),
             "self_noise_rgb_db": db(self.self_noise_rgb_db),
             "self_noise_halves_db": db(self.self_noise_halves_db),
+            "reflection": bool(self.reflection),
         }
 
 
@@ -288,6 +300,7 @@ def render_reference(
     unobserved_threshold: float = 0.05,
     max_depth: int = 16,
     fresnel: bool = True,
+    reflection: bool = True,
     sampler="orthogonal",
     crop: bool = True,
     crop_margin_px: int = 4,
@@ -319,6 +332,11 @@ def render_reference(
             refraction path (refraction at each interface, reflection only under total internal
             reflection) with weight 1, so ``image`` shows what our self-warp π^R predicts, without
             Fresnel reflection or loss: a purely geometric render, for cross-checks.
+        reflection: with ``fresnel``: ``True`` (default): the physically complete dielectric;
+            ``False``: refraction only, as the paper's Blender reference and the authors'
+            ``render_gt`` (camera rays transmit into the object with weight 1, every later
+            interaction is the dielectric's; see the module's conventions). Without ``fresnel``
+            there is no reflection either way.
         sampler: Mitsuba's sampler: a name of :data:`~snell_bench.render.pieces.SAMPLERS`, or a
             dict of its properties (see :func:`~snell_bench.render.pieces.check_sampler`).
         crop: render only the object's window (see the module's conventions); ``False``: the
@@ -375,21 +393,27 @@ def render_reference(
     render_opts = dict(window=window, sampler=sampler)
     timings["geometry"] = time.perf_counter() - t0
 
-    def dielectric(kind: str):
-        return mi.load_dict({"type": kind, "int_ior": float(obj.ior), "ext_ior": 1.0})
+    def dielectric(kind: str, **props):
+        return mi.load_dict({"type": kind, "int_ior": float(obj.ior), "ext_ior": 1.0, **props})
 
     def object_shape(bsdf):
         return mesh(mi, "object", ov, of, normals=on, bsdf=bsdf)
 
     # ---- (a) observed surfaces emit I⁻, the rest is black; Mitsuba's dielectric
     t0 = time.perf_counter()
+    if not fresnel:
+        glass = dielectric(REFRACTION_PATH_BSDF)
+    elif reflection:
+        glass = dielectric("dielectric")
+    else:  # camera rays start on the near clip plane, every other ray on a surface beyond zmin
+        glass = dielectric(REFRACTION_ONLY_BSDF, camera_z=0.5 * zmin)
     shapes = {
         "background": mesh(
             mi, "background", tex_v, tex_f, uv=tex_uv, bsdf=black_bsdf(mi), emitter=texture_emitter(mi, texture)
         ),
-        "object": object_shape(dielectric("dielectric" if fresnel else REFRACTION_PATH_BSDF)),
+        "object": object_shape(glass),
     }
-    python_rect = None if fresnel else rect
+    python_rect = None if fresnel and reflection else rect
     seeds = [int(seed)] if len(counts) == 1 else [2 * int(seed), 2 * int(seed) + 1]
     parts = render_linear(mi, shapes, camera, list(counts), seeds, max_depth, clip, python_rect, **render_opts)
     win = sum(n * p for n, p in zip(counts, parts)) / float(sum(counts))
@@ -459,4 +483,5 @@ def render_reference(
         self_noise_rgb_db=noise[1],
         self_noise_halves_db=noise[2],
         halves=tuple(int(n) for n in counts) if len(counts) == 2 else None,
+        reflection=bool(fresnel and reflection),
     )

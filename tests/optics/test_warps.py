@@ -286,7 +286,8 @@ class TestPersistence:
     def test_save_load_round_trip(self, sphere_warps, tmp_path):
         p = sphere_warps.save(tmp_path / "w.npz")
         ws = WarpSet.load(p)
-        for name in ("object_mask", "refraction", "fresnel", "pano_to_persp", "pano_reflection", "bounces"):
+        names = ("object_mask", "refraction", "fresnel", "pano_to_persp", "pano_reflection", "bounces")
+        for name in names + ("pano_refraction_frame", "pano_refraction_frame_valid"):
             np.testing.assert_array_equal(getattr(ws, name), getattr(sphere_warps, name))
         assert ws.camera == sphere_warps.camera and ws.ior == 1.5
         np.testing.assert_array_equal(ws.pano.rotation, sphere_warps.pano.rotation)
@@ -321,7 +322,7 @@ class TestPersistence:
 
     def test_stats_and_stage_timings(self, sphere_warps):
         st = sphere_warps.stats
-        assert list(st["timings_s"]) == ["build", "primary", "refraction", "reflection", "panorama"]
+        assert list(st["timings_s"]) == ["build", "primary", "refraction", "reflection", "panorama", "frame"]
         assert st["roi"] is True and st["traced_primary_rays"] < sphere_warps.object_mask.size
         assert st["background_triangles"] > 0 and "far_background" not in st
 

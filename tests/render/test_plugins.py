@@ -1,5 +1,5 @@
 """The Mitsuba plugins written in Python: the pinhole sensor's camera conventions (square and
-non-square pixels, crop windows)."""
+non-square pixels, crop windows) and the refraction-only glass's choice of lobes."""
 
 import numpy as np
 import pytest
@@ -58,3 +58,39 @@ class TestPinholeSensor:
         np.testing.assert_allclose(o[:, 2], 0.01, rtol=1e-6)
         np.testing.assert_allclose(o, d * (0.01 / d[:, 2:]), atol=1e-8)
         np.testing.assert_allclose((o + t[:, None] * d)[:, 2], 100.0, rtol=1e-5)
+
+
+class TestRefractionOnlyBSDF:
+    @staticmethod
+    def _sample(m, origin_z, sample1):
+        """A ray along +z that hits the surface z = 3 (normal towards the camera) from the outside,
+        started at ``z = origin_z``: whether the plugin transmits it, the weight, the direction."""
+        from snell_bench.render.plugins import REFRACTION_ONLY_BSDF
+
+        bsdf = m.load_dict({"type": REFRACTION_ONLY_BSDF, "int_ior": 1.5, "ext_ior": 1.0, "camera_z": 1.0})
+        si = m.SurfaceInteraction3f()
+        si.p = m.Point3f(0.1, 0.2, 3.0)
+        si.n = m.Normal3f(0.0, 0.0, -1.0)
+        si.sh_frame = m.Frame3f(si.n)
+        si.wi = m.Vector3f(0.0, 0.0, 1.0)  # local: back along the ray, towards -z
+        si.t = 3.0 - origin_z
+        bs, weight = bsdf.sample(m.BSDFContext(), si, sample1, m.Point2f(0.5, 0.5))
+        return m.has_flag(bs.sampled_type, m.BSDFFlags.DeltaTransmission), np.array(weight), np.array(bs.wo)
+
+    @pytest.mark.parametrize("sample1", [0.0, 0.01, 0.5, 0.999])
+    def test_camera_rays_always_transmit_with_unit_weight(self, sample1):
+        """A ray from the near clip plane (z = 0.01 < camera_z): transmitted whatever the sample,
+        weight 1 up to the radiance's solid-angle factor 1 / 1.5^2 (undone on the way out)."""
+        m = set_variant()
+        transmitted, weight, wo = self._sample(m, 0.01, sample1)
+        assert transmitted
+        np.testing.assert_allclose(weight, 1.0 / 1.5**2, rtol=1e-6)
+        np.testing.assert_allclose(wo, [0.0, 0.0, -1.0], atol=1e-7)
+
+    def test_other_rays_meet_the_dielectric(self):
+        """A ray from a surface (z = 2.5 > camera_z): Mitsuba's dielectric, which reflects iff the
+        sample is below F(0) = ((1.5 - 1) / (1.5 + 1))^2 = 0.04."""
+        m = set_variant()
+        F0 = ((1.5 - 1.0) / (1.5 + 1.0)) ** 2
+        assert not self._sample(m, 2.5, F0 - 1e-3)[0]
+        assert self._sample(m, 2.5, F0 + 1e-3)[0]
