@@ -1,6 +1,9 @@
 """Sampler settings: every knob of the synchronized sampler, the ablations as single switches.
 
-The structured-config schema of the ``sampler`` node (``conf/``); it checks its own values.
+The structured-config schema of the ``sampler`` node (``conf/``); it checks its own values. The
+defaults are what the paper's text says; where the authors' released code differs, a switch names
+the difference (``tt_mode``, ``tt_renoise``, ``sde``, ``encode``, ``quantize``, ``dpa_domain``,
+``pano_to_main``, ``sync_last_step``, ``schedule``, ``tt_repeats_pano``) and the recipes set it.
 """
 
 from __future__ import annotations
@@ -8,12 +11,32 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Optional
 
-__all__ = ["LATENT_DTYPES", "SCHEDULES", "SamplerSettings", "SYNC_MODES"]
+__all__ = [
+    "DPA_DOMAINS",
+    "ENCODE_MODES",
+    "LATENT_DTYPES",
+    "PANO_TO_MAIN",
+    "SCHEDULES",
+    "SYNC_MODES",
+    "SamplerSettings",
+    "TT_MODES",
+    "TT_RENOISE",
+]
 
 #: Noise schedules of the generators (:meth:`~snell_bench.models.base.Generator.sigmas`).
 SCHEDULES = ("flux", "linear")
 SYNC_MODES = ("snellcaster", "none")
 LATENT_DTYPES = ("float32", "model")
+#: Time travel: ``guided`` (the paper and the authors' code) or ``repaint`` (re-predict every level).
+TT_MODES = ("guided", "repaint")
+#: How time travel renoises: the exact forward kernel, or the authors' Euler-Maruyama step.
+TT_RENOISE = ("exact", "euler_maruyama")
+#: VAE encoding of the synchronised images: posterior mean, or a draw from the posterior.
+ENCODE_MODES = ("mean", "sample")
+#: Where the detail-preserving average acts: whole images, or Laplacian bands.
+DPA_DOMAINS = ("image", "bands")
+#: Which main-view pixels receive the panorama's estimate: every pixel of the frame, or the object's.
+PANO_TO_MAIN = ("frame", "object")
 
 
 @dataclass
@@ -31,6 +54,10 @@ class SamplerSettings:
     stochastic: bool = False
     #: Share of fresh noise in a stochastic step (1: renoise fully).
     eta: float = 1.0
+    #: The authors' Euler-Maruyama step ``z' = z + (sigma' - sigma) v + |sigma' - sigma| n`` with
+    #: ``v = (z - x0_sync) / sigma`` and ``n`` from the run's generator (``x0_sync`` at ``sigma' = 0``)
+    #: instead of the deterministic step; excludes ``stochastic``.
+    sde: bool = False
     #: Ablation switches.
     reflection: bool = True
     panorama: bool = True
@@ -39,13 +66,34 @@ class SamplerSettings:
     time_travel: bool = True
     #: Detail-preserving average weight lambda (0 = masked mean; ``dpa: false`` forces 0).
     lam: float = 0.5
-    #: Laplacian pyramid levels (``lpw: false`` forces 1: a single-level remap).
+    #: Laplacian pyramid levels: of the warps (``lpw: false``: a single-level remap) and, with
+    #: ``dpa_domain: bands``, of the blends.
     levels: int = 5
+    #: Where phi acts: ``image`` (whole images in FLUX's [-1, 1] image space, ``x -> 2x - 1``; the
+    #: pyramid serves the warps only) or ``bands`` (per Laplacian band, the low-pass level in [-1, 1]).
+    dpa_domain: str = "image"
+    #: Which main-view pixels receive ``π⁻¹(x0_pano)``: ``frame`` (every pixel, through
+    #: ``WarpSet.pano_refraction_frame``) or ``object`` (the object's pixels only).
+    pano_to_main: str = "frame"
     #: Time-travel window as fractions of T, travel length in steps, repeats per branch.
     tt_window: list[float] = field(default_factory=lambda: [0.2, 0.8])
     tt_length: int = 1
     tt_repeats_main: int = 3
     tt_repeats_pano: int = 1
+    #: ``guided``: at every step of the window, renoise ``tt_length`` levels back and step down again
+    #: with the same synchronised estimate (no model call at the noisier level), ``repeats - 1``
+    #: times, then re-predict once; ``repaint``: run blocks of ``tt_length`` steps ``repeats`` times,
+    #: re-predicting at every level.
+    tt_mode: str = "guided"
+    #: ``exact`` (the forward kernel ``a z + sqrt(s^2 - a^2 sigma^2) n``) or ``euler_maruyama``
+    #: (``z + (s - sigma) (n - z) / (1 - sigma) + |s - sigma| n``).
+    tt_renoise: str = "exact"
+    #: VAE encoding of the synchronised images: ``mean`` (the posterior mean) or ``sample`` (a draw
+    #: from the run's generator; generators without a posterior return the mean).
+    encode: str = "mean"
+    #: Round the decoded estimates (to nearest) and the synchronised images (down) to 8 bits every
+    #: step, as an 8-bit image round trip does.
+    quantize: bool = False
     #: Warp into a window around each warp's valid pixels only (the object in the main view, the part
     #: of the panorama the camera sees): the same images, less work; ``false`` warps whole frames.
     roi: bool = True
@@ -75,6 +123,19 @@ class SamplerSettings:
             raise ValueError(f"sampler.latent_dtype={self.latent_dtype!r} is unknown; use one of {LATENT_DTYPES}")
         if self.schedule not in SCHEDULES:
             raise ValueError(f"sampler.schedule={self.schedule!r} is unknown; use one of {SCHEDULES}")
+        for name, choices in (
+            ("tt_mode", TT_MODES),
+            ("tt_renoise", TT_RENOISE),
+            ("encode", ENCODE_MODES),
+            ("dpa_domain", DPA_DOMAINS),
+            ("pano_to_main", PANO_TO_MAIN),
+        ):
+            if getattr(self, name) not in choices:
+                raise ValueError(f"sampler.{name}={getattr(self, name)!r} is unknown; use one of {choices}")
+        if self.sde and self.stochastic:
+            raise ValueError(
+                "sampler.sde=true and sampler.stochastic=true are two different noisy steps; set one of them to false"
+            )
         for name in ("steps", "levels", "tt_length", "tt_repeats_main", "tt_repeats_pano"):
             v = getattr(self, name)
             if int(v) != v or v < 1:
@@ -96,8 +157,19 @@ class SamplerSettings:
         return self.lam if self.dpa else 0.0
 
     @property
-    def effective_levels(self) -> int:
+    def warp_levels(self) -> int:
+        """Pyramid levels of the warps: ``levels`` with ``lpw``, else 1 (a single-level remap)."""
         return self.levels if self.lpw else 1
+
+    @property
+    def blend_levels(self) -> int:
+        """Levels phi acts on: ``levels`` with ``dpa_domain: bands``, else 1 (whole images)."""
+        return self.levels if self.dpa_domain == "bands" else 1
+
+    @property
+    def effective_levels(self) -> int:
+        """The deepest pyramid a run builds (warps or blends): ``max(warp_levels, blend_levels)``."""
+        return max(self.warp_levels, self.blend_levels)
 
     @property
     def uses_panorama(self) -> bool:

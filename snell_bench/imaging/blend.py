@@ -1,9 +1,15 @@
-"""Blending warped estimates: the detail-preserving average (DPA), per pyramid level, and the
-Fresnel combination of reflection and refraction colours.
+"""Blending warped estimates: the detail-preserving average (DPA) on whole images or per pyramid
+level, and the Fresnel combination of reflection and refraction colours.
 
 Convention:
     - Images: float tensors ``(B, C, H, W)`` (any value range; Laplacian bands are signed). Colours
       for :func:`fresnel_combine` are sRGB-encoded in ``[0, 1]``.
+    - Value domain of phi: its ``|x|`` weights favour values far from 0, so the domain matters. On
+      band-pass levels (signed, centred on 0) it favours detail; on images in ``[0, 1]`` it would
+      favour bright values (0.8 and 0.2 blend to 0.59). :func:`blend_images` and, with
+      ``signed_lowpass``, the low-pass level of :func:`blend_pyramids` therefore map ``[0, 1]`` to
+      FLUX's ``[-1, 1]`` image space (``x -> 2x - 1``) before phi and back after (0.8 and 0.2 blend
+      to 0.5).
     - Masks: bool ``(B, 1, H, W)`` or ``(H, W)`` (broadcast over batch and channels,
       :func:`~snell_bench.utils.tensors.as_mask`); ``None`` means valid everywhere. Returned
       masks are ``(B, 1, H, W)``.
@@ -22,7 +28,7 @@ from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear
 from snell_bench.imaging.pyramid import collapse
 from snell_bench.utils.tensors import as_mask, as_tensor
 
-__all__ = ["detail_preserving_average", "blend_pyramids", "fresnel_combine"]
+__all__ = ["detail_preserving_average", "blend_images", "blend_pyramids", "fresnel_combine"]
 
 
 def _mask_like(mask, x: torch.Tensor) -> torch.Tensor:
@@ -95,6 +101,50 @@ def detail_preserving_average(
     return torch.where(any_valid, phi, fallback), any_valid
 
 
+def _signed_dpa(inputs, masks, lam: float, fallback: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`detail_preserving_average` of ``[0, 1]`` values computed in ``[-1, 1]`` and mapped back;
+    the fallback (default: the first input, non-finite values 0) is returned unchanged."""
+    if fallback is None:
+        first = inputs[0]
+        fallback = torch.where(torch.isfinite(first), first, torch.zeros_like(first))
+    out, ok = detail_preserving_average([2.0 * x - 1.0 for x in inputs], masks, lam)
+    return torch.where(ok, (out + 1.0) / 2.0, fallback), ok
+
+
+def blend_images(
+    images: Sequence[torch.Tensor],
+    masks: Sequence | None = None,
+    lam: float = 0.5,
+    fallback: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Detail-preserving average of whole images in ``[0, 1]``, computed in FLUX's ``[-1, 1]``
+    image space: ``(phi(2 x_i - 1) + 1) / 2``.
+
+    Args:
+        images: ``N`` tensors ``(B, C, H, W)`` in ``[0, 1]``.
+        masks: ``N`` masks (or ``None`` entries, or ``None`` for all-valid).
+        lam: detail weight ``lambda``.
+        fallback: value where no input is valid (``[0, 1]``); default the first input (non-finite
+            values replaced by 0).
+
+    Returns:
+        ``(blended (B, C, H, W) in [0, 1], any_valid (B, 1, H, W) bool)``.
+
+    Examples:
+        0.8 and 0.2 are 0.6 and -0.6 in ``[-1, 1]``: mean and magnitude-weighted mean are 0, so the
+        blend is 0.5 whatever ``lam`` (in ``[0, 1]`` directly, ``lam = 0.5`` would give 0.59):
+
+        >>> a, b = torch.full((1, 1, 1, 1), 0.8), torch.full((1, 1, 1, 1), 0.2)
+        >>> [round(float(blend_images([a, b], lam=lam)[0]), 4) for lam in (0, 0.5, 1)]
+        [0.5, 0.5, 0.5]
+        >>> round(float(detail_preserving_average([a, b], lam=0.5)[0]), 4)
+        0.59
+    """
+    if len(images) == 0:
+        raise ValueError("blend_images needs at least one image")
+    return _signed_dpa(images, masks, lam, fallback)
+
+
 def blend_pyramids(
     level_lists: Sequence[Sequence[torch.Tensor]],
     mask_lists: Sequence | None = None,
@@ -102,6 +152,7 @@ def blend_pyramids(
     fallback_levels: Sequence[torch.Tensor] | None = None,
     *,
     wrap_x: bool = False,
+    signed_lowpass: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Detail-preserving average of several pyramids, level by level, then collapsed.
 
@@ -114,6 +165,10 @@ def blend_pyramids(
         fallback_levels: a pyramid used at pixels of a level where no input is valid; default the
             first input's levels.
         wrap_x: the destination is a panorama (circular collapse).
+        signed_lowpass: the pyramids are of images in ``[0, 1]``: phi on the low-pass level is
+            computed in ``[-1, 1]`` (as :func:`blend_images`); the band-pass levels are signed already
+            (phi is homogeneous, so scaling them by 2 would change nothing). With one level this is
+            :func:`blend_images`.
 
     Returns:
         ``(image (B, C, H, W), any_valid (B, 1, H, W) bool)``; ``any_valid`` is the finest level's.
@@ -141,7 +196,10 @@ def blend_pyramids(
         inputs = [levels[k] for levels in level_lists]
         masks = [None if ml is None else ml[k] for ml in mask_lists]
         fb = None if fallback_levels is None else fallback_levels[k]
-        level, ok = detail_preserving_average(inputs, masks, lam, fb)
+        if signed_lowpass and k == n_levels - 1:
+            level, ok = _signed_dpa(inputs, masks, lam, fb)
+        else:
+            level, ok = detail_preserving_average(inputs, masks, lam, fb)
         blended.append(level)
         any_valid = ok if k == 0 else any_valid
     return collapse(blended, wrap_x=wrap_x), any_valid

@@ -127,6 +127,8 @@ class AnalyticGenerator:
     #: A CPU backend in float32.
     device = torch.device("cpu")
     dtype = torch.float32
+    #: The encoder is a deterministic map: ``encode(..., generator)`` returns the mean.
+    has_posterior = False
 
     def __init__(
         self,
@@ -184,7 +186,12 @@ class AnalyticGenerator:
 
     # ------------------------------------------------------------------ latent space
     def encode(self, images: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-        """``(B, 3, H, W)`` in [0, 1] -> ``(B, 3 f^2, H / f, W / f)``; deterministic."""
+        """``(B, 3, H, W)`` in [0, 1] -> ``(B, 3 f^2, H / f, W / f)``; deterministic.
+
+        The encoder is an exact linear map, not a distribution: there is no posterior to sample, so
+        ``generator`` is accepted for the protocol (``sampler.encode=sample``) and neither read nor
+        advanced; the result is the same latent either way.
+        """
         self.geometry.latent_shape(images.shape[-2], images.shape[-1])
         x = F.pixel_unshuffle(images.float() * 2 - 1, self.downscale)
         return torch.einsum("dc,bchw->bdhw", self._mix, x)

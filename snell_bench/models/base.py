@@ -15,6 +15,9 @@ Convention:
       ``dtype`` (its precision; float32 when absent). Samplers keep every latent, noise draw, warp
       and blend on ``device`` (:func:`generator_device`); the backend's methods return tensors on
       their inputs' device.
+    - Posterior: a backend may say ``has_posterior = False`` (its encoder is a deterministic map, so
+      ``encode(..., generator)`` is the mean); absent, it is taken to have one
+      (:func:`has_posterior`).
 """
 
 from __future__ import annotations
@@ -26,7 +29,15 @@ import torch
 
 from snell_bench.config.sampler import SCHEDULES as _SCHEDULES
 
-__all__ = ["SCHEDULES", "Condition", "Generator", "LatentGeometry", "check_schedule", "generator_device"]
+__all__ = [
+    "SCHEDULES",
+    "Condition",
+    "Generator",
+    "LatentGeometry",
+    "check_schedule",
+    "generator_device",
+    "has_posterior",
+]
 
 #: Schedule kinds every backend's :meth:`Generator.sigmas` accepts.
 SCHEDULES = _SCHEDULES  # the ``sampler.schedule`` choices, owned by the schema
@@ -56,6 +67,17 @@ def generator_device(gen) -> torch.device:
         device(type='cpu')
     """
     return torch.device(getattr(gen, "device", None) or "cpu")
+
+
+def has_posterior(gen) -> bool:
+    """Whether ``gen.encode(images, generator)`` draws from a posterior (its ``has_posterior``
+    attribute; ``True`` when absent).
+
+    Examples:
+        >>> has_posterior(object())
+        True
+    """
+    return bool(getattr(gen, "has_posterior", True))
 
 
 @dataclass
@@ -104,8 +126,10 @@ class Generator(Protocol):
     geometry: LatentGeometry
 
     def encode(self, images: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-        """Images ``(B, 3, H, W)`` in [0, 1] -> latents ``(B, C, h, w)`` (deterministic: the
-        distribution's mode, or a sample drawn from ``generator``)."""
+        """Images ``(B, 3, H, W)`` in [0, 1] -> latents ``(B, C, h, w)``: the posterior's mean
+        (mode) without ``generator``; with it, a draw from the posterior using only ``generator``
+        (``sampler.encode=sample``). A backend whose encoder has no posterior (a deterministic map)
+        returns the mean either way and leaves ``generator`` untouched."""
         ...
 
     def decode(self, latents: torch.Tensor) -> torch.Tensor:

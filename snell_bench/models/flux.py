@@ -167,6 +167,8 @@ class FluxGenerator:
 
     name: str = "flux"
     geometry: LatentGeometry = LatentGeometry(channels=16, downscale=8, multiple=16)
+    #: The VAE's encoder is a diagonal Gaussian: ``encode(..., generator)`` draws from it.
+    has_posterior: bool = True
 
     def __init__(
         self,

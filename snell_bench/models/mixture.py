@@ -15,7 +15,9 @@ Convention:
       (this class subclasses :class:`~snell_bench.models.analytic.AnalyticGenerator`): sRGB images
       ``(B, 3, H, W)`` in [0, 1], centred (``2x - 1``), unshuffled into ``f x f`` blocks and mixed
       by a fixed orthogonal ``3 f^2 x 3 f^2`` matrix drawn from ``seed``; latents ``(B, 3 f^2, H / f,
-      W / f)``; one latent position ``(h, w)`` is one ``f x f`` pixel block.
+      W / f)``; one latent position ``(h, w)`` is one ``f x f`` pixel block. The encoder has no
+      posterior: ``encode(images, generator)`` ignores ``generator`` (``sampler.encode=sample`` gives
+      the mean).
     - Flow matching: ``z = (1 - sigma) x0 + sigma eps``, velocity ``v = eps - x0``, so the Euler
       estimate ``z - sigma v`` is the posterior mean ``E[x0 | z]``; ``sigma`` in (0, 1], a float
       or a ``(B,)`` tensor.

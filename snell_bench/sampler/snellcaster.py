@@ -1,20 +1,34 @@
 """The synchronized two-branch sampler (Snellcaster), its ablations, and the plain baseline.
 
-Per denoising step (the paper's §4):
+Per denoising step ``i`` (the paper's §4; stage numbers as in :func:`sample`):
 
-1. the generator's velocity for the main view and the panorama (one batched call when both latents
-   have the same size) gives Euler estimates ``x0_hat = z - sigma v``;
-2. both estimates are decoded to images;
-3. main view: ``phi((x0, x0_pano, I⁻), (identity, π⁻¹, π^R), lambda)`` per Laplacian level, then the
-   reflection ``π^-R(x0_pano)`` mixed in by Fresnel in linear RGB inside the object;
-   panorama: ``phi((x0_pano, x0, I⁻), (identity, π, π))`` (the main estimate only where the
-   perspective pixel does not show the object itself);
-4. the synchronized images are encoded and each branch steps with its synchronized estimate.
+5a. the generator's velocity for the main view and the panorama (one batched call when both latents
+    have the same size) gives Euler estimates ``x0_hat = z - sigma_i v``;
+5b. both estimates are decoded to images (``quantize``: rounded to 8 bits);
+5c. main view: ``phi((x0, x0_pano, I⁻), (identity, π⁻¹, π^R), lambda)`` (``dpa_domain``: on whole
+    images in [-1, 1], or per Laplacian band; π⁻¹ over the object or the whole frame,
+    ``pano_to_main``), then the reflection ``π^-R(x0_pano)`` mixed in by Fresnel in linear RGB
+    inside the object; panorama: ``phi((x0_pano, x0, I⁻), (identity, π, π))`` (the main estimate only
+    where the perspective pixel does not show the object itself); ``quantize``: the synchronised
+    images truncated to 8 bits;
+5d. the synchronised images are encoded (``encode``: posterior mean or a draw);
+5e. guided time travel (``tt_mode: guided``, steps ``i`` in the window ``[0.2 T, 0.8 T)``): each
+    branch with ``R > 1`` repeats (``tt_repeats_main`` / ``tt_repeats_pano``) ``R - 1`` times
+    {renoise ``z`` from ``sigma_i`` to ``sigma_{i - tt_length}`` (``tt_renoise``; no repeat would go
+    before the first level), step back to ``sigma_i`` with the same synchronised estimate}; no model
+    call at the noisier level. The branches that moved are re-predicted at ``sigma_i`` (5a, one
+    call), and both branches are decoded and synchronised again (5b-5d), the panorama with the main
+    view's post-travel estimate;
+5f. each branch steps to ``sigma_{i+1}`` with its synchronised estimate (deterministic, ``sde``:
+    the Euler-Maruyama step, or ``stochastic``).
 
-Time travel (window ``[0.2 T, 0.8 T)``): a block of ``tt_length`` steps is run, renoised back with
-the exact forward kernel and run again, ``tt_repeats_main`` times for the main view and
+Time travel ``tt_mode: repaint``: a block of ``tt_length`` steps is run (5a-5d, 5f at every level),
+renoised back to its start (5g) and run again, ``tt_repeats_main`` times for the main view and
 ``tt_repeats_pano`` times for the panorama; a branch that stops repeating early keeps its latest
 latent and lends its latest estimates to the other's blends, so every model call's output is used.
+
+Model calls per branch: one per step, plus in ``guided`` mode one per window step for a branch that
+travelled (``R > 1``), plus in ``repaint`` mode ``R - 1`` per window step (:attr:`SampleResult.model_calls`).
 
 Convention:
     - Images ``(1, 3, H, W)`` (main view) and ``(1, 3, Hp, Wp)`` (panorama, ``Wp = 2 Hp``), float32
@@ -22,9 +36,10 @@ Convention:
       in pixels, order x, y, NaN where invalid).
     - Latents ``(1, C, h, w)`` float32, unpacked (:class:`~snell_bench.models.base.LatentGeometry`);
       ``z_sigma = (1 - sigma) x0 + sigma eps`` (:mod:`snell_bench.sampler.steps`).
-    - Every random draw (initial noise, stochastic steps, time travel) comes from one
-      ``torch.Generator`` on the generator's device, seeded with ``seed``, in loop order: the main
-      view's draw before the panorama's at every point where both draw.
+    - Every random draw (initial noise, noisy steps, time travel, posterior samples of ``encode``)
+      comes from one ``torch.Generator`` on the generator's device, seeded with ``seed``, in loop
+      order: the main view's draw before the panorama's at every point where both draw (in guided
+      time travel, all of the main view's repeats before the panorama's).
 """
 
 from __future__ import annotations
@@ -38,15 +53,18 @@ import torch
 from tqdm.auto import tqdm
 
 from snell_bench.config.sampler import SamplerSettings
-from snell_bench.models.base import Condition, Generator, generator_device
+from snell_bench.models.base import Condition, Generator, generator_device, has_posterior
 from snell_bench.optics.warps import WarpSet
 from snell_bench.sampler.adaptive import decide
+from snell_bench.sampler.eight_bit import to_8bit_floor, to_8bit_round
 from snell_bench.sampler.steps import (
     euler_estimate,
     latent_rounding,
     pipeline_step,
     renoise,
+    renoise_euler_maruyama,
     rounding_dtype,
+    sde_step,
     stochastic_step,
     sync_step,
 )
@@ -65,7 +83,8 @@ class SampleResult:
         image: ``(1, 3, H, W)`` float32 sRGB in [0, 1], on the CPU.
         panorama: ``(1, 3, Hp, Wp)`` float32 sRGB in [0, 1] on the CPU, or ``None`` without the
             panorama branch.
-        model_calls: velocity evaluations per branch, ``{"main": n, "pano": n}``.
+        model_calls: velocity evaluations per branch actually made, ``{"main": n, "pano": n}`` (a
+            batched call on both latents counts once for each).
         timings: seconds per stage: ``setup`` (warps to the device, I⁻'s pyramids), ``model``,
             ``codec`` (decode and encode), ``warp_blend``, ``step``.
         dumps: every ``dump_every`` steps, the decoded estimates before (``*_x0``) and after
@@ -139,22 +158,38 @@ def _encode_prompts(gen: Generator, prompt: str, pano_prompt: str, use_pano: boo
     return _Prompts(main=main, pano=pano, both=both)
 
 
+def _in_window(i: int, s: SamplerSettings) -> bool:
+    """Step ``i`` lies in the time-travel window ``[tt_window[0] T, tt_window[1] T)`` of a
+    synchronised run with time travel."""
+    T = s.steps
+    return s.sync == "snellcaster" and s.time_travel and s.tt_window[0] * T <= i < s.tt_window[1] * T
+
+
 def _block(i: int, s: SamplerSettings) -> tuple[int, int, int]:
     """The block of steps that starts at step ``i``: its length and how often each branch runs it.
 
-    Inside the time-travel window ``[tt_window[0] T, tt_window[1] T)`` a block is ``tt_length`` steps
-    (fewer at the end) run ``tt_repeats_main`` / ``tt_repeats_pano`` times; elsewhere one step, run
-    once. Without the panorama branch its repeat count is 0.
+    With ``tt_mode: repaint``, inside the time-travel window a block is ``tt_length`` steps (fewer at
+    the end) run ``tt_repeats_main`` / ``tt_repeats_pano`` times; otherwise (and always with
+    ``guided``, whose travel happens inside the step) one step, run once. Without the panorama
+    branch its repeat count is 0.
 
     Returns:
         ``(length, repeats_main, repeats_pano)``.
     """
-    T = s.steps
-    travel = s.sync == "snellcaster" and s.time_travel and s.tt_window[0] * T <= i < s.tt_window[1] * T
-    length = min(s.tt_length, T - i) if travel else 1
+    travel = s.tt_mode == "repaint" and _in_window(i, s)
+    length = min(s.tt_length, s.steps - i) if travel else 1
     repeats_main = s.tt_repeats_main if travel else 1
     repeats_pano = (s.tt_repeats_pano if travel else 1) if s.uses_panorama else 0
     return length, repeats_main, repeats_pano
+
+
+def _guided_repeats(i: int, s: SamplerSettings) -> tuple[int, int]:
+    """How many times each branch runs step ``i`` with guided time travel (``(1, 1)`` outside the
+    window or with ``repaint``; the panorama's count without the panorama branch is 0)."""
+    travel = s.tt_mode == "guided" and _in_window(i, s)
+    main = s.tt_repeats_main if travel else 1
+    pano = (s.tt_repeats_pano if travel else 1) if s.uses_panorama else 0
+    return main, pano
 
 
 def _estimate_x0(
@@ -210,16 +245,25 @@ def _decode(gen: Generator, latent: torch.Tensor | None, clock: _Clock) -> torch
     return out
 
 
+def _decode_estimate(gen: Generator, latent: torch.Tensor | None, quantize: bool, clock: _Clock):
+    """:func:`_decode` of a clean-latent estimate, rounded to 8 bits with ``quantize``
+    (:func:`~snell_bench.sampler.eight_bit.to_8bit_round`)."""
+    img = _decode(gen, latent, clock)
+    return to_8bit_round(img) if quantize and img is not None else img
+
+
 def _warp_and_blend(
     views: Views,
     x0_main: torch.Tensor | None,
     x0_pano: torch.Tensor | None,
     run_main: bool,
     run_pano: bool,
+    quantize: bool,
     clock: _Clock,
 ) -> tuple[torch.Tensor | None, torch.Tensor | None]:
     """The synchronized estimates of the branches that run (:meth:`Views.blend_main`,
-    :meth:`Views.blend_pano`), each reading the other's latest decoded estimate; the time counts as
+    :meth:`Views.blend_pano`), each reading the other's latest decoded estimate, truncated to 8 bits
+    with ``quantize`` (:func:`~snell_bench.sampler.eight_bit.to_8bit_floor`); the time counts as
     ``warp_blend``.
 
     Args:
@@ -233,6 +277,9 @@ def _warp_and_blend(
     g_main, g_pano = views.gauss(x0_main), views.gauss(x0_pano, wrap_x=True)
     sync_main = views.blend_main(x0_main, x0_pano, g_main, g_pano) if run_main else None
     sync_pano = views.blend_pano(x0_pano, x0_main, g_pano, g_main) if run_pano else None
+    if quantize:
+        sync_main = to_8bit_floor(sync_main) if sync_main is not None else None
+        sync_pano = to_8bit_floor(sync_pano) if sync_pano is not None else None
     clock.add("warp_blend", t0)
     return sync_main, sync_pano
 
@@ -243,13 +290,15 @@ def _encode(
     sync_pano: torch.Tensor | None,
     run_main: bool,
     run_pano: bool,
+    rng: torch.Generator | None,
     clock: _Clock,
 ) -> tuple[torch.Tensor | None, torch.Tensor | None]:
     """The synchronized images ``(1, 3, ., .)`` sRGB in [0, 1] of the branches that run as clean
-    latents ``(1, C, ., .)`` (``None`` for the others); the time counts as ``codec``."""
+    latents ``(1, C, ., .)`` (``None`` for the others): the posterior mean, or with ``rng`` a draw
+    from the posterior (main view first); the time counts as ``codec``."""
     t0 = time.perf_counter()
-    x0_main = gen.encode(sync_main) if run_main else None
-    x0_pano = gen.encode(sync_pano) if run_pano else None
+    x0_main = gen.encode(sync_main, generator=rng) if run_main else None
+    x0_pano = gen.encode(sync_pano, generator=rng) if run_pano else None
     clock.add("codec", t0)
     return x0_main, x0_pano
 
@@ -266,7 +315,8 @@ def _step(
 ) -> torch.Tensor:
     """One branch's step from ``sigma`` to ``sigma_next`` with the clean estimate ``x0``.
 
-    Stochastic (``s.stochastic``: fresh noise from ``rng``, then rounded by ``keep``), else
+    Euler-Maruyama (``s.sde``, :func:`~snell_bench.sampler.steps.sde_step`) or stochastic
+    (``s.stochastic``), each with fresh noise from ``rng`` and rounded by ``keep``, else
     deterministic: the scheduler's step with latents held in ``model_dtype`` when the latents are
     rounded to the model's dtype (:func:`~snell_bench.sampler.steps.pipeline_step`), else
     :func:`~snell_bench.sampler.steps.sync_step`.
@@ -280,11 +330,22 @@ def _step(
     Returns:
         ``(1, C, h, w)`` float32 latent at ``sigma_next``.
     """
+    if s.sde:
+        return keep(sde_step(z, x0, sigma, sigma_next, rng))
     if s.stochastic:
         return keep(stochastic_step(z, x0, sigma, sigma_next, rng, s.eta))
     if model_dtype is not None:
         return pipeline_step(z, x0, sigma, sigma_next, model_dtype)
     return sync_step(z, x0, sigma, sigma_next)
+
+
+def _renoise(z: torch.Tensor, sigma: float, s_to: float, s: SamplerSettings, rng: torch.Generator) -> torch.Tensor:
+    """Time travel from ``sigma`` to the noisier ``s_to`` with the run's kernel (``tt_renoise``:
+    :func:`~snell_bench.sampler.steps.renoise` or
+    :func:`~snell_bench.sampler.steps.renoise_euler_maruyama`)."""
+    if s.tt_renoise == "euler_maruyama":
+        return renoise_euler_maruyama(z, sigma, s_to, rng)
+    return renoise(z, sigma, s_to, rng)
 
 
 def _to_host(x: torch.Tensor | None) -> torch.Tensor | None:
@@ -318,15 +379,16 @@ def sample(
         prompt: the main view's prompt.
         pano_prompt: the panorama's prompt.
         settings: the sampler's knobs.
-        seed: seeds the initial noise and every stochastic step.
+        seed: seeds every random draw (initial noise, noisy steps, time travel, posterior samples).
 
     Returns:
         The main image ``(1, 3, H, W)``, the panorama (or ``None``), model-call counts, timings,
-        dumps and the run's decisions.
+        dumps and the run's decisions (with ``encode``: whether the posterior was sampled).
 
     Raises:
-        ValueError: if ``i_minus`` has the wrong shape or is not finite, or the generator's
-            schedule does not have ``settings.steps + 1`` levels.
+        ValueError: if ``i_minus`` has the wrong shape or is not finite, the generator's schedule
+            does not have ``settings.steps + 1`` levels, or ``pano_to_main: frame`` meets warps
+            without ``pano_refraction_frame``.
     """
     # 1. check inputs; decide what the scene needs modelled; the noise schedule
     H, W = warps.camera.shape
@@ -337,9 +399,14 @@ def sample(
             "panorama branch skipped: %.1f %% of object pixels observed in I⁻",
             100 * decisions["panorama"]["observed_share"],
         )
+    synchronised = s.sync == "snellcaster"
+    if synchronised:
+        sampled = s.encode == "sample" and has_posterior(gen)
+        decisions["encode"] = {"mode": s.encode, "posterior_sampled": sampled}
+        if s.encode == "sample" and not sampled:
+            log.info("sampler.encode=sample: %s has no posterior to sample, its encoder gives the mean", gen.name)
     T = s.steps
     use_pano = s.uses_panorama
-    synchronised = s.sync == "snellcaster"
     shape_main = gen.geometry.latent_shape(H, W)
     shape_pano = gen.geometry.latent_shape(*warps.pano.shape) if use_pano else None
     sigmas = _noise_schedule(gen, s, H, W)
@@ -361,9 +428,10 @@ def sample(
     views = Views(warps, i_minus.float(), s, reflection_mask, device=dev) if synchronised else None
     clock.add("setup", t0)
 
-    # 5. denoising loop, in blocks (one step, or a time-travel block run several times per branch)
+    # 5. denoising loop, in blocks (one step; with repaint time travel, a block run several times)
     calls = {"main": 0, "pano": 0}
     dumps: list[dict] = []
+    enc_rng = rng if s.encode == "sample" else None
     bar = tqdm(total=T, desc=f"sampling ({s.sync})", disable=not s.progress, leave=False)
     i = 0
     with torch.inference_mode():
@@ -388,9 +456,9 @@ def sample(
                         gen, z_main, z_pano, sigma, prompts, run_main, run_pano, calls, clock
                     )
 
-                    # 5b. decode the estimates
-                    img_main = _decode(gen, x0_main, clock) if sync or dump else None
-                    img_pano = _decode(gen, x0_pano, clock) if sync or dump else None
+                    # 5b. decode the estimates (8-bit with quantize)
+                    img_main = _decode_estimate(gen, x0_main, s.quantize, clock) if sync or dump else None
+                    img_pano = _decode_estimate(gen, x0_pano, s.quantize, clock) if sync or dump else None
                     if run_main:
                         latest_main[j] = img_main
                     if run_pano:
@@ -400,10 +468,44 @@ def sample(
                     # 5c. warp and blend; 5d. encode the synchronised images
                     sync_main = sync_pano = None
                     if sync:
-                        sync_main, sync_pano = _warp_and_blend(views, img_main, img_pano, run_main, run_pano, clock)
-                        x0_main, x0_pano = _encode(gen, sync_main, sync_pano, run_main, run_pano, clock)
+                        sync_main, sync_pano = _warp_and_blend(
+                            views, img_main, img_pano, run_main, run_pano, s.quantize, clock
+                        )
+                        x0_main, x0_pano = _encode(gen, sync_main, sync_pano, run_main, run_pano, enc_rng, clock)
 
-                    # 5e. step each running branch with its (synchronised) estimate
+                    # 5e. guided time travel: renoise and step back with the same synchronised
+                    # estimates, then re-predict the branches that moved and synchronise both again
+                    travel_main, travel_pano = _guided_repeats(k, s)
+                    moved_main = moved_pano = False
+                    back = k - s.tt_length  # the noisier level's index
+                    if max(travel_main, travel_pano) > 1 and back >= 0:
+                        t0 = time.perf_counter()
+                        noisier = float(sigmas[back])
+                        for _ in range(travel_main - 1):
+                            z_main = keep(_renoise(z_main, sigma, noisier, s, rng))
+                            z_main = _step(z_main, x0_main, noisier, sigma, s, rng, keep, model_dtype)
+                            moved_main = True
+                        for _ in range(travel_pano - 1):
+                            z_pano = keep(_renoise(z_pano, sigma, noisier, s, rng))
+                            z_pano = _step(z_pano, x0_pano, noisier, sigma, s, rng, keep, model_dtype)
+                            moved_pano = True
+                        clock.add("step", t0)
+                        new_main, new_pano = _estimate_x0(
+                            gen, z_main, z_pano, sigma, prompts, moved_main, moved_pano, calls, clock
+                        )
+                        if moved_main:
+                            x0_main = new_main
+                            img_main = _decode_estimate(gen, new_main, s.quantize, clock) if sync or dump else None
+                        if moved_pano:
+                            x0_pano = new_pano
+                            img_pano = _decode_estimate(gen, new_pano, s.quantize, clock) if sync or dump else None
+                        if sync:
+                            sync_main, sync_pano = _warp_and_blend(
+                                views, img_main, img_pano, True, use_pano, s.quantize, clock
+                            )
+                            x0_main, x0_pano = _encode(gen, sync_main, sync_pano, True, use_pano, enc_rng, clock)
+
+                    # 5f. step each running branch with its (synchronised) estimate
                     t0 = time.perf_counter()
                     if run_main:
                         z_main = _step(z_main, x0_main, sigma, sigma_next, s, rng, keep, model_dtype)
@@ -423,11 +525,11 @@ def sample(
                             }
                         )
 
-                # 5f. time travel: renoise to the block's start each branch that repeats again
+                # 5g. repaint time travel: renoise to the block's start each branch that repeats again
                 if r + 1 < repeats_main:
-                    z_main = keep(renoise(z_main, float(sigmas[i + length]), float(sigmas[i]), rng))
+                    z_main = keep(_renoise(z_main, float(sigmas[i + length]), float(sigmas[i]), s, rng))
                 if r + 1 < repeats_pano:
-                    z_pano = keep(renoise(z_pano, float(sigmas[i + length]), float(sigmas[i]), rng))
+                    z_pano = keep(_renoise(z_pano, float(sigmas[i + length]), float(sigmas[i]), s, rng))
             i += length
             bar.update(length)
         bar.close()

@@ -19,7 +19,9 @@ __all__ = [
     "rounding_dtype",
     "sync_step",
     "stochastic_step",
+    "sde_step",
     "renoise",
+    "renoise_euler_maruyama",
 ]
 
 
@@ -124,3 +126,43 @@ def renoise(z: torch.Tensor, sigma: float, s: float, generator: torch.Generator)
     std = math.sqrt(max(s * s - a * a * sigma * sigma, 0.0))
     n = torch.randn(z.shape, generator=generator, dtype=z.dtype, device=z.device)
     return a * z + std * n
+
+
+def sde_step(
+    z: torch.Tensor, x0: torch.Tensor, sigma: float, sigma_next: float, generator: torch.Generator
+) -> torch.Tensor:
+    """Euler-Maruyama step (the authors' scheduler with ``stochastic_sampling``):
+    ``z' = z + (sigma' - sigma) v + |sigma' - sigma| n`` with ``v = (z - x0) / sigma`` and
+    ``n ~ N(0, I)`` from ``generator``; at ``sigma' = 0`` it returns ``x0`` (no draw). Its noise does
+    not keep the marginal ``(1 - sigma') x0 + sigma' eps`` (the variance grows by ``(sigma - sigma')^2``
+    per step); it is the released code's step, kept to reproduce it.
+
+    Raises:
+        ValueError: stepping from ``sigma = 0`` to a positive level.
+    """
+    sigma, sigma_next = float(sigma), float(sigma_next)
+    if sigma_next <= 0.0:
+        return x0.clone()
+    if sigma <= 0.0:
+        raise ValueError("cannot step from sigma = 0")
+    n = torch.randn(z.shape, generator=generator, dtype=z.dtype, device=z.device)
+    v = (z - x0) / sigma
+    return z + (sigma_next - sigma) * v + abs(sigma_next - sigma) * n
+
+
+def renoise_euler_maruyama(z: torch.Tensor, sigma: float, s: float, generator: torch.Generator) -> torch.Tensor:
+    """Time travel as the authors' code renoises from ``sigma`` to a noisier ``s``: one
+    Euler-Maruyama step of the forward flow with the velocity towards a fresh draw ``n``,
+    ``z_s = z + (s - sigma) (n - z) / (1 - sigma) + |s - sigma| n`` (the same ``n`` twice). Unlike
+    :func:`renoise` its marginal is not the forward process's: the mean is ``a z`` with
+    ``a = (1 - s) / (1 - sigma)`` as there, the added noise's standard deviation is
+    ``(s - sigma) (1 / (1 - sigma) + 1)`` instead of ``sqrt(s^2 - a^2 sigma^2)``.
+
+    Raises:
+        ValueError: unless ``0 <= sigma <= s <= 1`` and ``sigma < 1``.
+    """
+    sigma, s = float(sigma), float(s)
+    if not (0.0 <= sigma <= s <= 1.0) or sigma >= 1.0:
+        raise ValueError(f"renoise needs 0 <= sigma <= s <= 1 and sigma < 1, got sigma={sigma}, s={s}")
+    n = torch.randn(z.shape, generator=generator, dtype=z.dtype, device=z.device)
+    return z + (s - sigma) * (n - z) / (1.0 - sigma) + abs(s - sigma) * n

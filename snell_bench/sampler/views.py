@@ -6,7 +6,11 @@ Convention:
       sRGB in [0, 1], on the generator's device; warps as in :class:`~snell_bench.optics.WarpSet`
       (backward maps ``(H', W', 2)`` in pixels, order x, y, NaN where invalid), moved to that
       device once per sample.
-    - Blends are detail-preserving averages over Laplacian pyramids (``phi`` of
+    - Warps go through Laplacian pyramids of ``warp_levels`` levels (scale-matched,
+      :func:`~snell_bench.imaging.pyramid.pyramid_warp`; ``lpw: false``: a single-level remap).
+    - Blends are detail-preserving averages ``phi`` (``dpa_domain``): of whole images in FLUX's
+      [-1, 1] image space (``image``, :func:`~snell_bench.imaging.blend.blend_images`), or per
+      Laplacian band with the low-pass level in [-1, 1] (``bands``,
       :func:`~snell_bench.imaging.blend.blend_pyramids`); the reflection is mixed in by Fresnel in
       linear RGB (:func:`~snell_bench.imaging.blend.fresnel_combine`).
 """
@@ -17,11 +21,11 @@ import numpy as np
 import torch
 
 from snell_bench.config.sampler import SamplerSettings
-from snell_bench.imaging.blend import blend_pyramids, fresnel_combine
+from snell_bench.imaging.blend import blend_images, blend_pyramids, fresnel_combine
 from snell_bench.imaging.pyramid import gaussian_pyramid, laplacian_from_gaussian, pyramid_warp
 from snell_bench.optics.warps import WarpSet
 
-__all__ = ["Views", "on_device"]
+__all__ = ["Views", "on_device", "pano_to_main_map"]
 
 
 def _nan_where(coords: np.ndarray, invalid: np.ndarray) -> np.ndarray:
@@ -36,29 +40,64 @@ def on_device(a: np.ndarray, device: torch.device) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(a)).to(device)
 
 
+def pano_to_main_map(ws: WarpSet, mode: str) -> np.ndarray:
+    """π⁻¹ as the main view's blend reads it: ``(H, W, 2)`` panorama pixels, NaN where invalid.
+
+    Args:
+        ws: the scene's warps.
+        mode: ``"object"`` (:attr:`WarpSet.pano_refraction`: object pixels only) or ``"frame"``
+            (``WarpSet.pano_refraction_frame``: every pixel, the straight camera ray's point outside
+            the object).
+
+    Raises:
+        ValueError: ``frame`` with warps that lack ``pano_refraction_frame``, or an unknown mode.
+    """
+    if mode == "object":
+        return ws.pano_refraction
+    if mode == "frame":
+        frame = getattr(ws, "pano_refraction_frame", None)
+        if frame is None:
+            raise ValueError(
+                "sampler.pano_to_main='frame' needs WarpSet.pano_refraction_frame (π⁻¹ over the whole "
+                "frame), which these warps do not have; recompute the warps with a snell_bench that "
+                "computes it, or use sampler.pano_to_main=object"
+            )
+        return frame
+    raise ValueError(f"sampler.pano_to_main={mode!r} is unknown; use 'frame' or 'object'")
+
+
 class Views:
     """The warps of one run on the generator's device, with the constant warps of I⁻, built once.
 
     Convention:
         - Maps (backward, NaN marks every invalid source, so the masks follow from the maps):
-          ``main_from_pano`` π⁻¹ ``(H, W, 2)`` and ``main_refl_from_pano`` π^-R ``(H, W, 2)`` (panorama
-          pixels, object pixels only); ``pano_from_main`` π ``(Hp, Wp, 2)`` (perspective pixels, NaN
-          where the perspective pixel shows the object itself).
+          ``main_from_pano`` π⁻¹ ``(H, W, 2)`` (panorama pixels; object pixels only, or every pixel
+          with ``pano_to_main: frame``) and ``main_refl_from_pano`` π^-R ``(H, W, 2)`` (object pixels);
+          ``pano_from_main`` π ``(Hp, Wp, 2)`` (perspective pixels, NaN where the perspective pixel
+          shows the object itself).
         - ``object_mask`` ``(1, 1, H, W)`` bool; ``fresnel`` ``(1, 1, H, W)`` reflectance in [0, 1].
-        - I⁻ warped once, as Laplacian pyramids (``levels`` bands with their masks): by π^R into the
-          main view (``imin_main``) and by π into the panorama (``imin_pano``); without the panorama
-          branch, its mirror image by the self-reflection map (``refl_iminus``, collapsed, with its
-          mask) when the reflection is modelled.
-        - Blends are detail-preserving averages per Laplacian level of sRGB images in [0, 1] (the
-          band-pass levels signed, the low-pass level in [0, 1]) with weight ``lam``, collapsed; the
-          reflection is mixed in by Fresnel in linear RGB.
+        - I⁻ warped once: by π^R into the main view (``imin_main``) and by π into the panorama
+          (``imin_pano``), as images with their masks (``dpa_domain: image``) or as Laplacian
+          pyramids with per-level masks (``bands``); without the panorama branch, its mirror image
+          by the self-reflection map (``refl_iminus``, collapsed, with its mask) when the reflection
+          is modelled.
+        - Warps: ``warp_levels`` levels, scale-matched when ``lpw`` (a single-level remap
+          otherwise; with ``bands`` the pyramid samples level ``k`` for level ``k`` and collapses
+          to that remap).
+        - Blends: phi with weight ``lam`` in [-1, 1] (module docstring); the reflection is mixed in
+          by Fresnel in linear RGB.
 
     Args:
         ws: the scene's warps.
         i_minus: ``(1, 3, H, W)`` float32 sRGB object-free image.
-        s: the settings the run uses (levels, ``lam``, ``roi``, reflection, panorama).
+        s: the settings the run uses (levels, ``lpw``, ``dpa_domain``, ``pano_to_main``, ``lam``,
+            ``roi``, reflection, panorama).
         reflection_mask: ``(H, W)`` bool, the object pixels that keep a reflection; ``None``: all.
         device: where the maps and the pyramids live (``None``: the CPU).
+
+    Raises:
+        ValueError: ``pano_to_main: frame`` with the panorama branch and warps without
+            ``pano_refraction_frame``.
     """
 
     def __init__(
@@ -69,8 +108,12 @@ class Views:
         reflection_mask: np.ndarray | None = None,
         device: torch.device | None = None,
     ) -> None:
-        L = s.effective_levels
-        self.levels = L
+        self.levels = s.effective_levels  # depth of every Gaussian pyramid built
+        self.bands = s.dpa_domain == "bands"
+        self.match_scale = bool(s.lpw)
+        # bands: warp at every blend level (point-sampled per level without lpw); image: one image
+        self.warp_levels = s.levels if self.bands else s.warp_levels
+        self.image_warp_levels = s.warp_levels  # warps used as whole images (the reflection)
         self.roi = bool(s.roi)
         self.reflection = bool(s.reflection)
         self._gauss_last: dict[bool, tuple[torch.Tensor, list[torch.Tensor]]] = {}
@@ -80,7 +123,9 @@ class Views:
         i_minus = i_minus.to(dev)
         self.object_mask = on_device(ws.object_mask, dev)[None, None]
         self.fresnel = on_device(ws.fresnel, dev)[None, None]
-        self.main_from_pano = on_device(ws.pano_refraction, dev)
+        self.main_from_pano = None
+        if s.uses_panorama:
+            self.main_from_pano = on_device(np.asarray(pano_to_main_map(ws, s.pano_to_main), np.float32), dev)
         self.main_refl_from_pano = on_device(ws.pano_reflection, dev)
         refl_self = ws.reflection
         if reflection_mask is not None:  # reflect only where it is not negligible
@@ -89,20 +134,53 @@ class Views:
         self.pano_from_main = on_device(_nan_where(ws.pano_to_persp, ws.pano_to_persp_object), dev)
         self.refl_iminus = None
         if s.reflection and not s.uses_panorama:
-            self.refl_iminus = pyramid_warp(i_minus, on_device(refl_self, dev), levels=L, roi=self.roi)
-        self.imin_main, self.imin_main_m = pyramid_warp(
-            i_minus, on_device(ws.refraction, dev), levels=L, collapse=False
-        )
-        self.imin_pano, self.imin_pano_m = pyramid_warp(
-            i_minus, on_device(ws.pano_to_persp, dev), levels=L, collapse=False, dest_wrap_x=True, roi=self.roi
+            self.refl_iminus = pyramid_warp(i_minus, on_device(refl_self, dev), levels=s.warp_levels, roi=self.roi)
+        self.imin_main, self.imin_main_m = self._warp(i_minus, on_device(ws.refraction, dev))
+        self.imin_pano, self.imin_pano_m = self._warp(
+            i_minus, on_device(ws.pano_to_persp, dev), dest_wrap_x=True, roi=self.roi
         )
 
-    @staticmethod
-    def _own(gauss: list[torch.Tensor], wrap_x: bool = False):
-        """An estimate's own Laplacian pyramid (from its Gaussian one) and all-valid masks
-        ``(1, 1, h_k, w_k)`` per level."""
+    def _warp(
+        self,
+        src: torch.Tensor,
+        coords: torch.Tensor,
+        *,
+        wrap_x: bool = False,
+        dest_wrap_x: bool = False,
+        roi: bool = False,
+        src_pyramid: list[torch.Tensor] | None = None,
+    ):
+        """``src`` through ``coords`` as the blends read it: ``(image, mask)`` (``image`` domain) or
+        ``(bands, masks)`` (``bands``)."""
+        return pyramid_warp(
+            src,
+            coords,
+            levels=self.warp_levels,
+            wrap_x=wrap_x,
+            collapse=not self.bands,
+            match_scale=self.match_scale,
+            dest_wrap_x=dest_wrap_x,
+            roi=roi,
+            src_pyramid=src_pyramid,
+        )
+
+    def _own(self, img: torch.Tensor, gauss: list[torch.Tensor], wrap_x: bool = False):
+        """An estimate as the blends read it (the image, or its Laplacian pyramid from its Gaussian
+        one) with all-valid masks."""
+        if not self.bands:
+            return img, torch.ones((img.shape[0], 1) + img.shape[-2:], dtype=torch.bool, device=img.device)
         pyr = laplacian_from_gaussian(gauss, wrap_x=wrap_x)
         return pyr, [torch.ones((p.shape[0], 1) + p.shape[-2:], dtype=torch.bool, device=p.device) for p in pyr]
+
+    def _blend(self, inputs: list, masks: list, own, wrap_x: bool = False) -> torch.Tensor:
+        """phi of the inputs in the run's domain (the estimate's own value where none is valid)."""
+        if self.bands:
+            out, _ = blend_pyramids(
+                inputs, masks, lam=self.lam, fallback_levels=own, wrap_x=wrap_x, signed_lowpass=True
+            )
+        else:
+            out, _ = blend_images(inputs, masks, lam=self.lam, fallback=own)
+        return out
 
     def gauss(self, img: torch.Tensor | None, wrap_x: bool = False) -> list[torch.Tensor] | None:
         """The Gaussian pyramid of an estimate, built once and shared by its own Laplacian pyramid and
@@ -132,9 +210,9 @@ class Views:
         g_pano: list[torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """The main view's synchronized estimate:
-        ``phi((x0, π⁻¹(x0_pano), π^R(I⁻)))`` per Laplacian level (the panorama's term left out
-        without it), then ``π^-R(x0_pano)`` (without the panorama: the mirror image of I⁻) mixed in
-        by Fresnel inside the object where the reflection is valid.
+        ``phi((x0, π⁻¹(x0_pano), π^R(I⁻)))`` (the panorama's term left out without it), then
+        ``π^-R(x0_pano)`` (without the panorama: the mirror image of I⁻) mixed in by Fresnel inside
+        the object where the reflection is valid.
 
         Args:
             x0: ``(1, 3, H, W)`` the main view's decoded estimate, sRGB in [0, 1].
@@ -147,26 +225,23 @@ class Views:
         """
         g_main = g_main if g_main is not None else self.gauss(x0)
         g_pano = g_pano if g_pano is not None else self.gauss(x0_pano, wrap_x=True)
-        own, own_m = self._own(g_main)
+        own, own_m = self._own(x0, g_main)
         lv, ms = [own, self.imin_main], [own_m, self.imin_main_m]
-        if x0_pano is not None:
-            p, pm = pyramid_warp(
-                x0_pano,
-                self.main_from_pano,
-                levels=self.levels,
-                wrap_x=True,
-                collapse=False,
-                roi=self.roi,
-                src_pyramid=g_pano,
-            )
+        if x0_pano is not None and self.main_from_pano is not None:
+            p, pm = self._warp(x0_pano, self.main_from_pano, wrap_x=True, roi=self.roi, src_pyramid=g_pano)
             lv.insert(1, p)
             ms.insert(1, pm)
-        refr, _ = blend_pyramids(lv, ms, lam=self.lam, fallback_levels=own)
+        refr = self._blend(lv, ms, own)
         if not self.reflection:
             return refr
         if x0_pano is not None:
             refl, ok = pyramid_warp(
-                x0_pano, self.main_refl_from_pano, levels=self.levels, wrap_x=True, roi=self.roi, src_pyramid=g_pano
+                x0_pano,
+                self.main_refl_from_pano,
+                levels=self.image_warp_levels,
+                wrap_x=True,
+                roi=self.roi,
+                src_pyramid=g_pano,
             )
         elif self.refl_iminus is not None:  # no panorama: mirror rays that reach surfaces I⁻ shows
             refl, ok = self.refl_iminus
@@ -181,8 +256,7 @@ class Views:
         g_pano: list[torch.Tensor] | None = None,
         g_main: list[torch.Tensor] | None = None,
     ) -> torch.Tensor:
-        """The panorama's synchronized estimate: ``phi((x0_pano, π(x0), π(I⁻)))`` per Laplacian
-        level, periodic in x.
+        """The panorama's synchronized estimate: ``phi((x0_pano, π(x0), π(I⁻)))``, periodic in x.
 
         Args:
             x0_pano: ``(1, 3, Hp, Wp)`` the panorama's decoded estimate, sRGB in [0, 1].
@@ -195,17 +269,6 @@ class Views:
         """
         g_pano = g_pano if g_pano is not None else self.gauss(x0_pano, wrap_x=True)
         g_main = g_main if g_main is not None else self.gauss(x0)
-        own, own_m = self._own(g_pano, wrap_x=True)
-        m, mm = pyramid_warp(
-            x0,
-            self.pano_from_main,
-            levels=self.levels,
-            collapse=False,
-            dest_wrap_x=True,
-            roi=self.roi,
-            src_pyramid=g_main,
-        )
-        out, _ = blend_pyramids(
-            [own, m, self.imin_pano], [own_m, mm, self.imin_pano_m], lam=self.lam, fallback_levels=own, wrap_x=True
-        )
-        return out
+        own, own_m = self._own(x0_pano, g_pano, wrap_x=True)
+        m, mm = self._warp(x0, self.pano_from_main, dest_wrap_x=True, roi=self.roi, src_pyramid=g_main)
+        return self._blend([own, m, self.imin_pano], [own_m, mm, self.imin_pano_m], own, wrap_x=True)

@@ -167,12 +167,20 @@ def test_unknown_preset_fails_before_work(tmp_path):
 @pytest.mark.parametrize(
     "overrides, expect",
     [
-        # T = 5: the time-travel window [0.2 T, 0.8 T) = [1, 4) holds steps 1, 2, 3, each run 3 times on the main view
-        (["sampler.steps=5"], {"main": 5 + 2 * 3, "pano": 5}),
-        (["sampler.steps=3"], {"main": 3 + 2 * 2, "pano": 3}),  # window [0.6, 2.4): steps 1, 2
+        # guided time travel (the paper's): a step of the window [0.2 T, 0.8 T) that travels costs the main
+        # view one more call (the re-prediction at t), whatever the repeats; T = 5: window [1, 4), steps 1-3
+        (["sampler.steps=5"], {"main": 5 + 3, "pano": 5}),
+        (["sampler.steps=3"], {"main": 3 + 2, "pano": 3}),  # window [0.6, 2.4): steps 1, 2
         (["sampler.steps=4", "sampler.tt_repeats_main=1"], {"main": 4, "pano": 4}),
-        (["sampler.steps=5", "sampler.tt_length=2", "sampler.tt_repeats_main=2"], {"main": 1 + 2 * 2 * 2, "pano": 5}),
-        (["sampler.steps=4", "method=no_pano"], {"main": 4 + 2 * 3, "pano": 0}),  # window [0.8, 3.2): 1, 2, 3
+        # travel length 2: step 1 cannot go two levels back (index -1), steps 2 and 3 travel
+        (["sampler.steps=5", "sampler.tt_length=2", "sampler.tt_repeats_main=2"], {"main": 5 + 2, "pano": 5}),
+        (["sampler.steps=4", "method=no_pano"], {"main": 4 + 3, "pano": 0}),  # window [0.8, 3.2): 1, 2, 3
+        # repaint: each step of the window run 3 times on the main view, every run a model call
+        (["sampler.steps=5", "sampler.tt_mode=repaint"], {"main": 5 + 2 * 3, "pano": 5}),
+        (
+            ["sampler.steps=5", "sampler.tt_mode=repaint", "sampler.tt_length=2", "sampler.tt_repeats_main=2"],
+            {"main": 1 + 2 * 2 * 2, "pano": 5},
+        ),
     ],
 )
 def test_recorded_model_calls_are_the_generators_calls(overrides, expect):
@@ -255,9 +263,9 @@ def test_model_calls_follow_the_steps_axis(sweep):
     res = results(tmp / "runs" / "tradeoff")
     for scene in SCENES:
         base = res[f"{scene}-0/baseline"]["model_calls"]
-        # T = 5: the time-travel window [0.2 T, 0.8 T) holds steps 1, 2, 3, each run 3 times on the main branch
-        assert base == {"main": 5 + 2 * 3, "pano": 5}
-        assert res[f"{scene}-0/steps=3"]["model_calls"] == {"main": 3 + 2 * 2, "pano": 3}  # window [0.6, 2.4)
+        # T = 5: the time-travel window [0.2 T, 0.8 T) holds steps 1, 2, 3, each re-predicted once after travelling
+        assert base == {"main": 5 + 3, "pano": 5}
+        assert res[f"{scene}-0/steps=3"]["model_calls"] == {"main": 3 + 2, "pano": 3}  # window [0.6, 2.4)
         assert res[f"{scene}-0/steps=5"]["model_calls"] == base
         assert res[f"{scene}-0/preset-tiny"]["model_calls"] == {"main": 4, "pano": 4}  # no extra repeats
 

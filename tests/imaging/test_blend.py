@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from snell_bench.imaging.blend import blend_pyramids, detail_preserving_average, fresnel_combine
+from snell_bench.imaging.blend import blend_images, blend_pyramids, detail_preserving_average, fresnel_combine
 from snell_bench.imaging.pyramid import collapse, laplacian_pyramid, pyramid_warp
 
 
@@ -135,6 +135,46 @@ class TestBlendPyramids:
         out, ok = blend_pyramids([a], [none], fallback_levels=fb)
         assert not ok.any()
         assert (out - 0.5).abs().max() < 1e-6
+
+
+class TestBlendImages:
+    """phi of whole images in FLUX's [-1, 1] image space (``sampler.dpa_domain=image``)."""
+
+    def test_bright_and_dark_meet_in_the_middle(self):
+        # 0.8, 0.2 -> 0.6, -0.6: avg 0, vavg (0.36 - 0.36) / 1.2 = 0 -> 0.5 after mapping back
+        out, ok = blend_images(px(0.8, 0.2), lam=0.5)
+        assert float(out) == pytest.approx(0.5, abs=1e-7) and bool(ok)
+        # in [0, 1] directly: avg 0.5, vavg (0.64 + 0.04) / 1.0 = 0.68 -> 0.59
+        assert float(detail_preserving_average(px(0.8, 0.2), lam=0.5)[0]) == pytest.approx(0.59, abs=1e-7)
+
+    def test_against_reference_in_minus_one_one(self):
+        g = torch.Generator().manual_seed(0)
+        xs = [torch.rand(1, 2, 3, 4, generator=g) for _ in range(3)]
+        ms = [torch.rand(1, 1, 3, 4, generator=g) > 0.3 for _ in range(3)]
+        ms[0][..., 0, 0] = ms[1][..., 0, 0] = ms[2][..., 0, 0] = False
+        out, ok = blend_images(xs, ms, lam=0.7)
+        signed = [2 * x.numpy() - 1 for x in xs]
+        masks = [np.broadcast_to(m.numpy(), xs[0].shape) for m in ms]
+        ref = (dpa_reference(signed, masks, 0.7) + 1) / 2
+        has = ~np.isnan(ref)
+        np.testing.assert_allclose(out.numpy()[has], ref[has], atol=1e-6)
+        # no valid input: the first image (the branch's own estimate)
+        assert torch.equal(out[..., 0, 0], xs[0][..., 0, 0]) and not ok[..., 0, 0].any()
+
+    def test_one_level_pyramid_with_signed_lowpass_is_the_image_blend(self):
+        g = torch.Generator().manual_seed(1)
+        xs = [torch.rand(1, 3, 8, 8, generator=g) for _ in range(2)]
+        a, _ = blend_images(xs, lam=0.5)
+        b, _ = blend_pyramids([[x] for x in xs], lam=0.5, signed_lowpass=True)
+        torch.testing.assert_close(a, b, atol=0, rtol=0)
+
+    def test_signed_lowpass_of_constant_images(self):
+        # ``dpa_domain=bands``: constant images have zero bands; the low-pass level blends in [-1, 1]
+        pyr = [laplacian_pyramid(torch.full((1, 1, 8, 8), v), 3) for v in (0.8, 0.2)]
+        signed, _ = blend_pyramids(pyr, lam=0.5, signed_lowpass=True)
+        unsigned, _ = blend_pyramids(pyr, lam=0.5)
+        torch.testing.assert_close(signed, torch.full_like(signed, 0.5), atol=1e-6, rtol=0)
+        torch.testing.assert_close(unsigned, torch.full_like(unsigned, 0.59), atol=1e-6, rtol=0)
 
 
 class TestFresnelCombine:

@@ -36,6 +36,17 @@ def test_encode_decode_round_trip_is_exact():
     assert float((g.encode(other) - lat).norm()) == pytest.approx(2 * float((other - img).norm()), rel=1e-5)
 
 
+def test_encode_has_no_posterior_to_sample():
+    """``sampler.encode=sample`` with the analytic backend: its encoder is an exact linear map with
+    no posterior, so a generator passed in is neither read nor advanced: the mean either way."""
+    g = AnalyticGenerator(prior(), downscale=8, seed=3)
+    img = prior(32, 48, 5)
+    rng = torch.Generator().manual_seed(9)
+    state = rng.get_state()
+    assert torch.equal(g.encode(img, generator=rng), g.encode(img))
+    assert torch.equal(rng.get_state(), state)
+
+
 def test_posterior_mean_matches_bayes():
     """Scalar check of E[x0 | z] for x0 ~ N(mu, s^2), z = (1 - sigma) x0 + sigma eps."""
     g = AnalyticGenerator(prior(8, 8), downscale=8, prior_std=0.4)

@@ -177,6 +177,20 @@ class TestVae:
         assert torch.equal(s1, s2)
         assert not torch.equal(s1, s3) and not torch.equal(s1, gen.encode(x))
 
+    def test_encode_sample_is_mean_plus_std_times_the_generators_draw(self, gen):
+        """``sampler.encode=sample``: the posterior draw from the run's generator, normalised like
+        the mean."""
+        x = rand_images(1, 32, 32)
+        vae = gen.pipe.vae
+        dist = vae.encode(x * 2 - 1).latent_dist
+        n = torch.randn(dist.mean.shape, generator=torch.Generator().manual_seed(7))
+        ref = (dist.mean + dist.std * n - vae.config.shift_factor) * vae.config.scaling_factor
+        got = gen.encode(x, generator=torch.Generator().manual_seed(7))
+        torch.testing.assert_close(got, ref, atol=1e-6, rtol=0)
+        mean = (dist.mean - vae.config.shift_factor) * vae.config.scaling_factor
+        torch.testing.assert_close(gen.encode(x), mean, atol=1e-6, rtol=0)
+        assert float((got - mean).abs().max()) > 1e-3
+
     def test_tiled_vae(self):
         g = TinyFluxGenerator(seed=0, vae_tiling=True)
         g.pipe.vae.tile_sample_min_size, g.pipe.vae.tile_latent_min_size = 32, 4  # force tiles at test size

@@ -88,6 +88,16 @@ def test_deterministic_for_a_seed():
     assert not torch.equal(a.encode(image()), c.encode(image()))  # the seed draws the latent transform
 
 
+def test_encode_has_no_posterior_to_sample():
+    """``sampler.encode=sample``: the mixture's encoder is the analytic one, without a posterior: the
+    mean, and the generator passed in is not advanced."""
+    m = MixtureGenerator.from_scene(image(), disc(), seed=3)
+    rng = torch.Generator().manual_seed(9)
+    state = rng.get_state()
+    assert torch.equal(m.encode(image(), generator=rng), m.encode(image()))
+    assert torch.equal(rng.get_state(), state)
+
+
 def test_latent_space_and_schedule_are_the_analytic_ones():
     m = MixtureGenerator.from_scene(image(96, 160), disc(96, 160), seed=3)
     a = AnalyticGenerator(image(96, 160), seed=3)
@@ -334,9 +344,13 @@ def generators(scene):
 
 def test_time_travel_changes_the_result(scene, generators):
     """Renoising and denoising again moves the mixture's image more than the analytic backend's
-    (2.5x here) and gains it 0.30 dB against 0.04: with an affine posterior the repeated window
-    lands near where one pass does; with the mixture the blends pushed into the latent in between
-    change which component wins."""
+    (2.2x here): with an affine posterior the repeated window lands near where one pass does; with
+    the mixture the blends pushed into the latent in between change which component wins.
+
+    Under the paper's settings (guided time travel, phi on whole images in [-1, 1], π⁻¹ over the
+    frame) the gain is small for both (0.07 dB against 0.06). Before those switches existed the
+    default was the repaint loop with phi per band and the low-pass level in [0, 1], where time
+    travel gained the mixture 0.30 dB; the signed low-pass level alone takes that to 0.06 dB."""
     from snell_bench.metrics.refraction import refraction_psnr
 
     _, ws, i_minus, _ = scene
@@ -348,7 +362,7 @@ def test_time_travel_changes_the_result(scene, generators):
         gain[name] = refraction_psnr(full.image, i_minus, ws) - refraction_psnr(no_tt.image, i_minus, ws)
     assert moved["mixture"] > 2 * moved["analytic"], moved
     assert moved["mixture"] > 0.01, moved
-    assert gain["mixture"] > 0.1 and abs(gain["analytic"]) < 0.1, gain  # and here it helps
+    assert gain["mixture"] > 0.0 and abs(gain["analytic"]) < 0.1, gain
 
 
 def test_sampler_is_deterministic_and_every_switch_matters(scene, generators):
@@ -356,7 +370,8 @@ def test_sampler_is_deterministic_and_every_switch_matters(scene, generators):
     full = _sample(gen, scene)
     again = _sample(gen, scene)
     assert torch.equal(full.image, again.image) and torch.equal(full.panorama, again.panorama)
-    assert full.model_calls == {"main": 4 + 6 * 3, "pano": 10}  # the analytic backend's count
+    # the analytic backend's count: guided time travel (the default) re-predicts once per window step
+    assert full.model_calls == {"main": 10 + 6, "pano": 10}
     for change in (dict(reflection=False), dict(panorama=False), dict(dpa=False), dict(lpw=False)):
         other = _sample(gen, scene, **change)
         assert torch.isfinite(other.image).all() and not torch.equal(other.image, full.image), change

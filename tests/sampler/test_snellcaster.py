@@ -86,9 +86,19 @@ def test_bitwise_deterministic(setup, full):
 
 
 def test_time_travel_spends_no_wasted_model_call(setup, full):
-    # T = 10, window [2, 8): 6 steps repeated 3x on the main view, once on the panorama
-    assert full.model_calls == {"main": 4 + 6 * 3, "pano": 10}
-    longer = run(setup, replace(FAST, tt_length=2, tt_repeats_pano=2))
+    # guided time travel (the default since the paper's recipe; before it, the repaint loop was the
+    # default and spent 4 + 6 x 3 main calls): T = 10, window [2, 8): per window step one call at
+    # sigma_i, none at the noisier level, one re-prediction at sigma_i for a branch that travelled
+    assert full.model_calls == {"main": 10 + 6, "pano": 10}
+    both = run(setup, replace(FAST, tt_repeats_pano=2))
+    assert both.model_calls == {"main": 10 + 6, "pano": 10 + 6}
+    # the repeats renoise and step back without a model call: 5 repeats cost what 2 cost
+    five = run(setup, replace(FAST, tt_repeats_main=5))
+    assert five.model_calls == {"main": 10 + 6, "pano": 10}
+    # repaint: a block re-predicted at every level, R times
+    repaint = run(setup, replace(FAST, tt_mode="repaint"))
+    assert repaint.model_calls == {"main": 4 + 6 * 3, "pano": 10}
+    longer = run(setup, replace(FAST, tt_mode="repaint", tt_length=2, tt_repeats_pano=2))
     # blocks of 2 steps starting at 2, 4, 6: 6 steps x 3 repeats (main), x 2 (pano)
     assert longer.model_calls == {"main": 4 + 6 * 3, "pano": 4 + 6 * 2}
     no_tt = run(setup, replace(FAST, time_travel=False))
