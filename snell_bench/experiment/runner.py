@@ -5,8 +5,10 @@ Layout of an experiment ``E`` under ``runs/``::
     runs/E/<scene>-<variation>/<object>/_inputs/     I⁻, depth, camera, object, references
     runs/E/<scene>-<variation>/<object>/<method>/    image.png reference.png mask.png metrics.json
                                                      config.yaml I_minus.png depth.npy camera.json object.ply
+                                                     panorama.png (methods with the panorama branch)
 
-- ``metrics.json`` holds the scores, the timings, the warps' statistics and, under ``reference``,
+- ``metrics.json`` holds the scores, the timings, the warps' statistics, the ``recipe`` and the
+  metrics ``protocol`` of the cell's config and, under ``reference``,
   the reference's variant, sampler, sample counts, window and self-noise
   (:meth:`~snell_bench.render.reference.ReferenceRender.summary`; ``self_noise_db`` is about the
   highest masked PSNR an image can score against that reference).
@@ -50,12 +52,17 @@ from snell_bench.experiment.plan import (
     object_overrides,
     result_settings,
 )
+from snell_bench.experiment.reports.collect import recipe_and_protocol
 from snell_bench.pipeline import ModelPool, apply_method, scorers_of
-from snell_bench.utils.io import link_or_copy, write_json
+from snell_bench.utils.io import link_or_copy, save_png, write_json
+from snell_bench.utils.tensors import bchw_to_hwc
 
 log = logging.getLogger(__name__)
 
 __all__ = ["run_grid", "plan_grid", "cell_overrides", "check_same_settings"]
+
+#: The panorama branch's image in a cell's folder (methods with the panorama branch).
+PANORAMA_FILE = "panorama.png"
 
 #: Warp statistics recorded per cell.
 WARP_STATS = ("roi", "traced_primary_rays", "far_background")
@@ -90,6 +97,7 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
                 "method_label": str(c.method.label),
                 "model": str(c.model.name),
                 "scene_source": str(c.scene.source),
+                **recipe_and_protocol(c),
             }
             cells.append(
                 Cell(
@@ -132,6 +140,8 @@ def run_cell(cell: Cell, shared: SharedCache, scorers, pool: ModelPool, order: M
         res = pipeline.run_method(cell.config, inputs, scorers=scorers, image_path=image_path)
     else:
         res = pipeline.finish_method(cell.config, inputs, sampled, scorers=scorers, image_path=image_path)
+    if res.panorama is not None:  # listed in the record's files with the image: resume checks it
+        save_png(cell.folder / PANORAMA_FILE, bchw_to_hwc(res.panorama))
     return {
         **({"scene_info": inputs.scene.info} if inputs.scene.info else {}),
         **res.scores,

@@ -349,12 +349,14 @@ def test_build_reports_writes_everything_deterministically(runs, tmp_path):
     paths = build_reports(runs, out, "ablation")
     names = sorted(p.name for p in paths)
     expected = sorted(
-        f"{s}.{e}" for s in ("method_table", "scene_table", "ablation_table") for e in ("md", "tex", "csv")
+        f"{s}.{e}"
+        for s in ("method_table", "scene_table", "ablation_table", "ablation_table_all")
+        for e in ("md", "tex", "csv")
     )
-    assert names == sorted(expected + ["qualitative.png", "README.md"])
+    assert names == sorted(expected + ["qualitative_1.png", "README.md"])  # two rows: one page
     assert all(p.is_file() and p.parent == out for p in paths)
     readme = (out / "README.md").read_text()
-    for n in expected + ["qualitative.png"]:
+    for n in expected + ["qualitative_1.png"]:
         assert f"({n})" in readme
     assert PROVENANCE in readme and "CUDA out of memory" in readme
     method_md = (out / "method_table.md").read_text()

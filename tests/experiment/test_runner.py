@@ -100,7 +100,7 @@ def test_missing_weights_are_reported_not_faked(smoke):
 def test_reports_written(smoke):
     tmp, _ = smoke
     out = tmp / "reports" / "smoke"
-    for name in ("method_table.md", "method_table.tex", "method_table.csv", "qualitative.png"):
+    for name in ("method_table.md", "method_table.tex", "method_table.csv", "qualitative_1.png"):
         assert (out / name).is_file(), name
     assert "analytic" in (out / "method_table.md").read_text()
 

@@ -6,15 +6,19 @@ A grid experiment's run directory holds one folder per cell,
 The reports read those files and nothing else:
 
 - :mod:`.collect`: :func:`collect` gathers every cell into a DataFrame, one row per cell.
-- :mod:`.tables`: :func:`method_table` (Table 1: methods x metrics), :func:`scene_table` (scenes x
-  methods for one metric), :func:`ablation_table` (the ablation rows in the paper's order) and
+- :mod:`.tables`: :func:`method_table` (Table 1: methods x metrics), :func:`block_table` (Table 3:
+  a block of method rows per scene, or per object for the IOR sweep), :func:`scene_table` (scenes x
+  methods for one metric), :func:`ablation_table` (Tables 2 and 4: the ablation rows in the
+  paper's order), :func:`time_travel_table` (a block per variant, a row per R_main) and
   :func:`savings_table` average over the cells whose ``status`` is ``"ok"``;
   :func:`provenance_line` and :func:`cell_notes` say where the numbers come from and which cells
   or values are missing; :func:`rank_marks` ranks best and second best.
 - :mod:`.writers`: :func:`to_markdown`, :func:`to_latex` and :func:`to_csv` write a table;
   :func:`tradeoff_markdown` and :func:`stdout_table` a sweep's per-setting table.
 - :mod:`.figures`: :func:`qualitative_figure` (reference | Snellcaster | baselines, each tile with
-  an inset zoom on the object) and :func:`pareto_figure` (a sweep's cost against fidelity).
+  an inset zoom on the object; :func:`qualitative_pages` draws every row, ``max_rows`` a page),
+  :func:`panorama_figure` (main image beside its panorama), :func:`time_travel_figure` (PSNR and
+  LPIPS against R_main) and :func:`pareto_figure` (a sweep's cost against fidelity).
 - :mod:`.tradeoff`: a sweep's rows (:func:`collect_tradeoff`), per-setting table
   (:func:`tradeoff_table`), Pareto front and reference convergence.
 - :mod:`.build`: :func:`build_reports` and :func:`build_tradeoff_report` write everything.
@@ -23,11 +27,14 @@ Conventions:
     - A table is a DataFrame whose index holds the row labels (``index.name`` is the row header)
       and whose columns are metric names (``psnr``, ``lpips``, ...) plus ``n``, the number of
       ``ok`` cells averaged; :func:`scene_table` instead has method labels as columns and one
-      metric for all of them. Values are floats, NaN where no cell has a value; the writers show
+      metric for all of them. Block tables have a two-level index (scene, method) and are
+      ranked per column within each block. Values are floats, NaN where no cell has a value; the writers show
       NaN as "—".
     - Writers read display hints from ``table.attrs``: ``provenance``, ``notes``, ``caption``,
       ``metric`` (the metric of every value column, for scene tables) and ``highlight``
-      (``"columns"`` or ``"rows"``: where best and second best are ranked).
+      (``"columns"``, ``"rows"`` or ``"blocks"``: where best and second best are ranked).
+    - The provenance line names the model, the scene source, the recipe and the metrics
+      protocol the cells record, and the cell counts.
     - Best and second best are ranked on the values as displayed (rounded to the metric's
       format), so ties share the mark; a column with fewer than two values gets no mark.
     - Ordering is deterministic: cells sorted by scene, variation, object, method; method rows
@@ -35,28 +42,49 @@ Conventions:
 """
 
 from .build import build_reports, build_tradeoff_report
-from .collect import collect
-from .figures import clip_outliers, pareto_figure, qualitative_figure
+from .collect import collect, recipe_and_protocol
+from .figures import (
+    clip_outliers,
+    figure_rows,
+    pages,
+    panorama_figure,
+    panorama_pages,
+    pareto_figure,
+    qualitative_figure,
+    qualitative_pages,
+    time_travel_figure,
+)
 from .spec import (
     ABLATION_METRICS,
     ABLATION_ROWS,
+    ABLATION_TABLE2_METRICS,
+    MEASURES,
     METRICS,
     MISSING,
     MODEL_DESCRIPTIONS,
+    OPTIONAL_METRICS,
+    SCENE_METRICS,
     TABLE1_METRICS,
+    TIME_TRAVEL_ROWS,
+    TIME_TRAVEL_VARIANTS,
     Metric,
     metric_spec,
 )
 from .tables import (
     SAVING_METHODS,
+    TIME_TRAVEL_METRICS,
     ablation_table,
+    block_table,
     cell_notes,
     method_labels,
     method_table,
+    object_ior,
     provenance_line,
     rank_marks,
     savings_table,
     scene_table,
+    time_travel_table,
+    with_recorded_metrics,
 )
 from .tradeoff import (
     PRESET_AXIS,
@@ -82,17 +110,29 @@ __all__ = [
     "TABLE1_METRICS",
     "ABLATION_METRICS",
     "ABLATION_ROWS",
+    "ABLATION_TABLE2_METRICS",
+    "SCENE_METRICS",
+    "OPTIONAL_METRICS",
+    "MEASURES",
+    "TIME_TRAVEL_ROWS",
+    "TIME_TRAVEL_VARIANTS",
+    "TIME_TRAVEL_METRICS",
     "MODEL_DESCRIPTIONS",
     "MISSING",
     "SAVING_METHODS",
     "metric_spec",
     "collect",
+    "recipe_and_protocol",
     "provenance_line",
     "cell_notes",
     "method_labels",
+    "with_recorded_metrics",
+    "object_ior",
     "method_table",
     "scene_table",
+    "block_table",
     "ablation_table",
+    "time_travel_table",
     "savings_table",
     "rank_marks",
     "pipe_table",
@@ -100,7 +140,13 @@ __all__ = [
     "plain_markdown",
     "to_latex",
     "to_csv",
+    "figure_rows",
+    "pages",
     "qualitative_figure",
+    "qualitative_pages",
+    "panorama_figure",
+    "panorama_pages",
+    "time_travel_figure",
     "build_reports",
     # speed/accuracy sweeps
     "STAGES",

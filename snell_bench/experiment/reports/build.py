@@ -3,6 +3,7 @@ speed/accuracy sweep's CSV, Markdown and Pareto plot. Every file is written atom
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from pathlib import Path
@@ -10,9 +11,27 @@ from pathlib import Path
 from snell_bench.utils.io import atomic_write_bytes, write_text
 
 from .collect import collect
-from .figures import pareto_figure, qualitative_figure
-from .spec import ABLATION_ROWS, TABLE1_METRICS
-from .tables import SAVING_METHODS, ablation_table, method_table, provenance_line, savings_table, scene_table
+from .figures import (
+    figure_rows,
+    panorama_pages,
+    pareto_figure,
+    qualitative_figure,
+    qualitative_pages,
+    time_travel_figure,
+)
+from .spec import ABLATION_METRICS, ABLATION_ROWS, ABLATION_TABLE2_METRICS, SCENE_METRICS, TABLE1_METRICS
+from .tables import (
+    SAVING_METHODS,
+    TIME_TRAVEL_METRICS,
+    ablation_table,
+    block_table,
+    method_table,
+    object_ior,
+    provenance_line,
+    savings_table,
+    time_travel_table,
+    with_recorded_metrics,
+)
 from .tradeoff import collect_tradeoff, tradeoff_table
 from .writers import plain_markdown, to_csv, to_latex, to_markdown, tradeoff_markdown
 
@@ -28,20 +47,47 @@ def _slug(s: str) -> str:
     return re.sub(r"[^A-Za-z0-9]+", "_", s).strip("_").lower() or "exp"
 
 
-def build_reports(run_dir: str | os.PathLike, out_dir: str | os.PathLike, experiment_name: str) -> list[Path]:
-    """Write every table and the figure of one experiment from its run directory alone.
+def _is_ior_sweep(df) -> bool:
+    """Whether the cells hold one object at two or more IORs (``name:ior`` objects)."""
+    by_name: dict[str, set] = {}
+    for o in df["object"].dropna().astype(str).unique():
+        name, ior = object_ior(o)
+        if not math.isnan(ior):
+            by_name.setdefault(name, set()).add(ior)
+    return any(len(v) > 1 for v in by_name.values())
 
-    Writes ``method_table``, ``scene_table`` (PSNR) and, if the runs contain an ablation variant
-    (a method of :data:`ABLATION_ROWS` other than ``snellcaster``), ``ablation_table``, each as
-    ``.md``, ``.tex`` and ``.csv``; ``savings.md``, ``savings.csv`` and ``savings_per_cell.csv``
-    when ``full_frame`` or ``adaptive`` ran beside ``snellcaster``; ``qualitative.png``; and
-    ``README.md`` linking them with the provenance line and the notes. The method table has the
-    columns of Table 1, followed by MAE and PSNR (true) where any cell has them.
+
+def build_reports(
+    run_dir: str | os.PathLike, out_dir: str | os.PathLike, experiment_name: str, *, max_rows: int = 4
+) -> list[Path]:
+    """Write every table and figure of one experiment from its run directory alone.
+
+    Tables (each as ``.md``, ``.tex`` and ``.csv``; every column of the paper's table is shown,
+    a metric without a value in any cell as "—" with its recorded reason in the notes; the
+    recorded optional metrics, :func:`~snell_bench.experiment.reports.tables.with_recorded_metrics`,
+    follow):
+
+    - ``method_table``: Table 1, methods x (CLIP, ImageReward, PSNR, LPIPS);
+    - ``scene_table``: Table 3, one block per scene, a row per method, the same columns;
+    - ``ablation_table`` (Table 2: MAE, PSNR, LPIPS) and ``ablation_table_all`` (Table 4: MAE,
+      PSNR, LPIPS, CLIP, ImageReward), when the runs contain an ablation variant (a method of
+      :data:`ABLATION_ROWS` other than ``snellcaster``);
+    - ``ior_table``, one block per IOR, when one object ran at two or more IORs;
+    - ``time_travel_table``, one block per variant, a row per R_main, when time-travel methods ran;
+    - ``savings.md``, ``savings.csv`` and ``savings_per_cell.csv`` when ``full_frame`` or
+      ``adaptive`` ran beside ``snellcaster``.
+
+    Figures: ``qualitative_1.png``, ``qualitative_2.png``, ... (reference | methods, ``max_rows``
+    rows a page, every row); ``panorama_1.png``, ... (main image beside its panorama, every cell
+    with a ``panorama.png``); ``ior.png`` (every IOR row on one page) and ``time_travel.png``
+    (PSNR and LPIPS against R_main) with their tables. ``README.md`` links everything with the
+    provenance line (model, scene source, recipe, metrics protocol, cell counts).
 
     Args:
         run_dir: the experiment's run directory.
         out_dir: where to write (created if needed).
         experiment_name: shown in titles and LaTeX labels.
+        max_rows: rows per page of the paged figures.
 
     Returns:
         The written paths.
@@ -54,35 +100,75 @@ def build_reports(run_dir: str | os.PathLike, out_dir: str | os.PathLike, experi
     if df.empty:
         raise FileNotFoundError(f"no cells (metrics.json) below {run_dir}")
     out_dir.mkdir(parents=True, exist_ok=True)
-    extra = [m for m in ("mae", "psnr_true") if m in df.columns and df.loc[df["status"] == "ok", m].notna().any()]
+    name = experiment_name
     tables = [
-        ("method_table", f"Methods ({experiment_name})", method_table(df, TABLE1_METRICS + tuple(extra))),
-        ("scene_table", f"PSNR per scene ({experiment_name})", scene_table(df, "psnr")),
+        ("method_table", f"Table 1: methods ({name})", method_table(df, with_recorded_metrics(df, TABLE1_METRICS))),
+        ("scene_table", f"Table 3: per scene ({name})", block_table(df, with_recorded_metrics(df, SCENE_METRICS))),
     ]
     if df["method"].isin([m for m, _ in ABLATION_ROWS[1:]]).any():
-        tables.append(("ablation_table", f"Ablation ({experiment_name})", ablation_table(df)))
+        tables += [
+            (
+                "ablation_table",
+                f"Table 2: ablation ({name})",
+                ablation_table(df, with_recorded_metrics(df, ABLATION_TABLE2_METRICS)),
+            ),
+            (
+                "ablation_table_all",
+                f"Table 4: ablation, every metric ({name})",
+                ablation_table(df, with_recorded_metrics(df, ABLATION_METRICS)),
+            ),
+        ]
+    ior = _is_ior_sweep(df)
+    if ior:
+        tables.append(
+            (
+                "ior_table",
+                f"Index of refraction ({name})",
+                block_table(
+                    df, with_recorded_metrics(df, ("psnr", "lpips", "mae", "clip", "image_reward")), by="object"
+                ),
+            )
+        )
+    tt = time_travel_table(df, with_recorded_metrics(df, TIME_TRAVEL_METRICS))
+    if len(tt):
+        tables.append(("time_travel_table", f"Time travel ({name})", tt))
     written: list[Path] = []
     for stem, title, table in tables:
         md, tex, csv = (out_dir / f"{stem}.{ext}" for ext in ("md", "tex", "csv"))
         write_text(md, to_markdown(table, title))
-        write_text(tex, to_latex(table, title, label=f"tab:{_slug(experiment_name)}_{stem}"))
+        write_text(tex, to_latex(table, title, label=f"tab:{_slug(name)}_{stem}"))
         to_csv(table, csv)
         written += [md, tex, csv]
     savings = None
     if df["method"].isin(SAVING_METHODS).any() and (df["method"] == "snellcaster").any():
         summary, per_cell = savings_table(df)
         if not summary.empty:
-            title = f"Time saved against fidelity lost ({experiment_name})"
+            title = f"Time saved against fidelity lost ({name})"
             write_text(out_dir / "savings.md", plain_markdown(summary, title, _SAVINGS_NOTE))
             write_text(out_dir / "savings.csv", summary.to_csv(index=False))
             write_text(out_dir / "savings_per_cell.csv", per_cell.to_csv(index=False))
             written += [out_dir / "savings.md", out_dir / "savings.csv", out_dir / "savings_per_cell.csv"]
             savings = summary
-    written.append(qualitative_figure(run_dir, out_dir / "qualitative.png"))
+    _remove_stale_pages(out_dir, ("qualitative", "panorama"))
+    qualitative = qualitative_pages(run_dir, out_dir, "qualitative", max_rows=max_rows)
+    panoramas = panorama_pages(run_dir, out_dir, "panorama", max_rows=max_rows)
+    written += qualitative + panoramas
+    figures = []
+    if ior:
+        rows = figure_rows(df, by_ior=True)
+        figures.append(("Every IOR", qualitative_figure(run_dir, out_dir / "ior.png", cells=rows)))
+    if len(tt):
+        figures.append(
+            (
+                "PSNR and LPIPS against R_main",
+                time_travel_figure(tt, out_dir / "time_travel.png", f"Time travel ({name})"),
+            )
+        )
+    written += [p for _, p in figures]
 
     src = Path(os.path.relpath(run_dir.resolve(), out_dir.resolve())).as_posix()
     lines = [
-        f"# Reports: {experiment_name}",
+        f"# Reports: {name}",
         "",
         f"Built from the cells under `{src}` alone; {provenance_line(df)}.",
         "",
@@ -94,11 +180,27 @@ def build_reports(run_dir: str | os.PathLike, out_dir: str | os.PathLike, experi
             "- Time saved against fidelity lost: [savings.md](savings.md) · [savings.csv](savings.csv) · "
             "[savings_per_cell.csv](savings_per_cell.csv)"
         )
-    lines += ["- Qualitative comparison: [qualitative.png](qualitative.png)", ""]
-    lines += [to_markdown(tables[0][2], tables[0][1])]
-    lines += ["![qualitative comparison](qualitative.png)", ""]
+    links = " · ".join(f"[{p.name}]({p.name})" for p in qualitative)
+    lines.append(f"- Qualitative comparison, {max_rows} rows a page: {links}")
+    if panoramas:
+        links = " · ".join(f"[{p.name}]({p.name})" for p in panoramas)
+        lines.append(f"- Main image and its panorama: {links}")
+    else:
+        lines.append("- Main image and its panorama: no cell has a panorama.png")
+    for title, path in figures:
+        lines.append(f"- {title}: [{path.name}]({path.name})")
+    lines += ["", to_markdown(tables[0][2], tables[0][1])]
+    lines += [f"![qualitative comparison]({qualitative[0].name})", ""] if qualitative else []
     written.append(write_text(out_dir / "README.md", "\n".join(lines)))
     return written
+
+
+def _remove_stale_pages(out_dir: Path, stems: tuple[str, ...]) -> None:
+    """Remove the pages of an earlier build (``<stem>_<k>.png``), which may have had more pages."""
+    for stem in stems:
+        for path in out_dir.glob(f"{stem}_*.png"):
+            if re.fullmatch(rf"{re.escape(stem)}_\d+\.png", path.name):
+                path.unlink()
 
 
 def build_tradeoff_report(runs_root: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:

@@ -16,10 +16,18 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import pandas as pd
+import yaml
 
 from .spec import METRICS, MODEL_DESCRIPTIONS, metric_spec
 
-__all__ = ["collect", "BASE_COLUMNS", "provenance_line", "cell_notes", "reference_noise_note"]
+__all__ = [
+    "collect",
+    "BASE_COLUMNS",
+    "recipe_and_protocol",
+    "provenance_line",
+    "cell_notes",
+    "reference_noise_note",
+]
 
 BASE_COLUMNS = (
     "experiment",
@@ -32,11 +40,13 @@ BASE_COLUMNS = (
     "reason",
     "model",
     "scene_source",
+    "recipe",
+    "protocol",
 )
 """The identity columns of :func:`collect`, first and in this order."""
 
 _CELL_DIR_RE = re.compile(r"^(?P<scene>.+)-(?P<variation>\d+)$")
-_FLAT_GROUPS = ("decisions", "warps", "reference")  # nested records flattened to dotted columns
+_FLAT_GROUPS = ("decisions", "warps", "reference", "model_calls")  # nested records flattened to dotted columns
 _OWN_GROUPS = ("metrics", "missing", "timings_s")  # flattened with their own conversions
 
 
@@ -69,6 +79,51 @@ def _float_or_nan(v) -> float:
         return float(v)
     except (TypeError, ValueError):
         return float("nan")
+
+
+def recipe_and_protocol(cfg) -> dict:
+    """Which recipe and metrics protocol a cell's config records.
+
+    Args:
+        cfg: a cell's composed config (a mapping or a ``DictConfig``, as in its ``config.yaml``).
+
+    Returns:
+        ``{"recipe": ..., "protocol": ...}``: the recipe is the config's ``recipe`` key (a name, or
+        a node with a ``name``), else the last ``recipe=NAME`` among its recorded ``overrides``,
+        else None; the protocol is ``metrics.protocol``, else None.
+    """
+
+    def get(node, key):
+        try:
+            return node.get(key) if node is not None else None
+        except (AttributeError, TypeError):
+            return None
+
+    recipe = get(cfg, "recipe")
+    if recipe is not None and not isinstance(recipe, str):
+        recipe = get(recipe, "name")
+    if recipe is None:
+        for o in get(cfg, "overrides") or ():
+            key, sep, value = str(o).lstrip("+~").partition("=")
+            if sep and key == "recipe":
+                recipe = value
+    protocol = get(get(cfg, "metrics"), "protocol")
+    return {
+        "recipe": None if recipe is None else str(recipe),
+        "protocol": None if protocol is None else str(protocol),
+    }
+
+
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+def _recorded_config(folder: Path) -> dict:
+    """Recipe and protocol from a cell's ``config.yaml`` (both None where it is missing or unreadable)."""
+    try:
+        cfg = yaml.load((folder / "config.yaml").read_text(), Loader=_LOADER)
+    except (OSError, yaml.YAMLError):
+        cfg = None
+    return recipe_and_protocol(cfg if isinstance(cfg, dict) else None)
 
 
 def _row_from_record(rec: dict, rel: Path) -> dict:
@@ -125,6 +180,7 @@ def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
         ``scene_source``); one column per metric (``psnr``, ``lpips``, ...; NaN where null); the
         reason a metric is missing as ``missing.<metric>``; stage timings as
         ``timings_s.<stage>``; what the cell modelled as ``decisions.<...>`` and ``warps.<...>``;
+        the generator calls per branch as ``model_calls.main`` and ``model_calls.pano``;
         the reference's settings and self-noise as ``reference.<...>`` (``reference.self_noise_db``);
         other scalar fields of the record under their own name; and ``cell_dir``, the cell's
         folder relative to ``run_dir``. Rows are sorted by scene, variation, object, method and
@@ -137,13 +193,22 @@ def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
         if any(p.startswith((".", "_")) for p in rel.parts):
             continue
         seen.add(path.parent)
-        records.append(_read_record(path))
+        rec = _read_record(path)
+        if "recipe" not in rec or "protocol" not in rec:  # a cell recorded before the record held them
+            rec = {**_recorded_config(path.parent), **rec}
+        records.append(rec)
         rels.append(rel)
     for path in sorted(run_dir.rglob("config.yaml")):
         rel = path.parent.relative_to(run_dir)
         if path.parent in seen or not _is_cell_dir(rel):
             continue
-        records.append({"status": "failed", "reason": "incomplete cell: config.yaml but no metrics.json"})
+        records.append(
+            {
+                "status": "failed",
+                "reason": "incomplete cell: config.yaml but no metrics.json",
+                **_recorded_config(path.parent),
+            }
+        )
         rels.append(rel)
     if not records:
         return pd.DataFrame({c: pd.Series(dtype=object) for c in BASE_COLUMNS + ("cell_dir",)})
@@ -181,8 +246,10 @@ def provenance_line(df: pd.DataFrame) -> str:
         df: cells from ``collect``.
 
     Returns:
-        E.g. ``"model: analytic (CPU stand-in for FLUX) · scenes: procedural · 12 cells (10 ok,
-        1 failed, 1 skipped)"``; with several models or sources each is listed with its cell count.
+        E.g. ``"model: analytic (CPU stand-in for FLUX) · scenes: procedural · recipe: paper ·
+        metrics protocol: paper · 12 cells (10 ok, 1 failed, 1 skipped)"``; with several models,
+        sources, recipes or protocols each is listed with its cell count. The recipe and the
+        protocol are left out where no cell records them (cells without a ``config.yaml``).
     """
 
     def describe(counts: Counter, described: bool) -> str:
@@ -202,6 +269,9 @@ def provenance_line(df: pd.DataFrame) -> str:
         parts.append(("model: " if len(models) == 1 else "models: ") + describe(models, True))
     if sources:
         parts.append("scenes: " + describe(sources, False))
+    for col, label in (("recipe", "recipe"), ("protocol", "metrics protocol")):
+        if col in df.columns and len(df) and df[col].map(lambda v: not _is_missing(v)).any():
+            parts.append(f"{label}: " + describe(_str_values(df[col]), False))
     order = ["ok", "failed", "skipped"] + sorted(set(status) - {"ok", "failed", "skipped"})
     breakdown = ", ".join(f"{status[k]} {k}" for k in order if status.get(k) or k == "ok")
     n = len(df)
@@ -230,7 +300,9 @@ def cell_notes(df: pd.DataFrame, metrics: Iterable[str] = ()) -> list[str]:
     Returns:
         Every cell not ``ok`` with its reason, then, for each of ``metrics``, the ``ok`` cells
         without a value, grouped by the reason recorded in ``missing.<metric>``, with the count per
-        method. Reasons are put on one line (whitespace collapsed), never shortened.
+        method (``"LPIPS: no value in any of the 7 ok cells (...) — no VGG weights: ..."`` for a
+        metric missing in every cell: its column is all "—"). Reasons are put on one line
+        (whitespace collapsed), never shortened.
     """
     notes = []
     for _, r in df[df["status"] != "ok"].iterrows():
@@ -256,7 +328,8 @@ def cell_notes(df: pd.DataFrame, metrics: Iterable[str] = ()) -> list[str]:
             per = groups[why]
             k = sum(per.values())
             by = ", ".join(f"{meth} ×{per[meth]}" for meth in sorted(per))
-            notes.append(f"{metric_spec(m).label}: no value in {k} of {len(ok)} ok cells ({by}) — {why}")
+            where = f"any of the {len(ok)} ok cells" if k == len(ok) else f"{k} of {len(ok)} ok cells"
+            notes.append(f"{metric_spec(m).label}: no value in {where} ({by}) — {why}")
     return notes
 
 

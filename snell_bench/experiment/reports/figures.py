@@ -1,10 +1,13 @@
-"""Figures: the qualitative comparison of a grid experiment and the Pareto plot of a speed/accuracy
-sweep. Both are drawn with matplotlib's Agg canvas (no display needed) and written atomically."""
+"""Figures: the qualitative comparison of a grid experiment (one page per ``max_rows`` rows), the
+main image beside its panorama (the paper's Fig. 4), the time-travel curves and the Pareto plot of a
+speed/accuracy sweep. All are drawn with matplotlib's Agg canvas (no display needed) and written
+atomically."""
 
 from __future__ import annotations
 
 import math
 import os
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -14,10 +17,20 @@ import pandas as pd
 from snell_bench.utils.io import atomic_write
 
 from .collect import collect
-from .tables import method_labels
+from .tables import method_labels, object_ior
 from .tradeoff import PRESET_AXIS, fidelity_column, pareto_front
 
-__all__ = ["qualitative_figure", "pareto_figure"]
+__all__ = [
+    "figure_rows",
+    "pages",
+    "qualitative_figure",
+    "qualitative_pages",
+    "panorama_rows",
+    "panorama_figure",
+    "panorama_pages",
+    "time_travel_figure",
+    "pareto_figure",
+]
 
 
 def _save(fig, out_png: str | os.PathLike, **kwargs) -> Path:
@@ -68,6 +81,104 @@ def _zoom_window(box, W: int, H: int, pad: float = 0.15) -> tuple[int, int, int,
     return left, top, left + side, top + side
 
 
+def _object_label(obj: str) -> str:
+    name, ior = object_ior(obj)
+    return str(obj) if math.isnan(ior) else f"{name}, IOR {ior:g}"
+
+
+def _row_label(scene: str, variation: int, obj: str) -> str:
+    """A row's label on two lines: ``"kitchen-0\\nsphere, IOR 1.333"``."""
+    return f"{scene}-{variation}\n{_object_label(obj)}"
+
+
+def _cell_label(cell_dir: str) -> str:
+    """A cell folder ``<scene>-<variation>/<object>/<method>`` as two lines."""
+    parts = cell_dir.split("/")
+    if len(parts) < 3:
+        return cell_dir
+    return f"{parts[-3]} / {_object_label(parts[-2])}\n{parts[-1]}"
+
+
+def figure_rows(df: pd.DataFrame, by_ior: bool = False) -> list[tuple[str, int, str]]:
+    """Every ``(scene, variation, object)`` of the cells, in figure order.
+
+    Args:
+        df: cells from ``collect``.
+        by_ior: order by object name, then IOR, then scene and variation (the IOR sweep), instead
+            of the first cell of each scene (by variation, then object) followed by the others.
+
+    Returns:
+        The rows, each once.
+    """
+    df = df.dropna(subset=["scene", "variation", "object"])
+    keys = sorted({(str(r.scene), int(r.variation), str(r.object)) for r in df.itertuples()})
+    if by_ior:
+
+        def key(k):
+            name, ior = object_ior(k[2])
+            return (name, 0 if math.isnan(ior) else 1, 0.0 if math.isnan(ior) else ior, k[0], k[1])
+
+        return sorted(keys, key=key)
+    chosen, scenes = [], set()
+    for k in keys:
+        if k[0] not in scenes:
+            chosen.append(k)
+            scenes.add(k[0])
+    return chosen + [k for k in keys if k not in chosen]
+
+
+def pages(rows: Sequence, max_rows: int) -> list[list]:
+    """``rows`` cut into pages of at most ``max_rows``, in order: ``ceil(len(rows) / max_rows)``
+    pages (none for no rows) holding every row once.
+
+    Raises:
+        ValueError: ``max_rows`` is below 1.
+    """
+    if int(max_rows) < 1:
+        raise ValueError(f"max_rows must be >= 1, got {max_rows}")
+    rows = list(rows)
+    return [rows[i : i + int(max_rows)] for i in range(0, len(rows), int(max_rows))]
+
+
+def qualitative_pages(
+    run_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    stem: str = "qualitative",
+    *,
+    max_rows: int = 4,
+    cells: Sequence[tuple[str, int, str]] | None = None,
+    methods: Sequence[str] | None = None,
+    **kwargs,
+) -> list[Path]:
+    """The qualitative comparison of every row, one PNG per ``max_rows`` rows.
+
+    Args:
+        run_dir: the experiment's run directory.
+        out_dir: where to write ``<stem>_1.png``, ``<stem>_2.png``, ...
+        stem: the file names' stem.
+        max_rows: rows per page.
+        cells: the rows; default every ``(scene, variation, object)`` (:func:`figure_rows`).
+        methods: the columns after the reference, as in :func:`qualitative_figure`.
+        **kwargs: passed to :func:`qualitative_figure` (``inset``, ``tile_width_in``, ``dpi``).
+
+    Returns:
+        The pages written, ``ceil(rows / max_rows)`` of them.
+
+    Raises:
+        FileNotFoundError: there is no cell below ``run_dir``.
+    """
+    run_dir, out_dir = Path(run_dir), Path(out_dir)
+    if cells is None:
+        df = collect(run_dir)
+        if df.empty:
+            raise FileNotFoundError(f"no cells (metrics.json) below {run_dir}")
+        cells = figure_rows(df)
+    return [
+        qualitative_figure(run_dir, out_dir / f"{stem}_{k}.png", cells=page, methods=methods, **kwargs)
+        for k, page in enumerate(pages(cells, max_rows), start=1)
+    ]
+
+
 def qualitative_figure(
     run_dir: str | os.PathLike,
     out_png: str | os.PathLike,
@@ -75,7 +186,7 @@ def qualitative_figure(
     methods: Sequence[str] | None = None,
     inset: bool = True,
     *,
-    max_rows: int = 4,
+    max_rows: int | None = 4,
     tile_width_in: float = 2.4,
     dpi: int = 100,
 ) -> Path:
@@ -92,11 +203,12 @@ def qualitative_figure(
         run_dir: the experiment's run directory.
         out_png: the PNG to write.
         cells: the rows; default the first cell (by variation, then object) of each scene, then
-            further cells, up to ``max_rows``.
+            further cells (:func:`figure_rows`), up to ``max_rows``; :func:`qualitative_pages`
+            draws every row on as many pages as needed.
         methods: the columns after the reference; default ``snellcaster`` followed by the other
             methods, sorted.
         inset: draw the zoom insets.
-        max_rows: the most rows when ``cells`` is not given.
+        max_rows: the most rows when ``cells`` is not given (None: every row).
         tile_width_in: the width of a tile in inches.
         dpi: pixels per inch; the figure is ``dpi * (0.3 + tile_width_in * n_columns)`` pixels wide.
 
@@ -115,15 +227,9 @@ def qualitative_figure(
     if df.empty:
         raise FileNotFoundError(f"no cells (metrics.json) below {run_dir}")
     df = df.dropna(subset=["scene", "variation", "object", "method"])
-    keys = sorted({(str(r.scene), int(r.variation), str(r.object)) for r in df.itertuples()})
     if cells is None:
-        chosen, scenes = [], set()
-        for k in keys:
-            if k[0] not in scenes:
-                chosen.append(k)
-                scenes.add(k[0])
-        chosen += [k for k in keys if k not in chosen]
-        cells = chosen[:max_rows]
+        cells = figure_rows(df)
+        cells = cells if max_rows is None else cells[:max_rows]
     cells = [(str(s), int(v), str(o)) for s, v, o in cells]
     all_methods = sorted(df["method"].astype(str).unique())
     if methods is None:
@@ -213,13 +319,176 @@ def qualitative_figure(
         fig.text(
             0.5 * left_in / fig_w,
             1 - (top_in + (i + 0.5) * tile_h_in) / fig_h,
-            f"{key[0]}-{key[1]} / {key[2]}",
+            _row_label(*key),
             rotation=90,
             ha="center",
             va="center",
             fontsize=7,
         )
     return _save(fig, out_png, dpi=dpi, facecolor="white")
+
+
+# --------------------------------------------------------------------------------------------
+# Main image and panorama (Fig. 4)
+# --------------------------------------------------------------------------------------------
+
+PANORAMA_FILE = "panorama.png"
+"""The panorama branch's image in a Snellcaster cell's folder."""
+
+
+def panorama_rows(df: pd.DataFrame, run_dir: str | os.PathLike) -> list[str]:
+    """The cell folders (relative to ``run_dir``) with status ``ok`` and a ``panorama.png``, in
+    the order of ``collect`` (scene, variation, object, method)."""
+    run_dir = Path(run_dir)
+    ok = df[df["status"] == "ok"]
+    return [d for d in ok["cell_dir"] if (run_dir / d / PANORAMA_FILE).is_file()]
+
+
+def panorama_figure(
+    run_dir: str | os.PathLike,
+    out_png: str | os.PathLike,
+    cell_dirs: Sequence[str],
+    *,
+    tile_width_in: float = 2.4,
+    dpi: int = 100,
+) -> Path:
+    """One row per cell: its main image beside its panorama, at the same height (the paper's Fig. 4).
+
+    Args:
+        run_dir: the experiment's run directory.
+        out_png: the PNG to write.
+        cell_dirs: the rows: cell folders relative to ``run_dir`` (:func:`panorama_rows`).
+        tile_width_in: the width of the main image's tile in inches; the panorama's tile has the
+            same height and the panorama's aspect ratio.
+        dpi: pixels per inch.
+
+    Returns:
+        ``out_png`` as a :class:`~pathlib.Path`.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    run_dir = Path(run_dir)
+    rows = [(d, _load_rgb(run_dir / d / "image.png"), _load_rgb(run_dir / d / PANORAMA_FILE)) for d in cell_dirs]
+    img0 = next((im for _, im, _ in rows if im is not None), None)
+    pano0 = next((p for _, _, p in rows if p is not None), None)
+    aspect = img0.shape[0] / img0.shape[1] if img0 is not None else 9 / 16
+    pano_aspect = pano0.shape[1] / pano0.shape[0] if pano0 is not None else 2.0
+    left_in, top_in = 0.3, 0.3
+    tile_h_in = tile_width_in * aspect
+    pano_w_in = tile_h_in * pano_aspect
+    fig_w, fig_h = left_in + tile_width_in + pano_w_in, top_in + max(len(rows), 1) * tile_h_in
+    fig = Figure(figsize=(fig_w, fig_h), dpi=dpi, facecolor="white")
+    FigureCanvasAgg(fig)
+    gap = 0.03
+    for i, (d, img, pano) in enumerate(rows):
+        y = 1 - (top_in + (i + 1) * tile_h_in) / fig_h
+        h = tile_h_in / fig_h
+        for x0_in, w_in, im, title, missing in (
+            (left_in, tile_width_in, img, "Image", "no image.png"),
+            (left_in + tile_width_in, pano_w_in, pano, "Panorama", f"no {PANORAMA_FILE}"),
+        ):
+            x, w = x0_in / fig_w, w_in / fig_w
+            ax = fig.add_axes(
+                (x + gap * tile_width_in / fig_w, y + gap * h, w - 2 * gap * tile_width_in / fig_w, h * (1 - 2 * gap))
+            )
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if i == 0:
+                ax.set_title(title, fontsize=9, pad=3)
+            if im is None:
+                ax.set_facecolor((0.85, 0.85, 0.85))
+                ax.text(0.5, 0.5, missing, ha="center", va="center", fontsize=6, transform=ax.transAxes)
+                continue
+            ax.imshow(im, interpolation="antialiased")
+            ax.set_aspect("auto")
+        fig.text(
+            0.5 * left_in / fig_w,
+            1 - (top_in + (i + 0.5) * tile_h_in) / fig_h,
+            _cell_label(str(d)),
+            rotation=90,
+            ha="center",
+            va="center",
+            fontsize=6,
+        )
+    return _save(fig, out_png, dpi=dpi, facecolor="white")
+
+
+def panorama_pages(
+    run_dir: str | os.PathLike, out_dir: str | os.PathLike, stem: str = "panorama", *, max_rows: int = 4, **kwargs
+) -> list[Path]:
+    """:func:`panorama_figure` of every cell with a panorama, one PNG per ``max_rows`` rows
+    (``<stem>_1.png``, ...); none when no cell has one.
+
+    Raises:
+        FileNotFoundError: there is no cell below ``run_dir``.
+    """
+    run_dir, out_dir = Path(run_dir), Path(out_dir)
+    df = collect(run_dir)
+    if df.empty:
+        raise FileNotFoundError(f"no cells (metrics.json) below {run_dir}")
+    return [
+        panorama_figure(run_dir, out_dir / f"{stem}_{k}.png", page, **kwargs)
+        for k, page in enumerate(pages(panorama_rows(df, run_dir), max_rows), start=1)
+    ]
+
+
+# --------------------------------------------------------------------------------------------
+# Time travel
+# --------------------------------------------------------------------------------------------
+
+
+def time_travel_figure(
+    table: pd.DataFrame, out_png: str | os.PathLike, title: str = "", metrics: Sequence[str] = ("psnr", "lpips")
+) -> Path:
+    """The time-travel experiment: each metric against R_main, one line per variant.
+
+    Args:
+        table: from :func:`~snell_bench.experiment.reports.tables.time_travel_table`.
+        out_png: the PNG to write.
+        title: the figure's title, if any.
+        metrics: one panel each; a panel without any value says why (the table's notes on it).
+
+    Returns:
+        ``out_png`` as a :class:`~pathlib.Path`.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from .spec import metric_spec
+
+    fig = Figure(figsize=(4.2 * len(metrics), 3.4), dpi=110, facecolor="white")
+    FigureCanvasAgg(fig)
+    variants = list(dict.fromkeys(k[0] for k in table.index))
+    rs = sorted({int(k[1]) for k in table.index})
+    for pi, m in enumerate(metrics):
+        spec = metric_spec(m)
+        ax = fig.add_subplot(1, len(metrics), pi + 1)
+        values = table[m] if m in table.columns else pd.Series(np.nan, index=table.index)
+        drawn = False
+        for vi, v in enumerate(variants):
+            sel = [(int(k[1]), float(values.iloc[i])) for i, k in enumerate(table.index) if k[0] == v]
+            sel = [(r, y) for r, y in sel if np.isfinite(y)]
+            if sel:
+                x, y = zip(*sel)
+                ax.plot(x, y, marker="os"[vi % 2], color=f"C{vi}", label=v)
+                drawn = True
+        ax.set_xlabel("R_main (time-travel repeats of the main view)")
+        ax.set_ylabel(f"{spec.label} {spec.arrow}")
+        if rs:
+            ax.set_xticks(rs)
+        ax.grid(True, alpha=0.3)
+        if drawn:
+            ax.legend(fontsize=7, loc="best")
+        else:
+            why = [n for n in table.attrs.get("notes", []) if n.startswith(f"{spec.label}:")]
+            text = "no values" + (": " + why[0].split(" — ", 1)[-1] if why else "")
+            ax.set_yticks([])
+            ax.text(0.5, 0.5, textwrap.fill(text, 48), ha="center", va="center", fontsize=7, transform=ax.transAxes)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return _save(fig, out_png, facecolor="white")
 
 
 # --------------------------------------------------------------------------------------------

@@ -11,7 +11,13 @@ __all__ = [
     "TABLE1_METRICS",
     "ABLATION_METRICS",
     "ABLATION_ROWS",
+    "ABLATION_TABLE2_METRICS",
+    "SCENE_METRICS",
+    "OPTIONAL_METRICS",
+    "TIME_TRAVEL_ROWS",
+    "TIME_TRAVEL_VARIANTS",
     "MODEL_DESCRIPTIONS",
+    "MEASURES",
     "MISSING",
     "metric_spec",
 ]
@@ -54,6 +60,7 @@ METRICS: dict[str, Metric] = {
         Metric("psnr", "PSNR", True, "{:.2f}"),
         Metric("mae", "MAE", False, "{:.4f}"),
         Metric("lpips", "LPIPS", False, "{:.3f}"),
+        Metric("lpips_box", "LPIPS (box)", False, "{:.3f}"),
         Metric("clip", "CLIP", True, "{:.2f}"),
         Metric("image_reward", "ImageReward", True, "{:.3f}"),
         Metric("psnr_true", "PSNR (true)", True, "{:.2f}"),
@@ -61,11 +68,31 @@ METRICS: dict[str, Metric] = {
 }
 """The metrics of ``metrics.json``: label, direction and print format."""
 
+MEASURES: dict[str, Metric] = {
+    m.name: m
+    for m in (
+        Metric("model_calls.main", "model calls", False, "{:.0f}"),
+        Metric("timings_s.sampling", "sampling (s)", False, "{:.1f}"),
+    )
+}
+"""Columns shown beside the metrics that are costs, not scores: printed, never ranked."""
+
 TABLE1_METRICS = ("clip", "image_reward", "psnr", "lpips")
 """Columns of the paper's Table 1, in its order."""
 
 ABLATION_METRICS = ("mae", "psnr", "lpips", "clip", "image_reward")
-"""Columns of the paper's ablation table, in its order."""
+"""Columns of the ablation with every metric (Table 4), in the paper's order."""
+
+ABLATION_TABLE2_METRICS = ("mae", "psnr", "lpips")
+"""Columns of the paper's ablation table (Table 2), in its order."""
+
+SCENE_METRICS = ("clip", "image_reward", "psnr", "lpips")
+"""Columns of the per-scene table (Table 3), in the paper's order."""
+
+OPTIONAL_METRICS = ("lpips_box", "mae", "psnr_true")
+"""Metrics added after a table's own columns where the cells record them: ``lpips_box`` (the
+bounding-box LPIPS of the authors' protocol) wherever any cell records the key, ``mae`` and
+``psnr_true`` where any ``ok`` cell has a value."""
 
 ABLATION_ROWS: tuple[tuple[str, str], ...] = (
     ("snellcaster", "Full"),
@@ -77,6 +104,24 @@ ABLATION_ROWS: tuple[tuple[str, str], ...] = (
     ("snellcaster_relit", "w/ relighting"),
 )
 """Ablation rows in the paper's order: (method name, row label)."""
+
+TIME_TRAVEL_VARIANTS: tuple[tuple[str, str], ...] = (
+    ("joint", "joint (R_pano = R_main)"),
+    ("main_only", "main only (R_pano = 1)"),
+)
+"""The time-travel experiment's variants: (key, legend label)."""
+
+TIME_TRAVEL_ROWS: tuple[tuple[str, tuple[str, ...], int], ...] = (
+    ("tt_r1", ("joint", "main_only"), 1),
+    ("tt_joint_r3", ("joint",), 3),
+    ("tt_joint_r5", ("joint",), 5),
+    ("tt_joint_r8", ("joint",), 8),
+    ("tt_main_r3", ("main_only",), 3),
+    ("tt_main_r5", ("main_only",), 5),
+    ("tt_main_r8", ("main_only",), 8),
+)
+"""The time-travel experiment's methods: (method name, the variants it belongs to, R_main). R = 1
+(no repeat) is the same run for both variants."""
 
 MODEL_DESCRIPTIONS = {
     "analytic": "CPU stand-in for FLUX",

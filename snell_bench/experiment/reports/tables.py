@@ -18,18 +18,38 @@ import numpy as np
 import pandas as pd
 
 from .collect import cell_notes, provenance_line, reference_noise_note
-from .spec import ABLATION_METRICS, ABLATION_ROWS, METRICS, TABLE1_METRICS, Metric, metric_spec
+from .spec import (
+    ABLATION_METRICS,
+    ABLATION_ROWS,
+    MEASURES,
+    METRICS,
+    OPTIONAL_METRICS,
+    SCENE_METRICS,
+    TABLE1_METRICS,
+    TIME_TRAVEL_ROWS,
+    TIME_TRAVEL_VARIANTS,
+    Metric,
+    metric_spec,
+)
 
 __all__ = [
     "SAVING_METHODS",
+    "TIME_TRAVEL_METRICS",
     "method_labels",
+    "with_recorded_metrics",
+    "object_ior",
     "method_table",
     "scene_table",
+    "block_table",
     "ablation_table",
+    "time_travel_table",
     "savings_table",
     "column_metric",
     "rank_marks",
 ]
+
+TIME_TRAVEL_METRICS = ("psnr", "lpips", "mae", "clip", "image_reward")
+"""Value columns of :func:`time_travel_table`, before the recorded optional metrics and the cost."""
 
 SAVING_METHODS = ("full_frame", "adaptive")
 """Methods compared with ``snellcaster`` in :func:`savings_table` (same images, or modelling less)."""
@@ -75,6 +95,54 @@ def _means(df: pd.DataFrame, methods: Sequence[str], metrics: Sequence[str]) -> 
     out["n"] = ok["method"].value_counts().reindex(list(methods), fill_value=0).to_numpy(dtype=int)
     out.index.name = None
     return out
+
+
+def with_recorded_metrics(df: pd.DataFrame, metrics: Sequence[str]) -> tuple[str, ...]:
+    """``metrics`` followed by those of :data:`OPTIONAL_METRICS` the cells record.
+
+    ``lpips_box`` is added wherever any cell's ``metrics.json`` has the key (a column of "—" with
+    its reason in the notes if it has no value anywhere); ``mae`` and ``psnr_true`` where any
+    ``ok`` cell has a value.
+
+    Args:
+        df: cells from ``collect``.
+        metrics: the table's own columns, in order.
+
+    Returns:
+        The columns, in order, without repeats.
+    """
+    ok = df[df["status"] == "ok"] if "status" in df.columns else df
+    extra = []
+    for m in OPTIONAL_METRICS:
+        if m in metrics or m not in df.columns:
+            continue
+        if m == "lpips_box" or ok[m].notna().any():
+            extra.append(m)
+    return tuple(metrics) + tuple(extra)
+
+
+def object_ior(name: str) -> tuple[str, float]:
+    """``(object name, IOR)`` of an object folder (``"sphere-ior1.333"`` -> ``("sphere", 1.333)``);
+    NaN for an object without an IOR in its name."""
+    base, sep, ior = str(name).rpartition("-ior")
+    if sep:
+        try:
+            return base, float(ior)
+        except ValueError:
+            pass
+    return str(name), float("nan")
+
+
+def _group_order(values: Iterable[str], by: str) -> list[str]:
+    values = sorted({str(v) for v in values})
+    if by != "object":
+        return values
+
+    def key(v):
+        name, ior = object_ior(v)
+        return (name, 0 if ior != ior else 1, 0.0 if ior != ior else ior)
+
+    return sorted(values, key=key)
 
 
 def _check(df: pd.DataFrame) -> None:
@@ -162,6 +230,59 @@ def scene_table(df: pd.DataFrame, metric: str = "psnr", order: Sequence[str] | N
     return table
 
 
+def block_table(
+    df: pd.DataFrame,
+    metrics: Sequence[str] = SCENE_METRICS,
+    order: Sequence[str] | None = None,
+    by: str = "scene",
+) -> pd.DataFrame:
+    """Table 3: one block of rows per scene (or per object), a row per method, a column per metric.
+
+    Args:
+        df: cells from ``collect``.
+        metrics: the value columns, in order.
+        order: method names shown first in every block, as in :func:`method_table`.
+        by: ``"scene"`` (Table 3) or ``"object"`` (the IOR sweep: objects ordered by name, then IOR).
+
+    Returns:
+        A table indexed by ``(scene, method label)`` (``index.names`` ``["Scene", "Method"]``, or
+        ``["Object", "Method"]``): in each block the methods that have a cell there, with the mean
+        of each metric over their ``ok`` cells (NaN where none has a value) and ``n``. Best and
+        second best are ranked per column within each block (``attrs["highlight"] == "blocks"``).
+
+    Raises:
+        ValueError: ``df`` has no ``method`` or ``status`` column, or ``by`` is not a column of it.
+    """
+    _check(df)
+    if by not in df.columns:
+        raise ValueError(f"by={by!r} is not a column of the cell table; use 'scene' or 'object'")
+    methods = _method_order(df["method"].dropna().astype(str), order)
+    labels = method_labels(df)
+    parts, keys, shown = [], [], []
+    for g in _group_order(df[by].dropna(), by):
+        sub = df[df[by].astype(str) == g]
+        here = [m for m in methods if (sub["method"] == m).any()]
+        if not here:
+            continue
+        parts.append(_means(sub, here, metrics))
+        keys += [(g, labels[m]) for m in here]
+        shown += [m for m in here if m not in shown]
+    cols = list(metrics) + ["n"]
+    table = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=cols)
+    table = table[cols]
+    table["n"] = table["n"].astype(int)
+    table.index = pd.MultiIndex.from_tuples(keys, names=[by.capitalize(), "Method"])
+    what = "scene" if by == "scene" else by
+    table.attrs.update(
+        provenance=provenance_line(df),
+        notes=cell_notes(df, metrics),
+        caption=f"Means per {what} over cells with status ok; n = cells averaged.",
+        highlight="blocks",
+        methods=shown,
+    )
+    return table
+
+
 def ablation_table(df: pd.DataFrame, metrics: Sequence[str] = ABLATION_METRICS) -> pd.DataFrame:
     """The ablation rows present in ``df``, in the paper's order.
 
@@ -190,6 +311,48 @@ def ablation_table(df: pd.DataFrame, metrics: Sequence[str] = ABLATION_METRICS) 
         caption="Ablation: means over cells with status ok; n = cells averaged.",
         highlight="columns",
         methods=list(names),
+    )
+    return table
+
+
+def time_travel_table(df: pd.DataFrame, metrics: Sequence[str] = TIME_TRAVEL_METRICS) -> pd.DataFrame:
+    """The time-travel experiment: one block per variant, a row per R_main.
+
+    Args:
+        df: cells from ``collect``; cells of methods outside :data:`TIME_TRAVEL_ROWS` are ignored,
+            also for provenance and notes.
+        metrics: the value columns, in order; the costs (never ranked) follow where the cells
+            record them: the mean generator calls of the main view (``model_calls.main``) and the
+            mean sampling time (``timings_s.sampling``).
+
+    Returns:
+        A table indexed by ``(variant label, R_main)`` (``index.names`` ``["Variant", "R_main"]``):
+        the variants of :data:`TIME_TRAVEL_VARIANTS` in order, each with its R values ascending
+        (the R = 1 run in both), the means over the ``ok`` cells and ``n``; best and second best
+        ranked per column within each variant. Empty when no time-travel method ran.
+
+    Raises:
+        ValueError: ``df`` has no ``method`` or ``status`` column.
+    """
+    _check(df)
+    names = [m for m, _, _ in TIME_TRAVEL_ROWS if (df["method"] == m).any()]
+    sub = df[df["method"].isin(names)]
+    cols = list(metrics) + [c for c in MEASURES if c in sub.columns]
+    parts, keys = [], []
+    for variant, label in TIME_TRAVEL_VARIANTS:
+        rows = sorted((r, m) for m, vs, r in TIME_TRAVEL_ROWS if variant in vs and m in names)
+        if rows:
+            parts.append(_means(sub, [m for _, m in rows], cols))
+            keys += [(label, r) for r, _ in rows]
+    table = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=cols + ["n"])
+    table["n"] = table["n"].astype(int)
+    table.index = pd.MultiIndex.from_tuples(keys, names=["Variant", "R_main"])
+    table.attrs.update(
+        provenance=provenance_line(sub),
+        notes=cell_notes(sub, metrics),
+        caption="Time travel: means over cells with status ok; R_main = repeats of the main view; n = cells averaged.",
+        highlight="blocks",
+        methods=names,
     )
     return table
 
@@ -286,7 +449,7 @@ def savings_table(
 def column_metric(table: pd.DataFrame, col) -> Metric | None:
     """The metric of a value column: the table's ``attrs["metric"]`` for scene tables, else the
     column's own; None for ``n`` and for columns that are not metrics."""
-    if col == "n":
+    if col == "n" or col in MEASURES:
         return None
     if table.attrs.get("metric"):
         return metric_spec(table.attrs["metric"])
@@ -296,8 +459,9 @@ def column_metric(table: pd.DataFrame, col) -> Metric | None:
 def rank_marks(table: pd.DataFrame) -> dict[tuple[int, int], int]:
     """Best and second-best cells of a table.
 
-    Cells are ranked per column, or per row when ``table.attrs["highlight"] == "rows"``, in the
-    direction of their metric (:func:`column_metric`), on the values as displayed (rounded to the
+    Cells are ranked per column, per row when ``table.attrs["highlight"] == "rows"``, or per
+    column within each block of rows sharing the first index level when it is ``"blocks"``, in
+    the direction of their metric (:func:`column_metric`), on the values as displayed (rounded to the
     metric's format), so ties share the rank. A column (row) with fewer than two values gets no
     mark; ``n`` and non-metric columns are never ranked.
 
@@ -308,13 +472,18 @@ def rank_marks(table: pd.DataFrame) -> dict[tuple[int, int], int]:
         ``{(row position, column position): 1 for best, 2 for second best}``.
     """
     ranks: dict[tuple[int, int], int] = {}
-    by_rows = table.attrs.get("highlight") == "rows"
+    highlight = table.attrs.get("highlight")
     cols = list(table.columns)
-    groups = (
-        [[(i, j) for j in range(len(cols))] for i in range(len(table))]
-        if by_rows
-        else [[(i, j) for i in range(len(table))] for j in range(len(cols))]
-    )
+    if highlight == "rows":
+        groups = [[(i, j) for j in range(len(cols))] for i in range(len(table))]
+    elif highlight == "blocks":
+        first = [k[0] if isinstance(k, tuple) else k for k in table.index]
+        blocks: dict = {}
+        for i, b in enumerate(first):
+            blocks.setdefault(b, []).append(i)
+        groups = [[(i, j) for i in rows] for rows in blocks.values() for j in range(len(cols))]
+    else:
+        groups = [[(i, j) for i in range(len(table))] for j in range(len(cols))]
     for cells in groups:
         vals = []
         for i, j in cells:

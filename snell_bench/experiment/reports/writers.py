@@ -21,7 +21,7 @@ import pandas as pd
 
 from snell_bench.utils.io import write_text
 
-from .spec import MISSING, metric_spec
+from .spec import MEASURES, MISSING, metric_spec
 from .tables import column_metric, rank_marks
 from .tradeoff import PRESET_AXIS, RECORD_METRICS, SPP_KEY, TOTAL_NOTE, fidelity_column
 
@@ -67,17 +67,49 @@ def _cell_text(table: pd.DataFrame, i: int, j: int) -> str:
     v = table.iat[i, j]
     if col == "n":
         return MISSING if pd.isna(v) else str(int(v))
-    spec = column_metric(table, col) or metric_spec(str(col))
+    spec = column_metric(table, col) or MEASURES.get(col) or metric_spec(str(col))
     return spec.fmt(None if pd.isna(v) else float(v))
 
 
 def _header(table: pd.DataFrame, col) -> str:
     if col == "n":
         return "n"
+    if col in MEASURES:
+        return MEASURES[col].label
     spec = column_metric(table, col)
     if spec is not None and not table.attrs.get("metric"):
         return f"{spec.label} {spec.arrow}"
     return str(col)
+
+
+def _index_header(table: pd.DataFrame) -> list[str]:
+    """The row header(s): one per index level."""
+    return [str(n or "") for n in table.index.names]
+
+
+def _index_cells(table: pd.DataFrame) -> list[list[str]]:
+    """The row labels, one cell per index level; within a block (rows sharing the leading levels)
+    a repeated leading label is left blank."""
+    rows, prev = [], None
+    for key in table.index:
+        key = list(key) if isinstance(key, tuple) else [key]
+        cells = [str(k) for k in key]
+        if prev is not None and len(key) > 1:
+            for lvl in range(len(key) - 1):
+                if key[: lvl + 1] != prev[: lvl + 1]:
+                    break
+                cells[lvl] = ""
+        rows.append(cells)
+        prev = key
+    return rows
+
+
+def _block_starts(table: pd.DataFrame) -> list[int]:
+    """Row positions (after the first) where the first index level changes."""
+    if table.index.nlevels < 2:
+        return []
+    first = [k[0] for k in table.index]
+    return [i for i in range(1, len(first)) if first[i] != first[i - 1]]
 
 
 def _resolve(table: pd.DataFrame, provenance: str | None, notes: Sequence[str] | None) -> tuple[str, list[str]]:
@@ -112,15 +144,22 @@ def to_markdown(
     """
     provenance, notes = _resolve(table, provenance, notes)
     cols = list(table.columns)
-    head = [str(table.index.name or "")] + [_header(table, c) for c in cols]
+    index_head = _index_header(table)
+    head = index_head + [_header(table, c) for c in cols]
     cells = _marked_cells(table, lambda t, r: f"**{t}**" if r == 1 else f"_{t}_" if r == 2 else t)
     lines = [f"## {title}", "", f"_{provenance}_" if provenance else "", ""]
     lines += pipe_table(
-        head, ([str(idx)] + row for idx, row in zip(table.index, cells)), ["left"] + ["right"] * len(cols)
+        head,
+        (idx + row for idx, row in zip(_index_cells(table), cells)),
+        ["left"] * len(index_head) + ["right"] * len(cols),
     )
     lines.append("")
     caption = table.attrs.get("caption")
-    where = "scene" if table.attrs.get("highlight") == "rows" else "column"
+    highlight = table.attrs.get("highlight")
+    where = {
+        "rows": "scene",
+        "blocks": f"column within each {str(index_head[0]).lower() or 'block'}",
+    }.get(highlight, "column")
     lines.append(
         (caption + " " if caption else "") + f"**Bold**: best per {where}; _italic_: second best; {MISSING}: no value."
     )
@@ -196,8 +235,10 @@ def to_latex(
         label: the ``\\label``, if any.
 
     Returns:
-        The float: the caption is ``title`` and the provenance line, the best value per column (per
-        scene for scene tables) is in ``\\textbf{}``, the second best in ``\\underline{}`` (ties
+        The float: the caption is ``title`` and the provenance line, one left-aligned column per
+        index level (a ``\\midrule`` between blocks of a two-level index), the best value per
+        column (per scene for scene tables, per column within a block for block tables) is in
+        ``\\textbf{}``, the second best in ``\\underline{}`` (ties
         share the mark), missing values are "—" (UTF-8, the LaTeX default input encoding), and the
         notes (failed and skipped cells, missing metrics) follow the tabular.
     """
@@ -206,16 +247,21 @@ def to_latex(
     caption = tex_escape(title.rstrip("."))
     if provenance:
         caption += ". " + tex_escape(provenance)
-    header = [tex_escape(table.index.name or "")] + [tex_escape(_header(table, c)) if c != "n" else "$n$" for c in cols]
+    index_head = _index_header(table)
+    nidx = len(index_head)
+    header = [tex_escape(h) for h in index_head] + [tex_escape(_header(table, c)) if c != "n" else "$n$" for c in cols]
     ranks = rank_marks(table)
     # positional labels: the Styler needs unique ones, the header text comes from format_index
     text = pd.DataFrame(
-        [[tex_escape(idx)] + [_cell_text(table, i, j) for j in range(len(cols))] for i, idx in enumerate(table.index)],
+        [
+            [tex_escape(k) for k in idx] + [_cell_text(table, i, j) for j in range(len(cols))]
+            for i, idx in enumerate(_index_cells(table))
+        ],
         columns=range(len(header)),
     )
     marks = pd.DataFrame("", index=text.index, columns=text.columns)
     for (i, j), r in ranks.items():
-        marks.iat[i, j + 1] = _LATEX_MARKS[r]
+        marks.iat[i, j + nidx] = _LATEX_MARKS[r]
     styler = text.style.hide(axis="index").format_index(lambda k: header[k], axis=1)
     styler = styler.apply(lambda _: marks, axis=None)
     tex = styler.to_latex(
@@ -225,8 +271,16 @@ def to_latex(
         caption=caption + ".",
         label=label,
         hrules=True,
-        column_format="l" + "r" * len(cols),
+        column_format="l" * nidx + "r" * len(cols),
     )
+    starts = _block_starts(table)
+    if starts:  # a rule between blocks
+        head, sep, rest = tex.partition("\\midrule\n")
+        body, sep2, tail = rest.partition("\\bottomrule")
+        rows = body.splitlines(keepends=True)
+        for i in reversed(starts):
+            rows.insert(i, "\\midrule\n")
+        tex = head + sep + "".join(rows) + sep2 + tail
     if notes:
         end = "\\end{table}\n"
         block = "\n".join([r"\par\smallskip{\footnotesize"] + [tex_escape(n) + r"\\" for n in notes] + ["}"])
