@@ -393,6 +393,10 @@ class ReferenceConfig:
     true_spp: int = 4
     #: Bounces of the true render; ``null``: ``warps.max_bounces`` (set it to compare bounce counts).
     true_max_bounces: Optional[int] = None
+    #: Include the first-surface (Fresnel) reflection in the reference. ``false``: refraction only,
+    #: as the paper's Blender reference and the authors' ``render_gt`` (recipes ``paper`` and
+    #: ``authors``); ``true``: the physically complete dielectric (snell_bench's own option).
+    reflection: bool = True
 
     def __post_init__(self) -> None:
         p = Problems("reference")
@@ -496,6 +500,10 @@ class Config:
     relight: RelightConfig = field(default_factory=RelightConfig)
     grid: GridConfig = field(default_factory=GridConfig)
     tradeoff: TradeoffConfig = field(default_factory=TradeoffConfig)
+    #: The recipe (conf/recipe/) the switches come from: ``paper`` (what the paper's text says) or
+    #: ``authors`` (what the authors' released code does); set by the recipe file, recorded with
+    #: every cell.
+    recipe: str = "paper"
     #: The experiment's name (its folder under runs/ and reports/).
     experiment_name: str = "default"
     runs_dir: str = "runs"

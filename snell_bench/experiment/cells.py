@@ -48,6 +48,7 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
 from snell_bench.config import Config, OnChange
+from snell_bench.config.recipes import BEFORE_SWITCHES
 from snell_bench.experiment.plan import ABSENT, flatten, result_settings, settings_diff, settings_hash
 from snell_bench.pipeline import Skip
 from snell_bench.utils.io import umask_mode, write_json, write_text
@@ -196,7 +197,11 @@ class SettingsChanged(ValueError):
 
 @functools.lru_cache(maxsize=1)
 def _schema_defaults() -> dict:
-    return flatten(OmegaConf.to_container(OmegaConf.structured(Config), resolve=False, enum_to_str=True))
+    """What a cell recorded before a key existed was computed with: the schema's default, or for a
+    recipe switch whose default is not what the code did before it existed, that behaviour
+    (:data:`~snell_bench.config.recipes.BEFORE_SWITCHES`)."""
+    defaults = flatten(OmegaConf.to_container(OmegaConf.structured(Config), resolve=False, enum_to_str=True))
+    return {**defaults, **BEFORE_SWITCHES}
 
 
 def _changed(cell: Cell, record: dict, current: dict, current_hash: str) -> ChangedCell | None:

@@ -40,7 +40,7 @@ def test_free_form_nodes_and_every_shipped_config_pass():
         ["+object.factory.subdivisions=4"],  # a _target_ node takes any argument
     ):
         check_config(compose(ov))
-    for group in ("method", "object", "scene", "model", "depth", "segment", "preset"):
+    for group in ("method", "object", "scene", "model", "depth", "segment", "preset", "recipe"):
         for name in group_options(group):
             assert not unknown_keys(compose([f"{group}={name}"])), (group, name)
 

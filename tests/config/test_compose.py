@@ -45,7 +45,9 @@ def test_compose_records_its_overrides_and_later_overrides_win():
     ]
 
 
-@pytest.mark.parametrize("group", ["scene", "object", "method", "model", "preset", "experiment", "depth", "segment"])
+@pytest.mark.parametrize(
+    "group", ["scene", "object", "method", "model", "preset", "recipe", "experiment", "depth", "segment"]
+)
 def test_every_entry_of_every_group_composes(group):
     """Each file of a group composes with the schema, and a method's switches are keys of the
     sampler and warp schemas (merging them would fail otherwise)."""

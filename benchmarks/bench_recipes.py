@@ -1,0 +1,115 @@
+"""Benchmark: the effect of each recipe switch, one at a time, measured in one run.
+
+The full method (``method=snellcaster``) on the paper's six indoor scenes with a glass sphere, on a
+CPU stand-in for FLUX (``model=mixture`` by default). The ``paper`` recipe is the baseline; each
+switch of :data:`snell_bench.config.recipes.SWITCHES` is set to the authors' value (and, where
+snell_bench has its own option, to that) alone, and the whole ``authors`` recipe last. Each scene's
+inputs (warps, references) are prepared once; a switch of the reference renders its own; a switch of
+the metrics rescores the same images.
+
+Prints, per setting, the mean masked PSNR / MAE over the scenes, the difference from ``paper``
+(dB, with the per-scene spread of that difference), the model calls and the sampling seconds.
+Usage:
+python benchmarks/bench_recipes.py [--model mixture --width 320 --height 176 --steps 12 --pano 128]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import platform
+import time
+
+import snell_bench  # noqa: F401  (first: sets the OpenMP wait policy before torch loads)
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+import numpy as np
+import torch
+
+from snell_bench.config import compose
+from snell_bench.config.recipes import SWITCHES
+from snell_bench.pipeline import ModelPool, apply_method, prepare_inputs, run_method, scorers_of
+
+INDOOR = ("living_room", "dining_room", "office", "kitchen", "artroom", "cafe")
+
+
+def _override(key: str, value) -> str:
+    v = "null" if value is None else str(value).lower() if isinstance(value, bool) else str(value)
+    return f"{key}={v}"
+
+
+def settings() -> list[tuple[str, list[str]]]:
+    """(label, overrides) of every measured setting: the paper recipe, each switch flipped alone to
+    the authors' value and to snellcaster's own option, and the whole authors recipe."""
+    out: list[tuple[str, list[str]]] = [("paper", ["recipe=paper"])]
+    for s in SWITCHES:
+        if s.key.startswith("relight."):
+            continue  # the full method does not relight
+        for which, value in (("authors", s.authors), ("own", s.own)):
+            if which == "own" and value is None or value == s.paper:
+                continue
+            out.append((f"{s.key}={value}", ["recipe=paper", _override(s.key, value)]))
+    out.append(("authors (all)", ["recipe=authors"]))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", default="mixture")
+    ap.add_argument("--width", type=int, default=320)
+    ap.add_argument("--height", type=int, default=176)
+    ap.add_argument("--pano", type=int, default=128)
+    ap.add_argument("--steps", type=int, default=12)
+    ap.add_argument("--spp", type=int, default=50)
+    ap.add_argument("--scenes", nargs="*", default=list(INDOOR))
+    args = ap.parse_args()
+    size = [
+        f"model={args.model}",
+        f"scene.width={args.width}",
+        f"scene.height={args.height}",
+        f"warps.pano_height={args.pano}",
+        f"sampler.steps={args.steps}",
+        f"reference.spp={args.spp}",
+        "reference.true_render=false",
+        "sampler.progress=false",
+        "warps.cache_dir=null",
+        "output_dir=/tmp/bench_recipes",
+    ]
+    print(
+        f"# recipe switches, one at a time: {args.model}, {args.width} x {args.height}, panorama {args.pano}, "
+        f"T = {args.steps}, {len(args.scenes)} scenes, reference {args.spp} spp; "
+        f"{platform.processor() or platform.machine()}, {torch.get_num_threads()} threads"
+    )
+    pool = ModelPool(None)
+    rows = []
+    inputs_of: dict[tuple, object] = {}
+    for label, ov in settings():
+        psnr, mae, secs, calls = [], [], 0.0, 0
+        for scene in args.scenes:
+            cfg = apply_method(compose([f"scene={scene}", "method=snellcaster", *size, *ov]))
+            key = (scene, bool(cfg.reference.reflection))
+            if key not in inputs_of:
+                inputs_of[key] = prepare_inputs(cfg, references=True, pool=pool)
+            t0 = time.perf_counter()
+            result = run_method(cfg, inputs_of[key], scorers=scorers_of(cfg.metrics, pool))
+            secs += time.perf_counter() - t0
+            metrics = result.scores.get("metrics", {})
+            psnr.append(metrics.get("psnr"))
+            mae.append(metrics.get("mae"))
+            calls += sum(result.stats.get("model_calls", {}).values())
+        rows.append((label, np.array(psnr, float), np.array(mae, float), secs, calls))
+    base_psnr = rows[0][1]
+    print(f"{'setting':44s} {'PSNR':>7s} {'dPSNR':>7s} {'spread':>7s} {'MAE':>7s} {'calls':>6s} {'sec':>6s}")
+    for label, p, m, secs, calls in rows:
+        d = p - base_psnr
+        spread = float(d.std(ddof=1)) if len(d) > 1 else math.nan
+        print(
+            f"{label:44s} {np.nanmean(p):7.2f} {np.nanmean(d):+7.2f} {spread:7.2f} {np.nanmean(m):7.4f} "
+            f"{calls:6d} {secs:6.1f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
