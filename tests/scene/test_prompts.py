@@ -1,5 +1,6 @@
-"""One marked prompt -> p, p⁻, p_obj, noun, surface and p³⁶⁰: the ten paper scenes against their
-hand-written config prompts, the rules beyond them, the errors, and the LLM path's parsing."""
+"""One marked prompt -> p, p⁻, p_obj, noun, surface and p³⁶⁰: the ten paper scenes against the
+paper's p and p³⁶⁰ (and snell_bench's wording of its p⁻ rule), the rules beyond them, the errors, and
+the LLM path's parsing."""
 
 import doctest
 from pathlib import Path
@@ -42,9 +43,9 @@ SURFACE = {
     "office": "smooth wooden desk",
 }
 
-#: Scenes whose hand-written p³⁶⁰ the rule reproduces exactly.
+#: Scenes whose printed p³⁶⁰ (the paper's) the rule reproduces exactly.
 PANO_EXACT = ("cafe", "dining_room", "living_room", "office")
-#: The derived p³⁶⁰ of the others (their hand-written wording is not derivable by a rule).
+#: The derived p³⁶⁰ of the others (the paper's wording of theirs is not derivable by a rule).
 PANO_DERIVED = {
     "artroom": "on top of a rectangular wooden worktable in an art classroom.",  # config: "a wooden worktable in an artroom"
     "cave": "from the ground of a rocky cave.",  # config adds ", camping gear scattering around"
@@ -55,8 +56,8 @@ PANO_DERIVED = {
 }
 
 
-#: The prompts as the paper's authors wrote them (p with ``{object}``, p⁻, p³⁶⁰), kept apart from the
-#: scene configs, which now derive theirs from the marked prompt.
+#: The paper's p (with ``{object}``) and p³⁶⁰, and snell_bench's wording of the paper's p⁻ rule, kept
+#: apart from the scene configs, which derive theirs from the marked prompt.
 PAPER = Path(__file__).resolve().parent / "data" / "paper_prompts.yaml"
 
 
