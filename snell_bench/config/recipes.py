@@ -52,6 +52,13 @@ SWITCHES: tuple[Switch, ...] = (
         "time travel: back from t + l with z_{0|t} (guided), or re-predicted at every level (repaint)",
     ),
     Switch(
+        "sampler.tt_window_floor",
+        False,
+        True,
+        None,
+        "time-travel window: 0.2 T <= i < 0.8 T, or both bounds rounded down (the same at T = 20)",
+    ),
+    Switch(
         "sampler.tt_renoise", "exact", "euler_maruyama", None, "time travel's renoising: exact kernel or Euler-Maruyama"
     ),
     Switch(
@@ -60,6 +67,13 @@ SWITCHES: tuple[Switch, ...] = (
         "image",
         "bands",
         "where DPA blends: whole images in [-1, 1], or each Laplacian band (low-pass in [-1, 1])",
+    ),
+    Switch(
+        "sampler.lpw_pano",
+        True,
+        False,
+        None,
+        "Laplacian pyramid warping also into the panorama, or single-level remaps there",
     ),
     Switch(
         "sampler.pano_to_main",

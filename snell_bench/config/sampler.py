@@ -63,6 +63,10 @@ class SamplerSettings:
     panorama: bool = True
     dpa: bool = True
     lpw: bool = True
+    #: Laplacian pyramid warping also for the warps INTO the panorama (π of the main estimate and of
+    #: I⁻); ``false``: those two are single-level remaps, as in the authors' code (their pyramid warps
+    #: only into the main view). No effect without ``lpw``.
+    lpw_pano: bool = True
     time_travel: bool = True
     #: Detail-preserving average weight lambda (0 = masked mean; ``dpa: false`` forces 0).
     lam: float = 0.5
@@ -77,6 +81,10 @@ class SamplerSettings:
     pano_to_main: str = "frame"
     #: Time-travel window as fractions of T, travel length in steps, repeats per branch.
     tt_window: list[float] = field(default_factory=lambda: [0.2, 0.8])
+    #: The window's step indices: ``tt_window[0] T <= i < tt_window[1] T`` (``false``), or with both
+    #: bounds rounded down, ``int(tt_window[0] T) <= i < int(tt_window[1] T)``, as the authors' code
+    #: does (``true``); the same when ``tt_window`` T are integers (T = 20).
+    tt_window_floor: bool = False
     tt_length: int = 1
     tt_repeats_main: int = 3
     tt_repeats_pano: int = 1

@@ -10,7 +10,10 @@ object pixels that keep a reflection (``None``: all of them).
 - Panorama branch: it only contributes where rays reach surfaces I⁻ does not show. When at least
   ``sampler.skip_panorama_above`` of the object's pixels send their refracted ray (and their mirror
   ray, where a reflection is kept) to surfaces I⁻ observes, the branch is skipped: half the model
-  calls and the panorama's warps and blends; the reflection then comes from I⁻ itself.
+  calls and the panorama's warps and blends; the reflection then comes from I⁻ itself. With
+  ``sampler.pano_to_main: frame`` the branch also reaches the pixels around the object, where I⁻
+  itself is blended in; skipping it leaves them phi(x0, I⁻), which the savings report measures with
+  the rest (``decisions["panorama"]["pano_to_main"]`` records which it was).
 """
 
 from __future__ import annotations
@@ -60,7 +63,12 @@ def decide(warps: WarpSet, settings: SamplerSettings) -> tuple[SamplerSettings, 
             observed &= warps.reflection_valid | ~needs_refl
         share = float(observed[m].mean()) if n else 1.0
         skip = share >= thr
-        decisions["panorama"] = {"used": not skip, "observed_share": share, "skip_above": thr}
+        decisions["panorama"] = {
+            "used": not skip,
+            "observed_share": share,
+            "skip_above": thr,
+            "pano_to_main": s.pano_to_main,
+        }
         if skip:
             s = dataclasses.replace(s, panorama=False)
     else:

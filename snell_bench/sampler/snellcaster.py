@@ -160,9 +160,12 @@ def _encode_prompts(gen: Generator, prompt: str, pano_prompt: str, use_pano: boo
 
 def _in_window(i: int, s: SamplerSettings) -> bool:
     """Step ``i`` lies in the time-travel window ``[tt_window[0] T, tt_window[1] T)`` of a
-    synchronised run with time travel."""
+    synchronised run with time travel (both bounds rounded down with ``tt_window_floor``)."""
     T = s.steps
-    return s.sync == "snellcaster" and s.time_travel and s.tt_window[0] * T <= i < s.tt_window[1] * T
+    lo, hi = T * s.tt_window[0], T * s.tt_window[1]
+    if s.tt_window_floor:
+        lo, hi = int(lo), int(hi)
+    return s.sync == "snellcaster" and s.time_travel and lo <= i < hi
 
 
 def _block(i: int, s: SamplerSettings) -> tuple[int, int, int]:

@@ -111,6 +111,7 @@ class Views:
         self.levels = s.effective_levels  # depth of every Gaussian pyramid built
         self.bands = s.dpa_domain == "bands"
         self.match_scale = bool(s.lpw)
+        self.lpw_pano = bool(s.lpw_pano)
         # bands: warp at every blend level (point-sampled per level without lpw); image: one image
         self.warp_levels = s.levels if self.bands else s.warp_levels
         self.image_warp_levels = s.warp_levels  # warps used as whole images (the reflection)
@@ -137,7 +138,7 @@ class Views:
             self.refl_iminus = pyramid_warp(i_minus, on_device(refl_self, dev), levels=s.warp_levels, roi=self.roi)
         self.imin_main, self.imin_main_m = self._warp(i_minus, on_device(ws.refraction, dev))
         self.imin_pano, self.imin_pano_m = self._warp(
-            i_minus, on_device(ws.pano_to_persp, dev), dest_wrap_x=True, roi=self.roi
+            i_minus, on_device(ws.pano_to_persp, dev), dest_wrap_x=True, roi=self.roi, lpw=self.lpw_pano
         )
 
     def _warp(
@@ -149,16 +150,19 @@ class Views:
         dest_wrap_x: bool = False,
         roi: bool = False,
         src_pyramid: list[torch.Tensor] | None = None,
+        lpw: bool = True,
     ):
         """``src`` through ``coords`` as the blends read it: ``(image, mask)`` (``image`` domain) or
-        ``(bands, masks)`` (``bands``)."""
+        ``(bands, masks)`` (``bands``); ``lpw=False`` makes this warp a single-level remap even when
+        the run warps through pyramids (``lpw_pano``)."""
+        scale = self.match_scale and lpw
         return pyramid_warp(
             src,
             coords,
-            levels=self.warp_levels,
+            levels=self.warp_levels if scale or self.bands else 1,
             wrap_x=wrap_x,
             collapse=not self.bands,
-            match_scale=self.match_scale,
+            match_scale=scale,
             dest_wrap_x=dest_wrap_x,
             roi=roi,
             src_pyramid=src_pyramid,
@@ -270,5 +274,7 @@ class Views:
         g_pano = g_pano if g_pano is not None else self.gauss(x0_pano, wrap_x=True)
         g_main = g_main if g_main is not None else self.gauss(x0)
         own, own_m = self._own(x0_pano, g_pano, wrap_x=True)
-        m, mm = self._warp(x0, self.pano_from_main, dest_wrap_x=True, roi=self.roi, src_pyramid=g_main)
+        m, mm = self._warp(
+            x0, self.pano_from_main, dest_wrap_x=True, roi=self.roi, src_pyramid=g_main, lpw=self.lpw_pano
+        )
         return self._blend([own, m, self.imin_pano], [own_m, mm, self.imin_pano_m], own, wrap_x=True)

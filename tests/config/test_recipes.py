@@ -21,6 +21,8 @@ PAPER = {
     "sampler.sync_last_step": True,
     "sampler.tt_mode": "guided",
     "sampler.tt_renoise": "exact",
+    "sampler.tt_window_floor": False,
+    "sampler.lpw_pano": True,
     "sampler.dpa_domain": "image",
     "sampler.pano_to_main": "frame",
     "reference.reflection": False,
@@ -38,6 +40,8 @@ AUTHORS = {
     "sampler.sync_last_step": False,
     "sampler.tt_mode": "guided",
     "sampler.tt_renoise": "euler_maruyama",
+    "sampler.tt_window_floor": True,
+    "sampler.lpw_pano": False,
     "sampler.dpa_domain": "image",
     "sampler.pano_to_main": "frame",
     "reference.reflection": False,
@@ -86,6 +90,17 @@ def test_the_recipe_wins_over_the_preset_and_the_command_line_wins_over_both():
 def test_an_experiment_keeps_the_recipe():
     cfg = compose(["+experiment=ablation", "recipe=authors", "output_dir=/tmp/x"])
     assert _values(cfg, AUTHORS) == AUTHORS
+
+
+@pytest.mark.parametrize("method", ["t2i", "inpaint"])
+def test_the_baselines_keep_a_plain_pipeline_step_under_either_recipe(method):
+    """The authors' baselines are plain diffusers pipelines (deterministic Euler on FLUX's shifted
+    schedule): the recipe's sampler switches are the synchronised sampler's, not theirs."""
+    from snell_bench.pipeline import apply_method
+
+    for recipe in RECIPES:
+        s = apply_method(compose([f"recipe={recipe}", f"method={method}", "output_dir=/tmp/x"])).sampler
+        assert (s.sync, s.sde, s.schedule, s.stochastic) == ("none", False, "flux", False), recipe
 
 
 def test_an_unknown_recipe_names_the_choices():

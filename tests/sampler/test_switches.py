@@ -343,6 +343,24 @@ class TestBlendDomainAndWarp:
             diff = float((warped - single)[m].abs().max())
             assert diff < 1e-5 if not lpw else diff > 1e-3, (lpw, diff)
 
+    def test_lpw_pano_makes_the_warps_into_the_panorama_single_level(self, setup):
+        # the authors' pyramid warps only into the main view: I⁻ (and the main estimate) reach the
+        # panorama through a single-level remap; the warps into the main view keep the pyramid
+        ws, i_minus, _ = setup
+        s = dict(reflection=False, progress=False)
+        on = Views(ws, i_minus, SamplerSettings(**s))
+        off = Views(ws, i_minus, SamplerSettings(lpw_pano=False, **s))
+        single, ok = pyramid_warp(i_minus, torch.from_numpy(ws.pano_to_persp), levels=1, dest_wrap_x=True)
+        torch.testing.assert_close(off.imin_pano, single, atol=1e-6, rtol=0)
+        assert torch.equal(off.imin_pano_m, ok)
+        assert float((on.imin_pano - single)[ok.expand_as(single)].abs().max()) > 1e-3
+        torch.testing.assert_close(off.imin_main, on.imin_main, atol=0, rtol=0)
+        # the main estimate through π: the same single-level remap
+        x0, _ = self.images()
+        x0_pano = torch.rand(1, 3, HP, 2 * HP, generator=torch.Generator().manual_seed(3))
+        a, b = off.blend_pano(x0_pano, x0), on.blend_pano(x0_pano, x0)
+        assert float((a - b).abs().max()) > 1e-3
+
     def test_effective_levels(self):
         assert SamplerSettings().effective_levels == 5
         assert SamplerSettings(lpw=False).effective_levels == 1
@@ -384,6 +402,19 @@ class TestPanoToMain:
         # without the panorama branch, or with object, it is not read
         sample(gen, bare, i_minus, "p", "p", SamplerSettings(steps=2, panorama=False, progress=False))
         sample(gen, bare, i_minus, "p", "p", SamplerSettings(steps=2, pano_to_main="object", progress=False))
+
+
+class TestWindow:
+    @pytest.mark.parametrize("floor,steps", [(False, [2]), (True, [1, 2])])
+    def test_floor_rounds_both_bounds_down_as_the_authors(self, setup, floor, steps):
+        # T = 6, window [0.25, 0.5]: 0.25 T = 1.5, 0.5 T = 3; exact: i in {2}, rounded down: {1, 2}
+        s = SamplerSettings(steps=6, tt_window=[0.25, 0.5], tt_window_floor=floor, progress=False)
+        rec, out = run(setup, s)
+        sig = sigmas_of(setup, s)
+        main = [sg for z, sg in rec.velocity_calls if z.shape == SHAPE]
+        # every travelling step re-predicts once at its own level
+        assert main == pytest.approx(sorted(sig[:6] + [sig[i] for i in steps], reverse=True))
+        assert out.model_calls["main"] == 6 + len(steps)
 
 
 class TestSettings:
