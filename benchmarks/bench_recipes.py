@@ -109,6 +109,27 @@ def main() -> None:
             f"{label:44s} {np.nanmean(p):7.2f} {np.nanmean(d):+7.2f} {spread:7.2f} {np.nanmean(m):7.4f} "
             f"{calls:6d} {secs:6.1f}"
         )
+    markdown(rows)
+
+
+def markdown(rows) -> None:
+    """The README's recipe table: every switch with its values and the measured effects."""
+
+    def cell(v) -> str:
+        return "–" if v is None else f"`{str(v).lower() if isinstance(v, bool) else v}`"
+
+    effect = {label: (np.nanmean(p - rows[0][1]), np.std(p - rows[0][1], ddof=1)) for label, p, *_ in rows}
+    print("\n| switch | paper | authors | snell_bench's option | what it changes | effect on CPU (dB) |")
+    print("|---|---|---|---|---|---|")
+    for s in SWITCHES:
+        parts = []
+        for which, value in (("authors", s.authors), ("own", s.own)):
+            key = f"{s.key}={value}"
+            if key in effect and value != s.paper:
+                d, sd = effect[key]
+                parts.append(f"{which} {d:+.2f} ± {sd:.2f}")
+        text = "; ".join(parts) or "not measured (relighting)"
+        print(f"| `{s.key}` | {cell(s.paper)} | {cell(s.authors)} | {cell(s.own)} | {s.what} | {text} |")
 
 
 if __name__ == "__main__":

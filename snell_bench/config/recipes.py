@@ -40,7 +40,7 @@ SWITCHES: tuple[Switch, ...] = (
     Switch(
         "sampler.schedule", "flux", "linear", None, "noise levels: the resolution-shifted FLUX schedule, or unshifted"
     ),
-    Switch("sampler.sde", False, True, None, "step: deterministic Euler, or Euler-Maruyama (z + dt v + |dt| n)"),
+    Switch("sampler.sde", False, True, None, "step: deterministic Euler, or Euler-Maruyama (z + dt v + abs(dt) n)"),
     Switch("sampler.encode", "mean", "sample", None, "VAE encode of the synchronised images: posterior mean or a draw"),
     Switch("sampler.quantize", False, True, None, "8-bit round trip of the decoded and synchronised estimates"),
     Switch("sampler.sync_last_step", True, False, None, "synchronise the last step too"),
@@ -49,7 +49,7 @@ SWITCHES: tuple[Switch, ...] = (
         "guided",
         "guided",
         "repaint",
-        "time travel: back from t + l with z_{0|t} (guided), or re-predicted at every level (repaint)",
+        "time travel: back from t + l with the estimate at t (guided), or re-predicted at every level (repaint)",
     ),
     Switch(
         "sampler.tt_window_floor",
