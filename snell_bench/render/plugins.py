@@ -58,20 +58,11 @@ PINHOLE_SENSOR = "snell_pinhole"
 _registered: set[str] = set()
 
 
-def refraction_path_bsdf_class(mi) -> type:
-    """The refraction-path BSDF (see the module's conventions) for the current variant.
+def _dielectric_base(mi) -> type:
+    """A ``mi.BSDF`` that wraps Mitsuba's smooth ``dielectric`` (``int_ior``, ``ext_ior`` of the
+    plugin's properties) and delegates everything but ``sample`` to it."""
 
-    Args:
-        mi: the ``mitsuba`` module, set to a variant.
-
-    Returns:
-        A subclass of ``mi.BSDF`` whose constructor takes the plugin's ``mi.Properties``.
-    """
-
-    class RefractionPathBSDF(mi.BSDF):
-        """Mitsuba's smooth dielectric, but following the refraction path deterministically:
-        transmission at every interface, reflection only under total internal reflection."""
-
+    class DelegatingDielectric(mi.BSDF):
         def __init__(self, props):
             mi.BSDF.__init__(self, props)
             self._inner = mi.load_dict(
@@ -82,10 +73,6 @@ def refraction_path_bsdf_class(mi) -> type:
             trans = mi.BSDFFlags.DeltaTransmission | sides
             self.m_components = [refl, trans]
             self.m_flags = refl | trans
-
-        def sample(self, ctx, si, sample1, sample2, active=True):
-            # the dielectric reflects iff sample1 <= Fresnel reflectance: with 1 only under TIR
-            return self._inner.sample(ctx, si, sample1 * 0.0 + 1.0, sample2, active)
 
         def eval(self, ctx, si, wo, active=True):
             return self._inner.eval(ctx, si, wo, active)  # zero: delta lobes
@@ -101,6 +88,27 @@ def refraction_path_bsdf_class(mi) -> type:
 
         def parameters_changed(self, keys):
             pass
+
+    return DelegatingDielectric
+
+
+def refraction_path_bsdf_class(mi) -> type:
+    """The refraction-path BSDF (see the module's conventions) for the current variant.
+
+    Args:
+        mi: the ``mitsuba`` module, set to a variant.
+
+    Returns:
+        A subclass of ``mi.BSDF`` whose constructor takes the plugin's ``mi.Properties``.
+    """
+
+    class RefractionPathBSDF(_dielectric_base(mi)):
+        """Mitsuba's smooth dielectric, but following the refraction path deterministically:
+        transmission at every interface, reflection only under total internal reflection."""
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            # the dielectric reflects iff sample1 <= Fresnel reflectance: with 1 only under TIR
+            return self._inner.sample(ctx, si, sample1 * 0.0 + 1.0, sample2, active)
 
         def to_string(self):
             return f"RefractionPathBSDF[{self._inner}]"
@@ -120,21 +128,13 @@ def refraction_only_bsdf_class(mi) -> type:
     """
     import drjit as dr
 
-    class RefractionOnlyBSDF(mi.BSDF):
+    class RefractionOnlyBSDF(_dielectric_base(mi)):
         """Mitsuba's smooth dielectric, except that camera rays (origin at ``z < camera_z``) always
         transmit, with weight 1."""
 
         def __init__(self, props):
-            mi.BSDF.__init__(self, props)
-            self._inner = mi.load_dict(
-                {"type": "dielectric", "int_ior": props.get("int_ior", 1.5), "ext_ior": props.get("ext_ior", 1.0)}
-            )
+            super().__init__(props)
             self._camera_z = float(props.get("camera_z"))
-            sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
-            refl = mi.BSDFFlags.DeltaReflection | sides
-            trans = mi.BSDFFlags.DeltaTransmission | sides
-            self.m_components = [refl, trans]
-            self.m_flags = refl | trans
 
         def sample(self, ctx, si, sample1, sample2, active=True):
             # the ray's origin: the hit point moved back along the ray by its length
@@ -142,21 +142,6 @@ def refraction_only_bsdf_class(mi) -> type:
             camera = origin_z < self._camera_z
             # the dielectric reflects iff sample1 <= Fresnel reflectance: with 1 only under TIR
             return self._inner.sample(ctx, si, dr.select(camera, sample1 * 0.0 + 1.0, sample1), sample2, active)
-
-        def eval(self, ctx, si, wo, active=True):
-            return self._inner.eval(ctx, si, wo, active)  # zero: delta lobes
-
-        def pdf(self, ctx, si, wo, active=True):
-            return self._inner.pdf(ctx, si, wo, active)
-
-        def eval_pdf(self, ctx, si, wo, active=True):
-            return self._inner.eval_pdf(ctx, si, wo, active)
-
-        def traverse(self, callback):
-            pass
-
-        def parameters_changed(self, keys):
-            pass
 
         def to_string(self):
             return f"RefractionOnlyBSDF[camera_z={self._camera_z}, {self._inner}]"
