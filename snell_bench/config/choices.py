@@ -60,6 +60,7 @@ class Job(Choice):
     grid = "grid"
     tradeoff = "tradeoff"
     report = "report"
+    plan = "plan"
 
 
 #: Jobs whose output is an experiment folder under ``runs_dir`` (their logs go to

@@ -249,6 +249,10 @@ class ModelConfig:
     #: What builds the relighter of a method with ``method.relight: true`` (a ``_target_`` node:
     #: FLUX Kontext from local weights, the tiny random one, or the traced-shadow stand-in).
     relighter: Any = None
+    #: Build the generator, FLUX Fill and FLUX Kontext with random weights from their published
+    #: configurations (no weights read): real shapes and real cost, meaningless pixels. Cells are
+    #: marked ``random_weights`` and the reports keep them out of every table (timing, memory plans).
+    random_init: bool = False
 
     def __post_init__(self) -> None:
         p = Problems("model")
@@ -265,6 +269,9 @@ class ModelsConfig:
     #: sweep do not fit together, its cells run model by model (all cells of one model, then the
     #: next), so each model still loads once; a model larger than the budget is loaded alone.
     memory_gb: Optional[float] = None
+    #: When a model must make room: ``true`` moves the least recently used model's weights to host
+    #: memory (brought back on its next use, far faster than loading it again); ``false`` drops it.
+    offload: bool = True
 
     def __post_init__(self) -> None:
         p = Problems("models")
@@ -448,6 +455,11 @@ class GridConfig:
     on_change: OnChange = OnChange.error
     #: Build the report tables after the sweep.
     report: bool = True
+    #: Groups (scene x variation x object) whose inputs (placement, warps, references) worker
+    #: processes prepare ahead of the group being sampled; ``null``: automatic.
+    prefetch: Optional[int] = None
+    #: Worker processes that prepare those inputs.
+    workers: int = 1
 
 
 @dataclass
@@ -482,6 +494,15 @@ class TradeoffConfig:
 
 
 @dataclass
+class PlanConfig:
+    """``job=plan``: what a grid will do on this machine, before doing it."""
+
+    #: A ``benchmarks/bench_gpu.py --json`` file whose measured figures time the plan; ``null``:
+    #: the README's basis (the paper's A100 time scaled), labelled as such.
+    bench: Optional[str] = None
+
+
+@dataclass
 class Config:
     #: Which job ``python -m snell_bench`` runs.
     job: Job = Job.preview
@@ -500,6 +521,7 @@ class Config:
     relight: RelightConfig = field(default_factory=RelightConfig)
     grid: GridConfig = field(default_factory=GridConfig)
     tradeoff: TradeoffConfig = field(default_factory=TradeoffConfig)
+    plan: PlanConfig = field(default_factory=PlanConfig)
     #: The recipe (conf/recipe/) the switches come from: ``paper`` (what the paper's text says) or
     #: ``authors`` (what the authors' released code does); set by the recipe file, recorded with
     #: every cell.

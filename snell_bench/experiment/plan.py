@@ -47,6 +47,7 @@ NOT_RESULT_KEYS = (
     "reports_dir",
     "grid",
     "tradeoff",
+    "plan",
     "sampler.progress",
     "sampler.dump_every",
     "warps.cache_dir",
