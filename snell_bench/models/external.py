@@ -42,6 +42,8 @@ __all__ = [
     "generate_external",
     "inpaint_external",
     "load_pipeline",
+    "offload_mode",
+    "folder_component_bytes",
 ]
 
 #: The negative prompt that switches on a ``true_cfg_scale`` pipeline's classifier-free guidance
@@ -179,12 +181,82 @@ def _missing(model_id: str, cls, reason: str) -> WeightsNotFoundError:
     )
 
 
+#: diffusers' FLUX.1 pipeline classes -> the kind :mod:`snell_bench.models.flux_random` builds.
+RANDOM_KINDS = {"FluxPipeline": "dev", "FluxFillPipeline": "fill", "FluxKontextPipeline": "kontext"}
+#: Offload modes of :func:`offload_mode`, in the order they trade speed for memory.
+OFFLOAD_MODES = ("none", "model", "sequential")
+
+
+def offload_mode(component_bytes: dict[str, int], budget_bytes: int | None) -> str:
+    """How a pipeline runs on a device with ``budget_bytes`` for weights.
+
+    Convention: ``none`` (every component on the device: their sum fits), ``model`` (diffusers'
+    ``enable_model_cpu_offload``: one component on the device at a time, the largest fits; each
+    moves in once per call), ``sequential`` (``enable_sequential_cpu_offload``: layer by layer,
+    when even the largest component does not fit; slow). ``budget_bytes=None``: no limit.
+
+    Args:
+        component_bytes: bytes of each component's weights (``{"transformer": ..., ...}``).
+        budget_bytes: the device memory the weights may take.
+
+    Returns:
+        One of :data:`OFFLOAD_MODES`.
+
+    Examples:
+        >>> gb = 10**9
+        >>> flux2 = {"transformer": 64 * gb, "text_encoder": 48 * gb, "vae": gb // 5}
+        >>> offload_mode(flux2, 139 * gb), offload_mode(flux2, 80 * gb), offload_mode(flux2, 40 * gb)
+        ('none', 'model', 'sequential')
+    """
+    if budget_bytes is None or sum(component_bytes.values()) <= budget_bytes:
+        return "none"
+    return "model" if max(component_bytes.values(), default=0) <= budget_bytes else "sequential"
+
+
+def folder_component_bytes(folder: str | Path) -> dict[str, int]:
+    """Bytes of the weight files of each component sub-folder of a diffusers folder (the weights'
+    size in device memory when loaded in the dtype they are stored in)."""
+    out = {}
+    for sub in sorted(Path(folder).iterdir()):
+        if sub.is_dir():
+            n = sum(p.stat().st_size for p in sub.iterdir() if p.name.endswith((".safetensors", ".bin")))
+            if n:
+                out[sub.name] = n
+    return out
+
+
+def _local_folder(model_id: str) -> str | None:
+    """The folder of a local path or of a Hugging Face id in the cache, or ``None``."""
+    path = Path(model_id).expanduser()
+    if path.is_dir():
+        return str(path)
+    try:
+        from huggingface_hub import snapshot_download
+
+        return snapshot_download(repo_id=model_id, local_files_only=True)
+    except Exception:  # noqa: BLE001 - not cached: from_pretrained says why
+        return None
+
+
+def _device_budget(dev: torch.device, memory_gb: float | None) -> int | None:
+    """The bytes of weights a pipeline may hold on ``dev``: ``memory_gb`` GiB, else (CUDA) 90 % of
+    the device's memory, else no limit."""
+    if memory_gb is not None:
+        return int(float(memory_gb) * 2**30)
+    if dev.type == "cuda":
+        return int(0.9 * torch.cuda.get_device_properties(dev).total_memory)
+    return None
+
+
 def load_pipeline(
     model_id: str | Path,
     *,
     pipeline: str | type | None = None,
     device: str | torch.device | None = None,
     dtype: torch.dtype | str | None = None,
+    memory_gb: float | None = None,
+    random_init: bool = False,
+    seed: int = 0,
 ):
     """A diffusers pipeline from local files, on ``device`` in ``dtype`` (each call loads it: how
     long it is kept is the caller's choice, e.g. :class:`~snell_bench.pipeline.pool.ModelPool`).
@@ -196,6 +268,12 @@ def load_pipeline(
         - Always ``local_files_only=True``; the dtype goes through
           :func:`~snell_bench.models.devices.dtype_kwarg` (``dtype=``, never ``torch_dtype=``).
         - The device is resolved before the weights are read, so a missing GPU fails fast.
+        - Components whose weights equal those of a pipeline already loaded in this process (FLUX
+          Fill's and Kontext's text encoders and VAE are FLUX.1-dev's) are taken from it, not
+          loaded again (:mod:`snell_bench.models.shared`).
+        - A pipeline whose weights do not fit the device (``memory_gb``, else 90 % of the GPU's
+          memory) runs with diffusers' offloading (:func:`offload_mode`; FLUX.2-dev's ~112 GB on
+          an 80 GB GPU: ``model``); the mode is in ``pipe.offload_mode``.
 
     Args:
         model_id: a local diffusers folder or a Hugging Face id in the local cache (config key
@@ -204,6 +282,11 @@ def load_pipeline(
         device: ``None`` / ``"auto"`` (CUDA, which must be available), ``"cuda[:i]"`` or ``"cpu"``.
         dtype: a dtype or its name (:func:`~snell_bench.models.devices.parse_dtype`); ``None``:
             bfloat16 on CUDA, float32 otherwise.
+        memory_gb: the device memory (GiB) the weights may take (config key ``models.memory_gb``).
+        random_init: build a FLUX.1 pipeline (``FluxPipeline``, ``FluxFillPipeline``,
+            ``FluxKontextPipeline``) at full size with random weights instead of loading it
+            (config key ``model.random_init``); ``model_id`` is not read.
+        seed: seeds the random weights.
 
     Returns:
         The pipeline, on ``device``.
@@ -211,8 +294,11 @@ def load_pipeline(
     Raises:
         WeightsNotFoundError: if the model is not available locally.
         DeviceNotAvailableError: if CUDA is needed and missing.
-        ValueError: if ``pipeline`` names no diffusers pipeline class.
+        ValueError: if ``pipeline`` names no diffusers pipeline class, or ``random_init`` is asked
+            for another pipeline than FLUX.1's.
     """
+    from snell_bench.models import shared
+
     model_id = str(model_id)
     cls = _pipeline_class(pipeline)
     dev = resolve_device(
@@ -222,14 +308,43 @@ def load_pipeline(
             "model.device=cpu (device='cpu') to run it on the CPU anyway (float32, slow)"
         ),
     )
+    if random_init:
+        kind = RANDOM_KINDS.get(cls.__name__)
+        if kind is None:
+            raise ValueError(
+                f"model.random_init=true builds FLUX.1 pipelines only ({', '.join(RANDOM_KINDS)}), not "
+                f"{cls.__name__} for {model_id}; set model.random_init=false"
+            )
+        from snell_bench.models.flux import random_flux_pipeline
+
+        pipe = random_flux_pipeline(kind, device=dev, dtype=parse_dtype(dtype) or torch.bfloat16, seed=seed)
+        pipe.offload_mode = "none"
+        return pipe
     dt = parse_dtype(dtype) or default_dtype(dev)
     if not _is_local_or_repo_id(model_id):
         raise _missing(model_id, cls, "no such folder, and not a Hugging Face model id")
+    folder = _local_folder(model_id)
+    identities = shared.folder_identities(folder) if folder is not None else {}
     try:
-        pipe = cls.from_pretrained(model_id, local_files_only=True, **dtype_kwarg(dt))
+        pipe = cls.from_pretrained(
+            folder or model_id,
+            local_files_only=True,
+            **shared.shared_kwargs(identities, dev, dt),
+            **dtype_kwarg(dt),
+        )
     except OSError as e:  # includes huggingface_hub's LocalEntryNotFoundError
         raise _missing(model_id, cls, str(e)) from e
-    return pipe.to(dev)
+    sizes = folder_component_bytes(folder) if folder is not None else {}
+    mode = offload_mode(sizes, _device_budget(dev, memory_gb)) if dev.type == "cuda" else "none"
+    if mode == "none":
+        pipe = pipe.to(dev)
+        shared.register_components(pipe, identities, dev, dt)
+    elif mode == "model":
+        pipe.enable_model_cpu_offload(device=dev)
+    else:
+        pipe.enable_sequential_cpu_offload(device=dev)
+    pipe.offload_mode = mode
+    return pipe
 
 
 def _to_tensor(images: np.ndarray, size: tuple[int, int], pipe) -> torch.Tensor:

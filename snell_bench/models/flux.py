@@ -40,7 +40,7 @@ from .devices import default_dtype, dtype_kwarg, parse_dtype
 from .devices import resolve_device as _resolve_device
 from .errors import WeightsNotFoundError
 
-__all__ = ["FLUX_DEV_ID", "FluxGenerator", "resolve_device", "resolve_weights_folder"]
+__all__ = ["FLUX_DEV_ID", "FluxGenerator", "random_flux_pipeline", "resolve_device", "resolve_weights_folder"]
 
 log = logging.getLogger(__name__)
 
@@ -147,6 +147,35 @@ def resolve_device(device: str | torch.device | None) -> torch.device:
     )
 
 
+def random_flux_pipeline(kind: str, *, device: torch.device, dtype: torch.dtype, seed: int = 0):
+    """A FLUX.1 pipeline of ``kind`` (``dev``, ``fill``, ``kontext``) at full size with random
+    weights (:mod:`snell_bench.models.flux_random`), on ``device`` in ``dtype``, sharing the text
+    encoders and VAE of one of another kind built in this process with the same seed, device and
+    dtype (:mod:`snell_bench.models.shared`)."""
+    from . import shared
+    from .flux_random import build_random_flux_pipeline
+
+    identities = {c: shared.random_key(c, seed) for c in shared.SHARED_COMPONENTS}
+    found = shared.shared_kwargs(identities, device, dtype)
+    donor = None
+    if len(found) == len(identities):
+        donor = _Donor(found)
+    pipe = build_random_flux_pipeline(kind, device=device, dtype=dtype, seed=seed, shared=donor)
+    shared.register_components(pipe, identities, device, dtype)
+    return pipe
+
+
+class _Donor:
+    """The shared text encoders and VAE, with the (file-less, rebuilt) tokenizers."""
+
+    def __init__(self, modules: dict) -> None:
+        from .tiny_text import clip_tokenizer_from_open_clip_vocab, t5_byte_tokenizer
+
+        self.__dict__.update(modules)
+        self.tokenizer = clip_tokenizer_from_open_clip_vocab()
+        self.tokenizer_2 = t5_byte_tokenizer()
+
+
 def _flux_pipeline_cls():
     from diffusers import FluxPipeline
 
@@ -225,6 +254,8 @@ class FluxGenerator:
         else:
             pipe.vae.disable_slicing()
         self.pipe = pipe
+        #: built with random weights (real shapes and cost, meaningless pixels)
+        self.random_weights = bool(getattr(pipe, "random_weights", False))
         self.device = device
         self.dtype = dtype
         self.guidance = float(guidance)
@@ -250,8 +281,14 @@ class FluxGenerator:
         guidance: float = 3.5,
         max_sequence_length: int = 512,
         revision: str | None = None,
+        random_init: bool = False,
+        seed: int = 0,
     ) -> FluxGenerator:
-        """Load FLUX.1-dev (or another FLUX checkpoint in diffusers layout) without downloading.
+        """Load FLUX.1-dev (or another FLUX checkpoint in diffusers layout) without downloading, or
+        build it with random weights (``random_init``).
+
+        The text encoders and the VAE are shared with a FLUX Fill or Kontext pipeline loaded in the
+        same process from the same weights (:mod:`snell_bench.models.shared`).
 
         Args:
             model_id_or_path: a local folder (config key ``model.path``) or a Hugging Face id
@@ -264,22 +301,42 @@ class FluxGenerator:
             guidance: the default guidance scale.
             max_sequence_length: the T5 token count.
             revision: the hub revision of a Hugging Face id.
+            random_init: build FLUX.1-dev's architecture with random weights instead
+                (:func:`~snell_bench.models.flux_random.build_random_flux_pipeline`; config key
+                ``model.random_init``): no weights are read, ``model.path`` is ignored; on ``meta``
+                nothing is materialised.
+            seed: seeds the random weights.
 
         Returns:
-            The generator.
+            The generator (``random_weights`` tells how it was built).
 
         Raises:
             WeightsNotFoundError: when the weights are missing or incomplete.
             DeviceNotAvailableError: when CUDA is needed but absent.
         """
-        folder = resolve_weights_folder(model_id_or_path, local_files_only=local_files_only, revision=revision)
-        dev = resolve_device(device)
-        dtype = parse_dtype(dtype) or default_dtype(dev)
-        FluxPipeline = _flux_pipeline_cls()
-        try:
-            pipe = FluxPipeline.from_pretrained(folder, local_files_only=local_files_only, **dtype_kwarg(dtype))
-        except (OSError, ValueError) as err:  # missing / partial component folders or weight files
-            raise WeightsNotFoundError(_weights_help(f"loading {folder!r} failed: {err}")) from err
+        from . import shared
+
+        if random_init:
+            dev = resolve_device(device)
+            dtype = parse_dtype(dtype) or torch.bfloat16
+            pipe = random_flux_pipeline("dev", device=dev, dtype=dtype, seed=seed)
+        else:
+            folder = resolve_weights_folder(model_id_or_path, local_files_only=local_files_only, revision=revision)
+            dev = resolve_device(device)
+            dtype = parse_dtype(dtype) or default_dtype(dev)
+            FluxPipeline = _flux_pipeline_cls()
+            identities = shared.folder_identities(folder)
+            try:
+                pipe = FluxPipeline.from_pretrained(
+                    folder,
+                    local_files_only=local_files_only,
+                    **shared.shared_kwargs(identities, dev, dtype),
+                    **dtype_kwarg(dtype),
+                )
+            except (OSError, ValueError) as err:  # missing / partial component folders or weight files
+                raise WeightsNotFoundError(_weights_help(f"loading {folder!r} failed: {err}")) from err
+            pipe.to(dev)
+            shared.register_components(pipe, identities, dev, dtype)
         return cls(
             pipe,
             device=dev,
@@ -388,6 +445,13 @@ class FluxGenerator:
             sig = sig.expand(B)
         if sig.numel() != B:
             raise ValueError(f"sigma has {sig.numel()} entries for a batch of {B}")
+        if self.device.type == "meta":  # shapes only: the transformer ran once per input shape
+            key = ("velocity", tuple(z.shape), tuple(cond.data["prompt_embeds"].shape))
+            return self._meta_once(key, z.dtype, lambda: self._velocity(z, sig, cond))
+        return self._velocity(z, sig, cond)
+
+    def _velocity(self, z: torch.Tensor, sig: torch.Tensor, cond: Condition) -> torch.Tensor:
+        B, C, h, w = z.shape
         pipe, dtype = self.pipe, self.dtype
         packed = pipe._pack_latents(z.to(device=self.device, dtype=dtype), B, C, h, w)
         img_ids = self._image_ids(h // 2, w // 2)
@@ -480,6 +544,17 @@ class FluxGenerator:
             ids = torch.stack([torch.zeros_like(rows), rows, cols], -1).reshape(h2 * w2, 3)
             cache[key] = ids.to(self.dtype)
         return cache[key]
+
+    def _meta_once(self, key: tuple, dtype: torch.dtype, run) -> torch.Tensor:
+        """On ``meta`` a module's output depends on its inputs' shapes alone: run it once per
+        ``key`` (the shapes) and answer later calls with an empty tensor of that output's shape
+        (a meta forward pass of FLUX.1's 57 blocks costs ~0.6 s of Python dispatch)."""
+        cache = self.__dict__.setdefault("_meta_shapes", {})
+        if key not in cache:
+            out = run()
+            cache[key] = (tuple(out.shape), out.dtype)
+        shape, out_dtype = cache[key]
+        return torch.empty(shape, dtype=out_dtype if dtype is None else dtype, device="meta")
 
     def _check_latents(self, z: torch.Tensor) -> None:
         C = self.geometry.channels

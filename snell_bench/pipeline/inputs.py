@@ -25,6 +25,7 @@ from omegaconf import DictConfig
 
 from snell_bench.config import Source
 from snell_bench.models.segment import surface_region as segment_surface
+from snell_bench.models.sizes import node_weights_bytes
 from snell_bench.optics.warps import WarpSet, compute_warps
 from snell_bench.pipeline.cell import CellInputs, build, cell_seed, kwargs_for, node_key, plain
 from snell_bench.pipeline.pool import ModelPool
@@ -64,6 +65,7 @@ def generator_of(cfg: DictConfig, pool: ModelPool, build_it=None):
         node_key(cfg.model),
         build_it or (lambda: build(cfg.model.generator)),
         label=str(cfg.model.name),
+        size=lambda: node_weights_bytes(cfg.model.generator),
     )
 
 

@@ -23,6 +23,7 @@ from scipy.ndimage import binary_dilation
 from snell_bench.config import InpaintMask, MethodKind, SamplerSettings
 from snell_bench.models.errors import DeviceNotAvailableError, WeightsNotFoundError
 from snell_bench.models.external import generate_external, inpaint_external, load_pipeline
+from snell_bench.models.sizes import node_weights_bytes
 from snell_bench.optics.warps import WarpSet
 from snell_bench.pipeline.cell import (
     CellInputs,
@@ -127,12 +128,16 @@ def _pipeline_call(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer
             pipe, t.seconds["generator"] = pool.get(
                 "pipeline",
                 key,
-                lambda: load_pipeline(cfg.method.model_id, device=device, dtype=dtype),
+                lambda: load_pipeline(cfg.method.model_id, device=device, dtype=dtype, memory_gb=cfg.models.memory_gb),
                 label=str(cfg.method.model_id),
             )
         else:
             pipe, t.seconds["generator"] = pool.get(
-                "fill", node_key(cfg.model.fill), lambda: build(cfg.model.fill), label=f"{cfg.model.name} fill"
+                "fill",
+                node_key(cfg.model.fill),
+                lambda: build(cfg.model.fill),
+                label=f"{cfg.model.name} fill",
+                size=lambda: node_weights_bytes(cfg.model.fill),
             )
         with t("sampling"):
             if external:
@@ -220,7 +225,13 @@ def relighter_of(cfg: DictConfig, inputs: CellInputs) -> tuple[Any, float]:
     if not node:
         raise Skip(f"model {cfg.model.name!r} has no relighter (model.relighter); {cfg.method.label} cannot run")
     try:
-        return inputs.pool.get("relighter", node_key(node), lambda: build(node), label=f"{cfg.model.name} relighter")
+        return inputs.pool.get(
+            "relighter",
+            node_key(node),
+            lambda: build(node),
+            label=f"{cfg.model.name} relighter",
+            size=lambda: node_weights_bytes(node),
+        )
     except (WeightsNotFoundError, DeviceNotAvailableError) as e:
         raise Skip(f"{cfg.method.label} cannot run here: {e}") from None
 

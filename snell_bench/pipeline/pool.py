@@ -9,13 +9,19 @@ Convention:
       decides how long models live; a model is loaded at most once per pool unless the memory
       budget forces it out.
     - ``memory_gb`` (``models.memory_gb``; ``None``: no limit) bounds the bytes of the parameters
-      and buffers of the models held at once (:func:`model_bytes`). A model loaded for the first
-      time is assumed to need the whole budget, so every other model is released before it loads
-      (least recently used first); afterwards its measured size is known and only as many models
-      as needed are released. Models of a *scope* (a generator built from one scene's inputs) are
-      released with :meth:`ModelPool.end_scope`.
+      and buffers *resident* at once (:func:`model_bytes`): every tensor counted once, however
+      many models hold it (FLUX Fill and Kontext share FLUX.1-dev's text encoders and VAE,
+      :mod:`snell_bench.models.shared`). A model loaded for the first time is assumed to need the
+      whole budget, so every other model makes room before it loads (least recently used first);
+      afterwards its measured size is known and only as many models as needed make room.
+    - Making room: with ``offload`` (``models.offload``), a model whose weights are on an
+      accelerator is *offloaded*: its modules move to host memory, except those another resident
+      model also holds, and move back on its next use (seconds, not a load from disk); a model on
+      the host (the CPU stand-ins) is released. A module on the ``meta`` device moves in name
+      only, so a memory plan can be checked with shapes alone. Models of a *scope* (a generator
+      built from one scene's inputs) are released with :meth:`ModelPool.end_scope`.
     - Every load is recorded (:attr:`ModelPool.loads`: kind, key digest, label, seconds, bytes),
-      and so is every release; sweeps write them to ``summary.json``.
+      and so is every release, offload and restore; sweeps write them to ``summary.json``.
 """
 
 from __future__ import annotations
@@ -56,17 +62,29 @@ def _modules(obj: Any, depth: int = 2) -> list[torch.nn.Module]:
     return found
 
 
-def model_bytes(obj: Any) -> int:
-    """Bytes of the parameters and buffers of every torch module ``obj`` holds (each tensor counted
-    once): a model's footprint in device memory, activations not included."""
-    seen: set[int] = set()
+def _bytes(modules: list[torch.nn.Module], seen: set[int] | None = None) -> int:
+    seen = set() if seen is None else seen
     total = 0
-    for m in _modules(obj):
+    for m in modules:
         for t in (*m.parameters(), *m.buffers()):
             if id(t) not in seen:
                 seen.add(id(t))
                 total += t.numel() * t.element_size()
     return total
+
+
+def model_bytes(obj: Any) -> int:
+    """Bytes of the parameters and buffers of every torch module ``obj`` holds (each tensor counted
+    once): a model's footprint in device memory, activations not included."""
+    return _bytes(_modules(obj))
+
+
+def _device(module: torch.nn.Module) -> torch.device:
+    return next(module.parameters(), torch.empty(0)).device
+
+
+def _on_accelerator(modules: list[torch.nn.Module]) -> bool:
+    return any(t.device.type != "cpu" for m in modules for t in m.parameters())
 
 
 @dataclass
@@ -78,7 +96,7 @@ class ModelLoad:
     label: str
     seconds: float
     bytes: int
-    event: str = "load"  #: ``load`` or ``release``
+    event: str = "load"  #: ``load``, ``release``, ``offload`` (to host memory) or ``restore``
 
     def as_dict(self) -> dict:
         return {
@@ -98,18 +116,29 @@ class _Entry:
     bytes: int
     label: str
     pinned: bool
+    #: its modules are in host memory (``offload``); ``devices``: where each was
+    offloaded: bool = False
+    devices: dict | None = None
+
+    def modules(self) -> list[torch.nn.Module]:
+        return _modules(self.model)
 
 
 class ModelPool:
     """Models by (kind, key), loaded once each; see the module docs.
 
     Args:
-        memory_gb: the budget of model bytes held at once (GiB); ``None``: no limit.
+        memory_gb: the budget of resident model bytes (GiB); ``None``: no limit.
+        offload: make room by moving a model on an accelerator to host memory (``True``) rather
+            than releasing it.
+        host: where offloaded modules go.
     """
 
-    def __init__(self, memory_gb: float | None = None) -> None:
+    def __init__(self, memory_gb: float | None = None, *, offload: bool = True, host: str = "cpu") -> None:
         if memory_gb is not None and not memory_gb > 0:
             raise ValueError(f"models.memory_gb={memory_gb!r}: must be a positive number of GiB, or null (no limit)")
+        self.offload = bool(offload)
+        self.host = torch.device(host)
         self.budget = None if memory_gb is None else int(float(memory_gb) * 2**30)
         self._held: OrderedDict[tuple[str, str, Hashable], _Entry] = OrderedDict()
         self._sizes: dict[tuple[str, str], int] = {}  #: measured sizes of models loaded before
@@ -133,20 +162,28 @@ class ModelPool:
         label: str = "",
         scope: Hashable | None = None,
         pin: bool = False,
+        size: Callable[[], int | None] | None = None,
     ) -> tuple[Any, float]:
         """The model of ``(kind, key)`` (within ``scope``) and the seconds its load took, reported by
         every use so a cell's timings show the cost of the model it ran, whichever cell loaded it.
 
         ``build()`` loads it the first time; an exception it raises propagates and nothing is kept.
         A ``pin``-ned model (the metric backbones every cell needs) counts against the budget but
-        is never released to make room.
+        is never released to make room. ``size()`` tells the bytes a first load will add
+        (:func:`~snell_bench.models.sizes.node_weights_bytes`), so only that much room is made;
+        ``None`` (or no ``size``): the whole budget.
         """
         k = (kind, key, scope)
         if k in self._held:
             self._held.move_to_end(k)
             e = self._held[k]
+            if e.offloaded:
+                self._restore(k)
             return e.model, e.seconds
-        self._make_room(self._sizes.get((kind, key)))
+        known = self._sizes.get((kind, key))
+        if known is None and size is not None and self.budget is not None:
+            known = size()
+        self._make_room(known)
         t0 = time.perf_counter()
         model = build()
         seconds = time.perf_counter() - t0
@@ -181,8 +218,8 @@ class ModelPool:
         self.end_scope(scope)
 
     def _make_room(self, need: int | None, keep: tuple | None = None) -> None:
-        """Release models, least recently used first, until ``need`` more bytes fit in the budget
-        (``None``: an unknown size, taken as the whole budget)."""
+        """Offload or release models, least recently used first, until ``need`` more bytes fit in
+        the budget (``None``: an unknown size, taken as the whole budget)."""
         if self.budget is None:
             return
         need = self.budget if need is None else need
@@ -190,11 +227,64 @@ class ModelPool:
             if self.held_bytes() + need <= self.budget:
                 break
             e = self._held.get(k)  # a finalizer may have released it meanwhile
-            if e is not None and k != keep and not e.pinned:
+            if e is None or k == keep or e.pinned or e.offloaded:
+                continue
+            if self.offload and _on_accelerator(e.modules()):
+                keeping = self._held.get(keep) if keep is not None else None
+                self._offload(k, protect={id(m) for m in keeping.modules()} if keeping is not None else set())
+            else:
                 self.release(k)
 
+    def _resident_modules(self, but: tuple | None = None) -> list[torch.nn.Module]:
+        return [m for k, e in self._held.items() if not e.offloaded and k != but for m in e.modules()]
+
     def held_bytes(self) -> int:
-        return sum(e.bytes for e in self._held.values())
+        """Bytes of the tensors of the resident models (not offloaded), each counted once."""
+        return _bytes(self._resident_modules())
+
+    def resident(self, kind: str | None = None) -> list[str]:
+        """Labels of the models held and not offloaded (of one kind)."""
+        return [e.label for (k, _, _), e in self._held.items() if kind in (None, k) and not e.offloaded]
+
+    def _move(self, module: torch.nn.Module, device: torch.device) -> None:
+        """Move one module (a ``meta`` module moves in name only: it has no data)."""
+        if _device(module).type != "meta":
+            module.to(device)
+
+    def _offload(self, k: tuple, protect: set[int] = frozenset()) -> None:
+        """Move model ``k``'s modules to host memory, except those another resident model (or the
+        one being made room for, ``protect``) holds."""
+        e = self._held[k]
+        t0 = time.perf_counter()
+        others = {id(m) for m in self._resident_modules(but=k)} | set(protect)
+        mine = [m for m in e.modules() if id(m) not in others]
+        freed = _bytes(mine)
+        e.devices = {id(m): _device(m) for m in e.modules()}
+        for m in mine:
+            self._move(m, self.host)
+        e.offloaded = True
+        if torch.cuda.is_available():
+            torch.cuda.empty_cache()
+        seconds = time.perf_counter() - t0
+        self.loads.append(ModelLoad(k[0], self.digest(k[1]), e.label, seconds, freed, "offload"))
+        log.info("offloaded %s to %s in %.2f s (%.2f GiB)", e.label, self.host, seconds, freed / 2**30)
+
+    def _restore(self, k: tuple) -> None:
+        """Bring an offloaded model back to where its modules were, making room first."""
+        e = self._held[k]
+        resident = {id(m) for m in self._resident_modules(but=k)}
+        away = [m for m in e.modules() if id(m) not in resident]
+        e.offloaded = True  # not counted while room is made
+        self._make_room(_bytes(away), keep=k)
+        t0 = time.perf_counter()
+        devices = e.devices or {}
+        for m in e.modules():
+            if id(m) in devices and _device(m) != devices[id(m)]:
+                self._move(m, devices[id(m)])
+        e.offloaded, e.devices = False, None
+        seconds = time.perf_counter() - t0
+        self.loads.append(ModelLoad(k[0], self.digest(k[1]), e.label, seconds, _bytes(away), "restore"))
+        log.info("restored %s in %.2f s", e.label, seconds)
 
     def release(self, k: tuple) -> None:
         """Drop one model (and the device memory it holds)."""
@@ -225,5 +315,6 @@ class ModelPool:
         order."""
         return {
             "budget_gb": None if self.budget is None else self.budget / 2**30,
+            "offload": self.offload,
             "loads": [x.as_dict() for x in self.loads],
         }

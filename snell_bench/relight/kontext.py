@@ -164,6 +164,8 @@ class KontextRelighter:
     """
 
     name = "flux_kontext"
+    #: built with random weights (:meth:`from_pretrained` with ``random_init``)
+    random_weights: bool = False
 
     def __init__(
         self,
@@ -219,8 +221,13 @@ class KontextRelighter:
         steps: int | None = None,
         guidance: float | None = None,
         lora_weight_name: str | None = None,
+        random_init: bool = False,
+        seed: int = 0,
     ) -> KontextRelighter:
-        """FLUX.1 Kontext from a local folder or the Hugging Face cache (never downloaded).
+        """FLUX.1 Kontext from a local folder or the Hugging Face cache (never downloaded), or at
+        full size with random weights (``random_init``). Its text encoders and VAE are FLUX.1-dev's:
+        shared with a FLUX pipeline loaded in the same process from the same weights
+        (:mod:`snell_bench.models.shared`).
 
         Args:
             model_id: a local diffusers folder or a Hugging Face id in the local cache (config key
@@ -234,6 +241,10 @@ class KontextRelighter:
             steps: inference steps; ``None``: the pipeline's default.
             guidance: the guidance scale; ``None``: the pipeline's default.
             lora_weight_name: the LoRA file inside a folder or repository.
+            random_init: build FLUX.1 Kontext's architecture with random weights (config key
+                ``model.random_init``): ``model_id`` is not read, and no LoRA is loaded (a LoRA
+                trained on the released weights means nothing on random ones).
+            seed: seeds the random weights.
 
         Returns:
             The relighter.
@@ -245,6 +256,9 @@ class KontextRelighter:
         """
         from diffusers import FluxKontextPipeline
 
+        from snell_bench.models import shared
+        from snell_bench.models.external import _local_folder
+
         dev = resolve_device(
             device,
             unavailable=(
@@ -254,10 +268,26 @@ class KontextRelighter:
                 "Kontext (model=tiny_flux) instead."
             ),
         )
+        if random_init:
+            from snell_bench.models.flux import random_flux_pipeline
+
+            dt = parse_dtype(dtype) or torch.bfloat16
+            relighter = cls(
+                random_flux_pipeline("kontext", device=dev, dtype=dt, seed=int(seed)),
+                steps=steps,
+                guidance=guidance,
+                source=f"FLUX.1 Kontext's architecture with random weights (seed {int(seed)}) on {dev}",
+            )
+            relighter.random_weights = True
+            return relighter
         dt = parse_dtype(dtype) or default_dtype(dev)
         text = os.fspath(model_id)
+        folder = _local_folder(text)
+        identities = shared.folder_identities(folder) if folder is not None else {}
         try:
-            pipe = FluxKontextPipeline.from_pretrained(text, local_files_only=True, **dtype_kwarg(dt))
+            pipe = FluxKontextPipeline.from_pretrained(
+                folder or text, local_files_only=True, **shared.shared_kwargs(identities, dev, dt), **dtype_kwarg(dt)
+            )
         except (OSError, ValueError) as e:
             raise WeightsNotFoundError(
                 f"FLUX.1 Kontext weights not found locally: model.relighter.model_id={text!r} ({type(e).__name__}: "
@@ -269,6 +299,7 @@ class KontextRelighter:
                 "downloaded by snell_bench."
             ) from e
         pipe.to(dev)
+        shared.register_components(pipe, identities, dev, dt)
         return cls(
             pipe,
             steps=steps,
