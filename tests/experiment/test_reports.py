@@ -429,3 +429,21 @@ def test_the_better_image_is_marked_best():
         assert rows["s0"][j].startswith(r"\textbf{"), col
         assert rows["s1"][j].startswith(r"\underline{"), col
         assert not rows["s2"][j].startswith("\\"), col
+
+
+def test_cells_with_random_weights_are_in_no_table(runs, tmp_path):
+    """A cell of ``model.random_init=true`` (real cost, meaningless pixels) is collected with the
+    status ``random_weights`` and its reason: no mean, table or figure takes it."""
+    d = runs / "kitchen-0" / "sphere" / "snellcaster"
+    rec = json.loads((d / "metrics.json").read_text())
+    (d / "metrics.json").write_text(
+        json.dumps({**rec, "random_weights": True, "metrics": {**rec["metrics"], "psnr": 99.0}})
+    )
+    df = collect(runs)
+    row = df[df["cell_dir"] == "kitchen-0/sphere/snellcaster"].iloc[0]
+    assert row["status"] == "random_weights" and "model.random_init" in row["reason"]
+    table = method_table(df, ["psnr"])
+    assert table.loc["Snellcaster", "psnr"] == 20.0 and table.loc["Snellcaster", "n"] == 1  # the living room alone
+    paths = build_reports(runs, tmp_path / "reports", "ablation")
+    readme = next(p for p in paths if p.name == "README.md").read_text()
+    assert "1 random_weights" in readme and "model.random_init" in readme

@@ -50,6 +50,15 @@ _FLAT_GROUPS = ("decisions", "warps", "reference", "model_calls")  # nested reco
 _OWN_GROUPS = ("metrics", "missing", "timings_s")  # flattened with their own conversions
 
 
+#: The status of a cell built with random weights (``model.random_init``): its timings are real, its
+#: pixels mean nothing, so no table, figure or average takes it.
+RANDOM_WEIGHTS = "random_weights"
+_RANDOM_REASON = (
+    "built with random weights (model.random_init=true): real cost, meaningless pixels; left out of every table "
+    "and figure (run with the real weights to score it)"
+)
+
+
 def _cell_from_path(rel: Path) -> dict:
     """Scene, variation, object and method from ``<scene>-<variation>/<object>/<method>``."""
     parts = rel.parts
@@ -167,7 +176,8 @@ def _read_record(path: Path) -> dict:
 def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
     """One row per cell below ``run_dir``.
 
-    Every ``metrics.json`` below ``run_dir`` gives a row. A ``metrics.json`` that cannot be read,
+    Every ``metrics.json`` below ``run_dir`` gives a row; a cell built with random weights has the
+    status :data:`RANDOM_WEIGHTS` (never ``ok``, so no table takes it). A ``metrics.json`` that cannot be read,
     and a cell folder with a ``config.yaml`` but no ``metrics.json``, give a row with status
     ``"failed"`` and the reason, with scene, variation, object and method taken from the path.
 
@@ -196,6 +206,8 @@ def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
         rec = _read_record(path)
         if "recipe" not in rec or "protocol" not in rec:  # a cell recorded before the record held them
             rec = {**_recorded_config(path.parent), **rec}
+        if rec.get("random_weights") and rec.get("status") == "ok":
+            rec = {**rec, "status": RANDOM_WEIGHTS, "reason": _RANDOM_REASON}
         records.append(rec)
         rels.append(rel)
     for path in sorted(run_dir.rglob("config.yaml")):
