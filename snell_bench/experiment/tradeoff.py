@@ -460,7 +460,7 @@ def run_tradeoff(cfg: DictConfig) -> dict:
     if t.recompute or any(not (c.folder / "result.json").is_file() for c in cells):
         _warm_up(cfg, cells[0])
     metrics_cfg = OmegaConf.merge(cfg.metrics, {"clip_weights": None, "image_reward_python": None})
-    pool = pipeline.ModelPool(cfg.models.memory_gb)
+    pool = pipeline.ModelPool(cfg.models.memory_gb, offload=bool(cfg.models.offload))
     sweep = _Sweep(scorers=pipeline.scorers_of(metrics_cfg, pool), converged_spp=t.converged_spp, pool=pool)
     last_of_scene = {c.record["scene"]: c for c in cells}
 

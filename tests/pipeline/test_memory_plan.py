@@ -72,7 +72,11 @@ def test_the_generator_is_offloaded_before_the_relighter_only_when_both_do_not_f
     pool = ModelPool(budget_gb, offload=True)
     get = {
         "gen": lambda: pool.get(
-            "generator", "g", lambda: build(nodes.generator), label="flux", size=lambda: node_weights_bytes(nodes.generator)
+            "generator",
+            "g",
+            lambda: build(nodes.generator),
+            label="flux",
+            size=lambda: node_weights_bytes(nodes.generator),
         )[0],
         "kontext": lambda: pool.get(
             "relighter",
@@ -121,3 +125,24 @@ def test_offload_mode_of_flux2_dev():
 def test_random_init_is_for_flux_pipelines_only():
     with pytest.raises(ValueError, match="random_init"):
         load_pipeline("Qwen/Qwen-Image", pipeline="QwenImagePipeline", device="meta", random_init=True)
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_offload_moves_the_weights_to_host_memory_and_back_on_cuda():
+    """On a GPU the plan moves real bytes: the offloaded generator's weights leave the device and
+    come back unchanged; a model on the host is released instead (nothing to gain by moving it)."""
+    from snell_bench.models.tiny_flux import TinyFluxGenerator
+
+    gen = TinyFluxGenerator(seed=0, device="cuda")
+    before = {k: v.detach().cpu().clone() for k, v in gen.pipe.transformer.state_dict().items()}
+    size = model_bytes(gen)
+    pool = ModelPool(1.5 * size / GiB)
+    pool.get("generator", "g", lambda: gen, label="tiny", size=lambda: size)
+    pool.get("other", "o", lambda: TinyFluxGenerator(seed=1, device="cuda"), label="other", size=lambda: size)
+    assert next(gen.pipe.transformer.parameters()).device.type == "cpu"
+    pool.get("generator", "g", lambda: gen, label="tiny")
+    assert next(gen.pipe.transformer.parameters()).device.type == "cuda"
+    after = gen.pipe.transformer.state_dict()
+    assert all(torch.equal(before[k], after[k].cpu()) for k in before)
+    assert [e for e, _ in _events(pool)] == ["load", "offload", "load", "offload", "restore"]
