@@ -16,6 +16,8 @@ Convention:
     - Values of an input where its mask is False are never read (they may be NaN or inf).
     - Pyramids: lists of levels, finest first, the last entry the low-pass residual
       (:mod:`snell_bench.imaging.pyramid`).
+    - On the ``meta`` device (shapes, no data) the blends run once per input shape
+      (:func:`~snell_bench.utils.tensors.meta_shape_cache`).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import torch
 
 from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear
 from snell_bench.imaging.pyramid import collapse
-from snell_bench.utils.tensors import as_mask, as_tensor
+from snell_bench.utils.tensors import as_mask, as_tensor, meta_shape_cache
 
 __all__ = ["detail_preserving_average", "blend_images", "blend_pyramids", "fresnel_combine"]
 
@@ -111,6 +113,7 @@ def _signed_dpa(inputs, masks, lam: float, fallback: torch.Tensor | None) -> tup
     return torch.where(ok, (out + 1.0) / 2.0, fallback), ok
 
 
+@meta_shape_cache
 def blend_images(
     images: Sequence[torch.Tensor],
     masks: Sequence | None = None,
@@ -145,6 +148,7 @@ def blend_images(
     return _signed_dpa(images, masks, lam, fallback)
 
 
+@meta_shape_cache
 def blend_pyramids(
     level_lists: Sequence[Sequence[torch.Tensor]],
     mask_lists: Sequence | None = None,
@@ -205,6 +209,7 @@ def blend_pyramids(
     return collapse(blended, wrap_x=wrap_x), any_valid
 
 
+@meta_shape_cache
 def fresnel_combine(reflection_srgb: torch.Tensor, refraction_srgb: torch.Tensor, R, mask=None) -> torch.Tensor:
     """Fresnel-weighted colour ``c = R (c_refl - c_refr) + c_refr``, computed in linear RGB.
 

@@ -15,6 +15,11 @@ Convention:
       sizes the actual size ratio is used, which is the geometry of ``pyrdown``'s resampling.
     - ``wrap_x=True`` marks a 360° panorama, periodic in x: pyramids are blurred with circular padding in
       x (exact for even widths) and sampling wraps around the seam.
+    - Tensors on the ``meta`` device (:func:`~snell_bench.utils.tensors.is_meta`: shapes, no data) take
+      the general path wherever the real one reads values to save work (an all-valid mask, the levels a
+      map samples, the window around its valid pixels): the same output shapes, nothing read; the
+      pyramids and warps run once per input shape there
+      (:func:`~snell_bench.utils.tensors.meta_shape_cache`).
 
 Warping through a pyramid:
     The destination pyramid's geometry comes from the coordinate map itself: level ``k + 1`` of the map
@@ -54,7 +59,7 @@ import torch.nn.functional as F
 from kornia.filters import filter2d
 
 from snell_bench.imaging.remap import remap
-from snell_bench.utils.tensors import as_mask, as_tensor
+from snell_bench.utils.tensors import as_mask, as_tensor, is_meta, meta_shape_cache
 
 __all__ = [
     "gaussian_pyramid",
@@ -131,6 +136,7 @@ def _check_levels(img: torch.Tensor, levels: int) -> None:
         raise ValueError(f"a {H}x{W} image has fewer than {levels} pyramid levels")
 
 
+@meta_shape_cache
 def gaussian_pyramid(img: torch.Tensor, levels: int, *, wrap_x: bool = False) -> list[torch.Tensor]:
     """Gaussian pyramid ``[img, pyrdown(img), ...]``, finest first.
 
@@ -183,6 +189,7 @@ def laplacian_pyramid(img: torch.Tensor, levels: int, *, wrap_x: bool = False) -
     return _bands(g, wrap_x) + [g[-1]]
 
 
+@meta_shape_cache
 def laplacian_from_gaussian(g: Sequence[torch.Tensor], *, wrap_x: bool = False) -> list[torch.Tensor]:
     """The Laplacian pyramid of an image from its Gaussian pyramid (as :func:`laplacian_pyramid`).
 
@@ -247,8 +254,9 @@ def collapse(pyr: Sequence[torch.Tensor], masks: Sequence | None = None, *, wrap
 
 
 def _up_masked(img: torch.Tensor, mask: torch.Tensor, size: Size, wrap_x: bool) -> torch.Tensor:
-    """:func:`_up` normalised by the upsampled ``mask``: only valid pixels of ``img`` are read."""
-    if bool(mask.all()):
+    """:func:`_up` normalised by the upsampled ``mask``: only valid pixels of ``img`` are read (an
+    all-valid mask is a plain :func:`_up`)."""
+    if not is_meta(mask) and bool(mask.all()):
         return _up(img, size, wrap_x)
     B = max(img.shape[0], mask.shape[0])
     img = torch.where(mask, img, torch.zeros_like(img)).expand(B, -1, -1, -1)
@@ -352,8 +360,9 @@ def _sample(
 ) -> torch.Tensor:
     """Sample ``images[j]`` at the fractional per-pixel ``level`` ``(Bc, H', W')`` in
     ``[0, len(images) - 1]``, blending the two nearest levels linearly (bilinear within a level). Each
-    level is only sampled at the pixels that use it."""
+    level is only sampled at the pixels that use it (on ``meta``, every level at every pixel)."""
     Bc, h, w, _ = c.shape
+    dense = is_meta(level)
     B, C = max(images[0].shape[0], Bc), images[0].shape[1]
     out = images[0].new_zeros(B, C, h * w)
     lo = level.floor()
@@ -361,12 +370,12 @@ def _sample(
     for j, im in enumerate(images):
         wj = torch.where(lo == j, 1 - frac, torch.where(lo == j - 1, frac, torch.zeros_like(frac)))
         use = (wj > 0).any(0)
-        if not bool(use.any()):
+        if not dense and not bool(use.any()):
             continue
         cj = _to_level(c, size0, im.shape[-2:], wrap_x)
         if im.shape[0] < B:
             im = im.expand(B, -1, -1, -1)
-        if bool(use.all()):
+        if dense or bool(use.all()):
             s, _ = remap(im, cj, wrap_x=wrap_x)
             out = out + (s * wj[:, None]).flatten(2)
         else:
@@ -402,10 +411,16 @@ def _warp_levels(
     src_pyramid: Sequence[torch.Tensor] | None = None,
 ) -> list[torch.Tensor]:
     """Each destination level ``maps[k]`` sampled from ``src``'s Gaussian pyramid, which is only built
-    as deep as the sampled levels reach (or taken from ``src_pyramid``)."""
+    as deep as the sampled levels reach (or taken from ``src_pyramid``; on ``meta``, as deep as the
+    clamp to ``levels`` allows)."""
     period = float(src.shape[-1]) if wrap_x else None
     lvls = _source_levels(maps, levels, match_scale=match_scale, period=period, dest_wrap_x=dest_wrap_x)
-    depth = max(int(lv.max().ceil()) for lv in lvls) + 1
+    if not match_scale:  # level k for map k
+        depth = len(maps)
+    elif is_meta(src):
+        depth = levels
+    else:
+        depth = max(int(lv.max().ceil()) for lv in lvls) + 1
     if src_pyramid is not None and len(src_pyramid) >= depth:
         gauss = list(src_pyramid[:depth])
     else:
@@ -427,8 +442,10 @@ def _roi_window(c: torch.Tensor, levels: int, dest_wrap_x: bool, margin: int) ->
     pixels of the coarsest level around it, aligned to ``2**(levels - 1)`` so that every level of the
     window is a sub-window of the full level. A dimension not divisible by ``2**(levels - 1)`` keeps
     its full extent (its odd-sized levels are resampled as a whole, see :func:`_up`). ``None`` when the
-    window is (almost) the whole destination.
+    window is (almost) the whole destination, or unknown (a map on ``meta``).
     The bool says whether the window keeps the full (periodic) width of a panorama destination."""
+    if is_meta(c):
+        return None
     ok = torch.isfinite(c[..., 0]).any(0)
     Hd, Wd = ok.shape
     if not bool(ok.any()):
@@ -462,6 +479,7 @@ def _paste(part: torch.Tensor, size: Size, ys: slice, xs: slice, k: int, fill) -
     return out
 
 
+@meta_shape_cache
 def pyramid_warp(
     src: torch.Tensor,
     coords,

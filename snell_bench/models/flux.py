@@ -374,6 +374,12 @@ class FluxGenerator:
         if images.ndim != 4 or images.shape[1] != 3:
             raise ValueError(f"images must be (B, 3, H, W), got {tuple(images.shape)}")
         self.geometry.latent_shape(images.shape[-2], images.shape[-1])
+        if self.device.type == "meta":  # shapes only: the encoder ran once per input shape
+            key = ("encode", tuple(images.shape), generator is None)
+            return self._meta_once(key, torch.float32, lambda: self._encode(images, generator))
+        return self._encode(images, generator)
+
+    def _encode(self, images: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
         vae = self.pipe.vae
         x = images.to(device=self.device, dtype=self.dtype) * 2 - 1
         dist = vae.encode(x).latent_dist
@@ -386,6 +392,11 @@ class FluxGenerator:
         """Normalised latents ``(B, 16, h, w)`` -> images ``(B, 3, 8h, 8w)`` in [0, 1] (float32,
         on the latents' device)."""
         self._check_latents(latents)
+        if self.device.type == "meta":  # shapes only: the decoder ran once per input shape
+            return self._meta_once(("decode", tuple(latents.shape)), torch.float32, lambda: self._decode(latents))
+        return self._decode(latents)
+
+    def _decode(self, latents: torch.Tensor) -> torch.Tensor:
         vae = self.pipe.vae
         z = latents.to(device=self.device, dtype=self.dtype) / vae.config.scaling_factor + vae.config.shift_factor
         img = vae.decode(z, return_dict=False)[0]
@@ -548,7 +559,8 @@ class FluxGenerator:
     def _meta_once(self, key: tuple, dtype: torch.dtype, run) -> torch.Tensor:
         """On ``meta`` a module's output depends on its inputs' shapes alone: run it once per
         ``key`` (the shapes) and answer later calls with an empty tensor of that output's shape
-        (a meta forward pass of FLUX.1's 57 blocks costs ~0.6 s of Python dispatch)."""
+        (a meta forward pass of FLUX.1's 57 blocks costs ~0.6 s of Python dispatch, one of the
+        tiled VAE ~1 s)."""
         cache = self.__dict__.setdefault("_meta_shapes", {})
         if key not in cache:
             out = run()

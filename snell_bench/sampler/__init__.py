@@ -18,12 +18,13 @@ __all__ = [
     "SYNC_MODES",
     "SamplerSettings",
     "SampleResult",
+    "expected_model_calls",
     "sample",
 ]
 
 
 def __getattr__(name):  # the loop pulls in the imaging stack; load it on first use
-    if name in ("SampleResult", "sample"):
+    if name in ("SampleResult", "expected_model_calls", "sample"):
         from snell_bench.sampler import snellcaster
 
         return getattr(snellcaster, name)

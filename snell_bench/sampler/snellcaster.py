@@ -27,8 +27,10 @@ renoised back to its start (5g) and run again, ``tt_repeats_main`` times for the
 ``tt_repeats_pano`` times for the panorama; a branch that stops repeating early keeps its latest
 latent and lends its latest estimates to the other's blends, so every model call's output is used.
 
-Model calls per branch: one per step, plus in ``guided`` mode one per window step for a branch that
-travelled (``R > 1``), plus in ``repaint`` mode ``R - 1`` per window step (:attr:`SampleResult.model_calls`).
+Model calls per branch: one per step, plus in ``guided`` mode one per window step (from step
+``tt_length`` on) for a branch that travelled (``R > 1``), plus in ``repaint`` mode ``R - 1`` per
+step of the blocks that start in the window (:attr:`SampleResult.model_calls`,
+:func:`expected_model_calls`).
 
 Convention:
     - Images ``(1, 3, H, W)`` (main view) and ``(1, 3, Hp, Wp)`` (panorama, ``Wp = 2 Hp``), float32
@@ -40,11 +42,18 @@ Convention:
       comes from one ``torch.Generator`` on the generator's device, seeded with ``seed``, in loop
       order: the main view's draw before the panorama's at every point where both draw (in guided
       time travel, all of the main view's repeats before the panorama's).
+    - A generator on ``meta`` (shapes, no data; :func:`~snell_bench.utils.tensors.is_meta`) runs the
+      whole loop at any size without arithmetic: every stage that reads values on the host takes
+      its general path (the same shapes), the warps and blends run once per shape
+      (:func:`~snell_bench.utils.tensors.meta_shape_cache`), the random draws have no data (the
+      run's generator is then a CPU one) and the images stay on ``meta``. It checks shapes, dtypes
+      and the model calls (:func:`expected_model_calls`), not numbers.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -65,14 +74,16 @@ from snell_bench.sampler.steps import (
     renoise_euler_maruyama,
     rounding_dtype,
     sde_step,
+    seeded_generator,
     stochastic_step,
     sync_step,
 )
 from snell_bench.sampler.views import Views
+from snell_bench.utils.tensors import is_meta, to_host
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SampleResult", "sample"]
+__all__ = ["SampleResult", "expected_model_calls", "sample"]
 
 
 @dataclass
@@ -80,15 +91,16 @@ class SampleResult:
     """What :func:`sample` returns.
 
     Attributes:
-        image: ``(1, 3, H, W)`` float32 sRGB in [0, 1], on the CPU.
-        panorama: ``(1, 3, Hp, Wp)`` float32 sRGB in [0, 1] on the CPU, or ``None`` without the
-            panorama branch.
+        image: ``(1, 3, H, W)`` float32 sRGB in [0, 1], on the CPU (on ``meta`` for a generator
+            there: no data to copy).
+        panorama: ``(1, 3, Hp, Wp)`` float32 sRGB in [0, 1] on the CPU (likewise), or ``None``
+            without the panorama branch.
         model_calls: velocity evaluations per branch actually made, ``{"main": n, "pano": n}`` (a
             batched call on both latents counts once for each).
         timings: seconds per stage: ``setup`` (warps to the device, I⁻'s pyramids), ``model``,
             ``codec`` (decode and encode), ``warp_blend``, ``step``.
         dumps: every ``dump_every`` steps, the decoded estimates before (``*_x0``) and after
-            (``*_sync``) synchronisation, on the CPU.
+            (``*_sync``) synchronisation, on the CPU (likewise).
         decisions: what the run modelled and why (:func:`snell_bench.sampler.adaptive.decide`).
     """
 
@@ -131,10 +143,11 @@ class _Prompts:
 
 
 def _check_i_minus(i_minus: torch.Tensor, height: int, width: int) -> None:
-    """Raise ``ValueError`` unless ``i_minus`` is a finite ``(1, 3, height, width)`` image."""
+    """Raise ``ValueError`` unless ``i_minus`` is a finite ``(1, 3, height, width)`` image (on
+    ``meta``, the shape alone)."""
     if tuple(i_minus.shape) != (1, 3, height, width):
         raise ValueError(f"i_minus must be (1, 3, {height}, {width}) for these warps, got {tuple(i_minus.shape)}")
-    if not torch.isfinite(i_minus).all():
+    if not is_meta(i_minus) and not torch.isfinite(i_minus).all():
         raise ValueError("i_minus holds NaN or inf")
 
 
@@ -193,6 +206,52 @@ def _guided_repeats(i: int, s: SamplerSettings) -> tuple[int, int]:
     main = s.tt_repeats_main if travel else 1
     pano = (s.tt_repeats_pano if travel else 1) if s.uses_panorama else 0
     return main, pano
+
+
+def expected_model_calls(s: SamplerSettings) -> dict[str, int]:
+    """The velocity calls per branch that :func:`sample` makes with settings ``s``, in closed form.
+
+    With ``T`` steps, the time-travel window's steps ``a <= i < b`` (``a = ceil(tt_window[0] T)``,
+    ``b = ceil(tt_window[1] T)``; ``floor`` of both with ``tt_window_floor``), ``n = b - a`` of them,
+    the travel length ``l`` and ``R`` repeats of a branch (``tt_repeats_main`` / ``tt_repeats_pano``):
+
+    - no time travel (``time_travel: false``, ``sync: none``, or ``R = 1``): ``T``;
+    - ``guided``: ``T + [R > 1] max(0, b - max(a, l))``: one re-prediction per window step that
+      has a level ``l`` steps back to travel to, however many repeats;
+    - ``repaint``: ``T + (R - 1) min(T - a, ceil(n / l) l)``: every step of the ``ceil(n / l)``
+      blocks of ``l`` steps that start in the window (the last one cut at ``T``) runs ``R`` times.
+
+    The panorama's count is 0 without its branch (``sync: none`` or ``panorama: false``). A batched
+    call on both latents counts once for each branch, as :attr:`SampleResult.model_calls` does.
+
+    Args:
+        s: the settings the run uses (with ``skip_panorama_above``, the panorama's decision is the
+            scene's: pass the settings with ``panorama`` as the run's ``decisions`` record it).
+
+    Returns:
+        ``{"main": n_main, "pano": n_pano}``.
+
+    Examples:
+        The paper's settings (T = 20, window [0.2 T, 0.8 T), main view x3, panorama x1):
+
+        >>> expected_model_calls(SamplerSettings())
+        {'main': 32, 'pano': 20}
+        >>> expected_model_calls(SamplerSettings(tt_mode="repaint"))
+        {'main': 44, 'pano': 20}
+    """
+    T, length = s.steps, s.tt_length
+    rnd = math.floor if s.tt_window_floor else math.ceil
+    a, b = (min(max(rnd(T * w), 0), T) for w in s.tt_window)
+    travels = s.sync == "snellcaster" and s.time_travel and b > a
+
+    def calls(repeats: int) -> int:
+        if not travels or repeats == 1:
+            return T
+        if s.tt_mode == "guided":
+            return T + max(0, b - max(a, length))
+        return T + (repeats - 1) * min(T - a, -(-(b - a) // length) * length)
+
+    return {"main": calls(s.tt_repeats_main), "pano": calls(s.tt_repeats_pano) if s.uses_panorama else 0}
 
 
 def _estimate_x0(
@@ -351,10 +410,6 @@ def _renoise(z: torch.Tensor, sigma: float, s_to: float, s: SamplerSettings, rng
     return renoise(z, sigma, s_to, rng)
 
 
-def _to_host(x: torch.Tensor | None) -> torch.Tensor | None:
-    return None if x is None else x.cpu()
-
-
 # ---------------------------------------------------------------------------- the sampler
 
 
@@ -420,7 +475,7 @@ def sample(
     prompts = _encode_prompts(gen, prompt, pano_prompt, use_pano, shape_main == shape_pano)
 
     # 3. prepare latents: initial noise from the run's generator, main view first
-    rng = torch.Generator(dev).manual_seed(int(seed))
+    rng = seeded_generator(dev, seed)
     keep = latent_rounding(gen, s.latent_dtype)
     model_dtype = rounding_dtype(gen, s.latent_dtype)
     z_main = keep(torch.randn((1,) + shape_main, generator=rng, device=dev))
@@ -521,10 +576,10 @@ def sample(
                             {
                                 "step": k,
                                 "sigma": sigma,
-                                "main_x0": _to_host(img_main),
-                                "main_sync": _to_host(sync_main if sync else img_main) if run_main else None,
-                                "pano_x0": _to_host(img_pano),
-                                "pano_sync": _to_host(sync_pano if sync else img_pano) if run_pano else None,
+                                "main_x0": to_host(img_main),
+                                "main_sync": to_host(sync_main if sync else img_main) if run_main else None,
+                                "pano_x0": to_host(img_pano),
+                                "pano_sync": to_host(sync_pano if sync else img_pano) if run_pano else None,
                             }
                         )
 
@@ -538,8 +593,8 @@ def sample(
         bar.close()
 
         # 6. decode the final latents (only the final images and the dumps leave the device)
-        image = _decode(gen, z_main, clock).cpu()
-        pano = _decode(gen, z_pano, clock).cpu() if use_pano else None
+        image = to_host(_decode(gen, z_main, clock))
+        pano = to_host(_decode(gen, z_pano, clock)) if use_pano else None
     return SampleResult(
         image=image, panorama=pano, model_calls=calls, timings=dict(clock.t), dumps=dumps, decisions=decisions
     )

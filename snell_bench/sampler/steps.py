@@ -3,7 +3,7 @@
 Convention:
     ``z_sigma = (1 - sigma) x0 + sigma eps`` (``sigma`` = 1 is pure noise), velocity ``v = eps - x0``.
     Tensors of any shape; ``sigma`` floats (python or 0-d tensors). Random draws come only from the
-    ``torch.Generator`` passed in.
+    ``torch.Generator`` passed in (:func:`seeded_generator`).
 """
 
 from __future__ import annotations
@@ -12,7 +12,10 @@ import math
 
 import torch
 
+from snell_bench.utils.tensors import is_meta
+
 __all__ = [
+    "seeded_generator",
     "euler_estimate",
     "latent_rounding",
     "pipeline_step",
@@ -23,6 +26,21 @@ __all__ = [
     "renoise",
     "renoise_euler_maruyama",
 ]
+
+
+def seeded_generator(device: torch.device | str, seed: int) -> torch.Generator:
+    """The ``torch.Generator`` a run draws from, on ``device`` and seeded with ``seed``.
+
+    ``meta`` (shapes, no data) has no generator of its own: a CPU generator stands in, which torch
+    accepts for a ``meta`` draw (nothing is drawn) and diffusers' ``randn_tensor`` draws on the
+    CPU and moves to ``meta``. Every other device gets its own, so its draws are unchanged.
+
+    Examples:
+        >>> seeded_generator("meta", 0).device, seeded_generator("cpu", 0).initial_seed()
+        (device(type='cpu'), 0)
+    """
+    device = torch.device(device)
+    return torch.Generator("cpu" if is_meta(device) else device).manual_seed(int(seed))
 
 
 def rounding_dtype(gen, mode: str = "float32") -> torch.dtype | None:

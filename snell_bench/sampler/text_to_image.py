@@ -2,7 +2,8 @@
 
 Convention: the same initial noise, schedule and deterministic steps as the synchronized sampler
 with ``sync="none"`` (:func:`snell_bench.sampler.snellcaster.sample`), without any warps; the
-image is ``(1, 3, H, W)`` float32 sRGB in [0, 1] on the CPU; the loop runs on the generator's device.
+image is ``(1, 3, H, W)`` float32 sRGB in [0, 1] on the CPU (on ``meta`` for a generator there); the
+loop runs on the generator's device.
 """
 
 from __future__ import annotations
@@ -10,7 +11,15 @@ from __future__ import annotations
 import torch
 
 from snell_bench.models.base import Generator, generator_device
-from snell_bench.sampler.steps import euler_estimate, latent_rounding, pipeline_step, rounding_dtype, sync_step
+from snell_bench.sampler.steps import (
+    euler_estimate,
+    latent_rounding,
+    pipeline_step,
+    rounding_dtype,
+    seeded_generator,
+    sync_step,
+)
+from snell_bench.utils.tensors import to_host
 
 __all__ = ["text_to_image"]
 
@@ -45,7 +54,7 @@ def text_to_image(
     dev = generator_device(gen)
     keep = latent_rounding(gen, latent_dtype)
     model_dtype = rounding_dtype(gen, latent_dtype)
-    g = torch.Generator(dev).manual_seed(int(seed))
+    g = seeded_generator(dev, seed)
     shape = gen.geometry.latent_shape(int(height), int(width))
     sig = gen.sigmas(int(steps), int(height), int(width), kind=schedule)
     z = keep(torch.randn((1,) + shape, generator=g, device=dev))
@@ -57,4 +66,4 @@ def text_to_image(
             z = pipeline_step(z, x0, sigma, sigma_next, model_dtype)
         else:
             z = x0 if sigma_next == 0 else sync_step(z, x0, sigma, sigma_next)
-    return gen.decode(z).cpu()
+    return to_host(gen.decode(z))

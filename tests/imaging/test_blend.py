@@ -197,3 +197,27 @@ class TestFresnelCombine:
         assert out.dtype == torch.float64
         assert torch.equal(out[..., ~mask], refr[..., ~mask])
         assert (out[..., mask] > 0.2 + 0.1).all()
+
+
+def test_meta_gives_the_real_shapes():
+    """On ``meta`` (shapes, no data) the blends give the real computation's shapes and dtypes."""
+    g = torch.Generator().manual_seed(0)
+    imgs = [torch.rand(1, 3, 12, 20, generator=g) for _ in range(3)]
+    masks = [torch.rand(12, 20, generator=g) > 0.5 for _ in range(3)]
+    pyrs = [laplacian_pyramid(x, 3) for x in imgs]
+    R = np.full((12, 20), 0.04, np.float32)
+
+    def meta(x):
+        return [meta(v) for v in x] if isinstance(x, list) else torch.empty_like(x, device="meta")
+
+    def layout(out):
+        return [(tuple(t.shape), t.dtype) for t in out]
+
+    calls = [
+        lambda f: blend_images(f(imgs), f(masks), lam=0.5),
+        lambda f: blend_pyramids([f(p) for p in pyrs], None, lam=0.5, signed_lowpass=True),
+        lambda f: (fresnel_combine(f(imgs[0]), f(imgs[1]), R, mask=f(masks[0])),),
+    ]
+    for call in calls:
+        on_meta = call(meta)
+        assert layout(on_meta) == layout(call(lambda x: x)) and all(t.is_meta for t in on_meta)

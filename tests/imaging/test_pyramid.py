@@ -444,3 +444,45 @@ def test_pyrdown_and_pyrup_are_kornias(shape):
 
     x = torch.rand(shape, generator=torch.Generator().manual_seed(0))
     assert torch.equal(pyrdown(x), kornia_down(x)) and torch.equal(pyrup(x), kornia_up(x))
+
+
+class TestMeta:
+    """On ``meta`` (shapes, no data) every warp takes its general path and returns the shapes and
+    dtypes of the real computation: with a window around the valid pixels or without, collapsed or
+    as bands, across a panorama's seam, scale-matched or level by level."""
+
+    @staticmethod
+    def leaves(out) -> list[torch.Tensor]:
+        return [t for v in out for t in TestMeta.leaves(v)] if isinstance(out, (list, tuple)) else [out]
+
+    def assert_same_layout(self, on_meta, real):
+        a, b = self.leaves(on_meta), self.leaves(real)
+        assert [(t.shape, t.dtype) for t in a] == [(t.shape, t.dtype) for t in b]
+        assert all(t.is_meta for t in a)
+
+    @pytest.mark.parametrize(
+        "kw",
+        [
+            dict(levels=5, roi=True),  # a window on the CPU
+            dict(levels=5, roi=True, collapse=False, wrap_x=True, dest_wrap_x=True),
+            dict(levels=3, collapse=False, match_scale=False),
+            dict(levels=1, roi=True),
+        ],
+    )
+    def test_shapes_of_the_real_path(self, kw):
+        src = smooth_noise(1, 3, 64, 128, seed=5)
+        c = torch.from_numpy(TestPyramidWarpROI.disk_map(72, 120, 60, 36, 14, scale=0.4, shift=(8.0, 4.0)))
+        real = pyramid_warp(src, c, **kw)
+        g = gaussian_pyramid(meta_like(src), kw["levels"], wrap_x=kw.get("wrap_x", False))
+        self.assert_same_layout(pyramid_warp(meta_like(src), meta_like(c), src_pyramid=g, **kw), real)
+
+    def test_masked_collapse(self):
+        img = smooth_noise(1, 3, 40, 64, seed=6)
+        masks = [torch.rand(40 >> k, 64 >> k, generator=torch.Generator().manual_seed(k)) > 0.3 for k in range(3)]
+        real = collapse(laplacian_pyramid(img, 3), masks)
+        self.assert_same_layout(collapse(laplacian_pyramid(meta_like(img), 3), [meta_like(m) for m in masks]), real)
+
+
+def meta_like(x: torch.Tensor) -> torch.Tensor:
+    """A tensor of ``x``'s shape and dtype on ``meta``."""
+    return torch.empty_like(x, device="meta")

@@ -148,6 +148,24 @@ def test_no_tensor_of_the_loop_is_created_off_the_generators_device(scene, backe
     assert torch.equal(out.image, ref.image) and torch.equal(out.panorama, ref.panorama)
 
 
+def test_a_generator_on_meta_makes_the_real_runs_calls(scene):
+    """Tiny FLUX on ``meta`` (shapes, no data; the run's random generator on the CPU): every stage
+    that reads values on the host takes its general path, and the run makes the CPU run's model
+    calls and gives its shapes and dtypes (images and dumps stay on ``meta``). The paper's sizes:
+    tests/sampler/test_full_size_meta.py."""
+    from snell_bench.models.flux import FluxGenerator
+    from snell_bench.models.tiny_flux import TinyFluxGenerator, build_tiny_flux_pipeline
+
+    kw = dict(steps=3, sde=True, stochastic=False, encode="sample", quantize=True, dump_every=1)
+    ref = run(TinyFluxGenerator(seed=0), scene, **kw)
+    out = run(FluxGenerator(build_tiny_flux_pipeline(0), device="meta", dtype=torch.float32), scene, **kw)
+    assert out.model_calls == ref.model_calls == {"main": 5, "pano": 3}
+    for a, b in [(out.image, ref.image), (out.panorama, ref.panorama)] + [
+        (d[k], e[k]) for d, e in zip(out.dumps, ref.dumps, strict=True) for k in d if torch.is_tensor(e[k])
+    ]:
+        assert a.is_meta and (a.shape, a.dtype) == (b.shape, b.dtype)
+
+
 def test_no_bytes_cross_devices_on_one_device(scene):
     ws, i_minus, pano = scene
     gen = AnalyticGenerator.from_scene(i_minus[0].permute(1, 2, 0).numpy(), ws.object_mask, pano)
