@@ -178,6 +178,12 @@ def _files(cfg: DictConfig, out: list[str]) -> None:
                 f"{key}={str(value)!r}: no such file (the {what}); fix the path, or set {key}=null to report the "
                 "metric as missing"
             )
+    bench = _get(cfg, "plan.bench")
+    if bench and not Path(str(bench)).is_file():
+        out.append(
+            f"plan.bench={str(bench)!r}: no such file (the figures of benchmarks/bench_gpu.py --json); fix the path, "
+            "or set plan.bench=null for the README's basis"
+        )
     segmenter = _get(cfg, "segment.segmenter")
     if isinstance(segmenter, DictConfig) and str(segmenter.get("_target_", "")).endswith("MaskFileSegmenter"):
         need("segment.mask", "a PNG mask file, nonzero on the surface", f"segment={_get(cfg, 'segment.name')}")

@@ -497,8 +497,9 @@ class TradeoffConfig:
 class PlanConfig:
     """``job=plan``: what a grid will do on this machine, before doing it."""
 
-    #: A ``benchmarks/bench_gpu.py --json`` file whose measured figures time the plan; ``null``:
-    #: the README's basis (the paper's A100 time scaled), labelled as such.
+    #: A ``benchmarks/bench_gpu.py --json`` file whose measured times and GPU memory the plan uses
+    #: (the pipeline baselines keep the README's figures); ``null``: the README's basis (the
+    #: paper's A100 time scaled), labelled as such.
     bench: Optional[str] = None
 
 

@@ -1,5 +1,5 @@
 """Jobs run by ``python -m snell_bench``: the refraction preview, generation, the experiment grid,
-the speed/accuracy sweep."""
+the speed/accuracy sweep, the report, and the plan of a grid (what it will do here, before doing it)."""
 
 from __future__ import annotations
 
@@ -54,7 +54,20 @@ def _report(cfg: DictConfig) -> None:
     print(f"reports: {out} ({len(paths)} files)")
 
 
-JOBS = {Job.preview: _preview, Job.generate: _generate, Job.grid: _grid, Job.tradeoff: _tradeoff, Job.report: _report}
+def _plan(cfg: DictConfig) -> None:
+    from snell_bench.experiment.estimate import run_plan
+
+    run_plan(cfg)
+
+
+JOBS = {
+    Job.preview: _preview,
+    Job.generate: _generate,
+    Job.grid: _grid,
+    Job.tradeoff: _tradeoff,
+    Job.report: _report,
+    Job.plan: _plan,
+}
 
 
 def run_job(cfg: DictConfig) -> None:

@@ -55,7 +55,18 @@ from snell_bench.utils.io import umask_mode, write_json, write_text
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Cell", "SharedCache", "run_cells", "record_done", "claim", "cell_files", "files_problem", "SettingsChanged"]
+__all__ = [
+    "Cell",
+    "SharedCache",
+    "run_cells",
+    "record_done",
+    "read_record",
+    "changed_settings",
+    "claim",
+    "cell_files",
+    "files_problem",
+    "SettingsChanged",
+]
 
 DONE = ("ok", "skipped")
 
@@ -107,10 +118,11 @@ class SharedCache:
 
 def record_done(path: Path) -> bool:
     """Whether a record file exists and says ``ok`` or ``skipped``."""
-    return (_read_record(path) or {}).get("status") in DONE
+    return (read_record(path) or {}).get("status") in DONE
 
 
-def _read_record(path: Path) -> dict | None:
+def read_record(path: Path) -> dict | None:
+    """A record file as a dict, or ``None`` when it is missing, unreadable or not an object."""
     try:
         record = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -204,7 +216,9 @@ def _schema_defaults() -> dict:
     return {**defaults, **BEFORE_SWITCHES}
 
 
-def _changed(cell: Cell, record: dict, current: dict, current_hash: str) -> ChangedCell | None:
+def changed_settings(cell: Cell, record: dict, current: dict, current_hash: str) -> ChangedCell | None:
+    """The :class:`ChangedCell` of a finished cell whose recorded settings differ from ``current``
+    (keys added to the schema since, at their default, do not count), or ``None``."""
     if record.get("settings_hash") == current_hash:
         return None
     old = _saved_settings(cell.folder)
@@ -320,14 +334,14 @@ def run_cells(
 
     def status(cell: Cell) -> str | ChangedCell:
         """``todo``, ``done``, or the :class:`ChangedCell` of a cell finished with other settings."""
-        record = _read_record(cell.folder / record_name)
+        record = read_record(cell.folder / record_name)
         if recompute or record is None or record.get("status") not in DONE:
             return "todo"
         problem = files_problem(cell.folder, record)
         if problem is not None:
             log.warning("cell %s: %s; computing it again", cell.name, problem)
             return "todo"
-        return _changed(cell, record, settings[id(cell)], hashes[id(cell)]) or "done"
+        return changed_settings(cell, record, settings[id(cell)], hashes[id(cell)]) or "done"
 
     states = {id(c): status(c) for c in cells}
     changed = [s for s in states.values() if isinstance(s, ChangedCell)]
