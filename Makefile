@@ -73,6 +73,7 @@ bench: setup
 	$(PY) benchmarks/bench_sampler.py
 	$(PY) benchmarks/bench_adaptive.py
 	$(PY) benchmarks/bench_reference.py
+	$(PY) benchmarks/bench_overlap.py
 
 clean:
 	rm -rf $(VENV) runs/ .pytest_cache

@@ -455,11 +455,26 @@ class GridConfig:
     on_change: OnChange = OnChange.error
     #: Build the report tables after the sweep.
     report: bool = True
-    #: Groups (scene x variation x object) whose inputs (placement, warps, references) worker
-    #: processes prepare ahead of the group being sampled; ``null``: automatic.
+    #: Groups (scene x variation x object) whose inputs worker processes prepare ahead of the group
+    #: being sampled: their scene, placement and warps before their cells sample, their references
+    #: while they sample, so a grid takes about as long as the slower of sampling and preparing
+    #: (benchmarks/bench_overlap.py; snell_bench/experiment/prefetch.py). ``null``: automatic, 2
+    #: when the generator samples on CUDA (``model.from_scene`` false, ``model.device`` unset,
+    #: ``auto`` or ``cuda[:i]``, and CUDA present), else 0: on a CPU-only machine sampling and
+    #: preparation share the cores. 0: every stage in this process, in order. Stages that need a
+    #: model (a generated I⁻, a depth estimator, SAM 3) always run in this process. The results are
+    #: the same either way (not a result setting).
     prefetch: Optional[int] = None
-    #: Worker processes that prepare those inputs.
+    #: Worker processes that prepare those inputs (each loads no model; the reference renderer
+    #: uses every core in each, so more than one pays only where one worker leaves cores idle).
     workers: int = 1
+
+    def __post_init__(self) -> None:
+        p = Problems("grid")
+        if self.prefetch is not None:
+            p.int_at_least("prefetch", self.prefetch, 0, " (groups prepared ahead; null: automatic)", 2)
+        p.int_at_least("workers", self.workers, 1, " (worker processes)", 1)
+        p.raise_if_any()
 
 
 @dataclass
@@ -540,4 +555,4 @@ class Config:
 
 #: The nodes whose dataclass checks its own ranges (``sampler`` is checked with the method's
 #: switches applied, the root's ``seed`` by :func:`~snell_bench.config.checks.check_config`).
-CHECKED_NODES = ("scene", "object", "warps", "model", "models", "method", "reference", "relight", "tradeoff")
+CHECKED_NODES = ("scene", "object", "warps", "model", "models", "method", "reference", "relight", "grid", "tradeoff")

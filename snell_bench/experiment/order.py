@@ -6,40 +6,50 @@ method. With a budget the models may not fit together, so the sweep runs *model-
 (:class:`ModelMajor`):
 
 1. the inputs pass: every group's inputs (stages 1-5) are computed with the models those stages
-   need and kept in ``_inputs/inputs-<settings hash>.pkl`` (generated I⁻ are generated first, into
-   ``scene.cache_dir``);
+   need and kept in ``_inputs/inputs-<settings hash>.pkl``
+   (:func:`~snell_bench.experiment.files.inputs_file`; generated I⁻ are generated first, into
+   ``scene.cache_dir``); with a prefetcher (:mod:`snell_bench.experiment.prefetch`,
+   ``grid.prefetch``) only the groups whose stages need a model: worker processes prepare the
+   others ahead of the cells that need them, while the generator samples, and they are kept in
+   the same file;
 2. the sampling pass of relit cells: a cell that samples with one model and relights with another
    samples here, grouped by its sampling model, and keeps its un-relit result beside it
    (``.unrelit.pt``, hidden) until its turn;
 3. the cells, ordered by the model they need last, starting with the one the sampling pass left
    loaded; each cell reads its group's inputs back from the pickle.
 
-The inputs read back are the very arrays the group computed, so the results do not depend on the
-order (``tests/pipeline/test_pool.py`` checks every file of a grid run both ways). Each model then
-loads once, with two exceptions: a generator that makes I⁻ (``scene.source=generated``) and also
-samples loads once for each, when the budget does not hold it beside the depth estimator; and
-relit cells that sample with different models may reload one of them. A generator built from the
-scene (the CPU stand-ins) is rebuilt per cell in this order: it is the group's, not the sweep's.
+The kept inputs are named by the hash of the settings stages 1-5 read
+(:func:`~snell_bench.experiment.files.inputs_settings`: the method's keys left out), so every
+method of a group reads the same file.
+
+The inputs read back are the very arrays the group computed
+(:func:`~snell_bench.experiment.files.read_inputs`), so the results do not depend on the order
+(``tests/pipeline/test_pool.py`` checks every file of a grid run both ways). Each model then loads
+once, with two exceptions: a generator that makes I⁻ (``scene.source=generated``) and also samples
+loads once for each, when the budget does not hold it beside the depth estimator; and relit cells
+that sample with different models may reload one of them. A generator built from the scene (the
+CPU stand-ins) is rebuilt per cell in this order: it is the group's, not the sweep's.
 """
 
 from __future__ import annotations
 
 import logging
-import pickle
-from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 from omegaconf import DictConfig
 
 from snell_bench.config import MethodKind, Source
 from snell_bench.experiment.cells import Cell, claim
-from snell_bench.experiment.files import save_inputs
-from snell_bench.experiment.plan import result_settings, settings_hash
+from snell_bench.experiment.files import inputs_file, keep_inputs, read_inputs, save_inputs
 from snell_bench.pipeline import CellInputs, CellResult, ModelPool, prepare_inputs, sample_stage
 from snell_bench.pipeline.cell import node_key
 from snell_bench.pipeline.inputs import generate_i_minus
 from snell_bench.utils.io import atomic_write
+
+if TYPE_CHECKING:
+    from snell_bench.experiment.prefetch import Prefetcher
 
 log = logging.getLogger(__name__)
 
@@ -74,10 +84,14 @@ class ModelMajor:
 
     Args:
         pool: the sweep's models.
+        prefetch: worker processes that prepare the groups whose stages need no model
+            (:class:`~snell_bench.experiment.prefetch.Prefetcher`, in keep mode), or ``None``: the
+            inputs pass prepares every group here.
     """
 
-    def __init__(self, pool: ModelPool) -> None:
+    def __init__(self, pool: ModelPool, prefetch: Prefetcher | None = None) -> None:
         self.pool = pool
+        self.prefetch = prefetch
         self._unrelit: dict[Path, Path] = {}  #: cell folder -> the result this process sampled ahead
 
     # ------------------------------------------------------------------------ the order
@@ -105,34 +119,27 @@ class ModelMajor:
         return out
 
     # ------------------------------------------------------------------------ inputs
-    @staticmethod
-    def _inputs_file(cell: Cell) -> Path:
-        key = settings_hash(result_settings(cell.extra["inputs_config"]))
-        return Path(cell.shares) / "_inputs" / f"inputs-{key}.pkl"
-
     def inputs(self, cell: Cell) -> tuple[CellInputs, dict[str, Path]]:
-        """The group inputs of ``cell`` and their files in ``_inputs/``: read back from the pickle
-        its settings name, or computed with the pool's models and kept there (a pickle of other
-        settings is removed; one that cannot be read is computed again)."""
-        path = self._inputs_file(cell)
-        try:
-            with open(path, "rb") as f:
-                kept = pickle.load(f)
-            inputs, files = kept["inputs"], {name: path.parent / name for name in kept["files"]}
-            if all(p.is_file() for p in files.values()):
-                inputs.pool = self.pool
-                return inputs, files
-        except FileNotFoundError:
-            pass
-        except Exception as e:  # noqa: BLE001 - any unreadable pickle: computed again
-            log.warning("%s cannot be read (%s: %s); computing the inputs again", path, type(e).__name__, e)
+        """The group inputs of ``cell`` and their files in ``_inputs/``: from the prefetcher when it
+        prepares the group, else read back from the pickle its settings name
+        (:func:`~snell_bench.experiment.files.read_inputs`), or computed with the pool's models and
+        kept there (:func:`~snell_bench.experiment.files.keep_inputs`)."""
+        if self.prefetch is not None and self.prefetch.prepares(cell):
+            return self.prefetch.inputs(cell)
+        path = inputs_file(cell)
+        kept = read_inputs(path)
+        if kept is not None:
+            kept[0].pool = self.pool
+            return kept
         inputs = prepare_inputs(cell.extra["inputs_config"], pool=self.pool)
         files = save_inputs(inputs, path.parent)
-        for old in path.parent.glob("inputs-*.pkl"):
-            old.unlink(missing_ok=True)
-        kept = {"inputs": replace(inputs, pool=None), "files": sorted(files)}
-        atomic_write(path, lambda f: pickle.dump(kept, f, protocol=5), binary=True)
+        keep_inputs(inputs, files, path)
         return inputs, files
+
+    def complete(self, cell: Cell, inputs: CellInputs) -> dict[str, Path]:
+        """The reference files of ``cell``'s group that :meth:`inputs` did not give yet (the
+        prefetcher's references rendered while the cell sampled), ``inputs`` filled with them."""
+        return {} if self.prefetch is None else self.prefetch.complete(cell, inputs)
 
     # ------------------------------------------------------------------------ the passes
     def prepare(self, todo: list[Cell]) -> None:
@@ -148,15 +155,19 @@ class ModelMajor:
                     generate_i_minus(c, self.pool)
                 except Exception as e:  # noqa: BLE001
                     log.warning("generating I- of %s failed (%s); its cells will say why", cell.shares, e)
+        relit = [c for c in todo if _relit(c)]
+        ahead = [c for m in self._sampling_models(relit) for c in relit if cell_models(c.config)[0] == m]
+        if self.prefetch is not None:  # the groups without models, in the order their cells need them
+            self.prefetch.plan(todo, first=ahead, model_free_only=True)
         for cell in groups.values():
+            if self.prefetch is not None and self.prefetch.prepares(cell):
+                continue  # prepared by the workers ahead of its cells
             try:
                 self.inputs(cell)
             except Exception as e:  # noqa: BLE001
                 log.warning("inputs of %s failed (%s); its cells will say why", cell.shares, e)
-        relit = [c for c in todo if _relit(c)]
-        for model in self._sampling_models(relit):
-            for cell in (c for c in relit if cell_models(c.config)[0] == model):
-                self._sample_ahead(cell)
+        for cell in ahead:
+            self._sample_ahead(cell)
 
     def _sample_ahead(self, cell: Cell) -> None:
         cell.folder.mkdir(parents=True, exist_ok=True)

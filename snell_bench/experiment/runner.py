@@ -22,6 +22,10 @@ Layout of an experiment ``E`` under ``runs/``::
 - Every model comes from one :class:`~snell_bench.pipeline.ModelPool` per sweep, so each loads
   once; with a memory budget (``models.memory_gb``) the cells run model-major
   (:mod:`snell_bench.experiment.order`). ``summary.json`` lists every load (``models``).
+- With ``grid.prefetch`` (automatic: on when the generator samples on CUDA) worker processes
+  prepare the next groups' inputs while the generator samples, and render a group's references
+  while its cells sample (:mod:`snell_bench.experiment.prefetch`); the results are the same.
+  ``summary.json`` says what ran where (``prefetch``).
 - The loop (:func:`snell_bench.experiment.cells.run_cells`) writes every file atomically and
   ``metrics.json`` last, so a cell with a ``metrics.json`` is complete. Re-running skips complete
   cells (``grid.recompute=true`` redoes them); a failing cell records its error (``status:
@@ -52,6 +56,7 @@ from snell_bench.experiment.plan import (
     object_overrides,
     result_settings,
 )
+from snell_bench.experiment.prefetch import Prefetcher, settings_of
 from snell_bench.experiment.reports.collect import recipe_and_protocol
 from snell_bench.pipeline import ModelPool, apply_method, scorers_of
 from snell_bench.utils.io import link_or_copy, save_png, write_json
@@ -97,6 +102,7 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
                 "method_label": str(c.method.label),
                 "model": str(c.model.name),
                 "scene_source": str(c.scene.source),
+                **({"random_weights": True} if bool(c.model.get("random_init", False)) else {}),
                 **recipe_and_protocol(c),
             }
             cells.append(
@@ -112,34 +118,51 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
     return cells
 
 
-def _group_inputs(cell: Cell, shared: SharedCache, pool: ModelPool) -> tuple[pipeline.CellInputs, dict]:
+def _group_inputs(
+    cell: Cell, shared: SharedCache, pool: ModelPool, prefetch: Prefetcher | None = None
+) -> tuple[pipeline.CellInputs, dict]:
     """The group's inputs and their files in ``_inputs/`` (traced with the run's warps settings; a
-    method with its own gets its own warps in :func:`~snell_bench.pipeline.run_method`)."""
+    method with its own gets its own warps in :func:`~snell_bench.pipeline.run_method`), from the
+    ``prefetch`` workers when there are (its references may still be rendering:
+    :meth:`~snell_bench.experiment.prefetch.Prefetcher.complete`)."""
 
     def compute():
+        if prefetch is not None:
+            return prefetch.inputs(cell)
         inputs = pipeline.prepare_inputs(cell.extra["inputs_config"], pool=pool)
         return inputs, save_inputs(inputs, cell.shares / "_inputs")
 
     return shared.get(cell.shares, compute, by=cell.name)
 
 
-def run_cell(cell: Cell, shared: SharedCache, scorers, pool: ModelPool, order: ModelMajor | None = None) -> dict:
+def run_cell(
+    cell: Cell,
+    shared: SharedCache,
+    scorers,
+    pool: ModelPool,
+    order: ModelMajor | None = None,
+    prefetch: Prefetcher | None = None,
+) -> dict:
     """One grid cell: shared inputs linked into its folder, the method run and scored, with the
     models of the sweep's pool; in model-major ``order`` the inputs are read back and a relit
-    cell finishes the result sampled ahead."""
+    cell finishes the result sampled ahead. References that a ``prefetch`` worker renders while
+    the cell samples are waited for only before it is scored."""
     if order is None:
-        inputs, files = _group_inputs(cell, shared, pool)
+        inputs, files = _group_inputs(cell, shared, pool, prefetch)
         sampled = None
     else:
         inputs, files = order.inputs(cell)
         sampled = order.take_unrelit(cell)
     for name, path in files.items():
         link_or_copy(path, cell.folder / name)
-    image_path = cell.folder / "image.png"
     if sampled is None:
-        res = pipeline.run_method(cell.config, inputs, scorers=scorers, image_path=image_path)
-    else:
-        res = pipeline.finish_method(cell.config, inputs, sampled, scorers=scorers, image_path=image_path)
+        sampled = pipeline.sample_stage(cell.config, inputs)
+    source = order if order is not None else prefetch
+    if source is not None:  # the references rendered meanwhile
+        for name, path in source.complete(cell, inputs).items():
+            link_or_copy(path, cell.folder / name)
+    image_path = cell.folder / "image.png"
+    res = pipeline.finish_method(cell.config, inputs, sampled, scorers=scorers, image_path=image_path)
     if res.panorama is not None:  # listed in the record's files with the image: resume checks it
         save_png(cell.folder / PANORAMA_FILE, bchw_to_hwc(res.panorama))
     return {
@@ -240,24 +263,37 @@ def run_grid(cfg: DictConfig) -> dict:
     g = cfg.grid
     n_groups = len(g.scenes) * len(g.variations) * len(g.objects)
     print(f"experiment {exp}: {n_groups} scene/object groups x {len(g.methods)} methods = {len(cells)} cells -> {root}")
-    pool = ModelPool(cfg.models.memory_gb)
+    ahead, workers = settings_of(cfg)
+    pool = ModelPool(cfg.models.memory_gb, offload=bool(cfg.models.offload))
     scorers = scorers_of(cfg.metrics, pool)
-    order = ModelMajor(pool) if pool.budget is not None else None  # the models may not fit together
+    model_major = pool.budget is not None  # the models may not fit together
+    prefetch = Prefetcher(pool, ahead, workers, keep=model_major) if ahead > 0 else None
+    order = ModelMajor(pool, prefetch) if model_major else None
+    finished = False
     try:
         summary = run_cells(
             cells if order is None else order.order(cells),
-            lambda c, s: run_cell(c, s, scorers, pool, order),
+            lambda c, s: run_cell(c, s, scorers, pool, order, prefetch),
             root=root,
             recompute=bool(g.recompute),
             on_change=g.on_change,
             on_change_key="grid.on_change",
             desc=exp,
-            before=None if order is None else order.prepare,
+            before=order.prepare if order is not None else (prefetch.plan if prefetch is not None else None),
+            after=None if prefetch is None else prefetch.release,
         )
+        finished = True
     finally:
         if order is not None:
             order.close()
-    summary = {"experiment": exp, **summary, "order": "group-major" if order is None else "model-major"}
+        if prefetch is not None:
+            prefetch.close(wait=finished)
+    summary = {
+        "experiment": exp,
+        **summary,
+        "order": "group-major" if order is None else "model-major",
+        "prefetch": prefetch.summary() if prefetch is not None else {"ahead": 0, "workers": 0},
+    }
     summary["models"] = pool.summary()
     write_json(root / "summary.json", summary)
     print(

@@ -1,6 +1,8 @@
 """The body of the Mitsuba variant probe: a tiny reference render, run in a subprocess by
-:func:`~snell_bench.render.variants.mitsuba_variant` with the variant forced by the environment
-(``$SNELL_BENCH_MITSUBA_VARIANT``).
+:func:`~snell_bench.render.variants.mitsuba_variant` for each candidate variant in turn
+(``cuda_ad_rgb``, ``llvm_ad_rgb``), forced by the environment (``$SNELL_BENCH_MITSUBA_VARIANT``).
+It runs the reference render's own code (a BSDF written in Python, the texture, the meshes, the
+numpy round trips), so a variant that passes it renders references.
 
 Convention:
     - Scene: a ``12 x 8`` image (60° horizontal field of view) of a wall at z-depth 3 textured with

@@ -4,13 +4,22 @@ Importing this module does not import Mitsuba; :func:`import_mitsuba`, :func:`mi
 :func:`set_variant` do.
 
 Convention:
-    - Variant: ``$SNELL_BENCH_MITSUBA_VARIANT`` (:data:`VARIANT_ENV`) wins if set; otherwise
-      ``llvm_ad_rgb`` (vectorised, ~3x faster than ``scalar_rgb``) if a tiny reference render with it
-      succeeds in a subprocess, else ``scalar_rgb``. The probe runs once per process.
+    - Variant: ``$SNELL_BENCH_MITSUBA_VARIANT`` (:data:`VARIANT_ENV`) wins if set; otherwise the first
+      of :data:`PREFERRED_VARIANTS` that this Mitsuba build has and whose tiny reference render
+      succeeds in a subprocess: ``cuda_ad_rgb`` (the GPU; probed only where the CUDA driver library
+      loads, :func:`cuda_driver`), then ``llvm_ad_rgb`` (vectorised on the CPU, ~3x faster than
+      ``scalar_rgb``); else ``scalar_rgb``. The probes run once per process (:func:`probed_variant`).
     - Probe: ``python -c "from snell_bench.render.probe import probe_render; probe_render()"`` with the
       variant forced by the environment, in a subprocess, because a broken JIT backend (no libLLVM, or
-      an incompatible one) can abort the whole process, which no ``try`` catches. It succeeds iff the
-      subprocess exits with 0 and prints a marker.
+      an incompatible one; no GPU, or a driver too old for Dr.Jit's CUDA backend) can abort the whole
+      process, which no ``try`` catches. It succeeds iff the subprocess exits with 0 and prints a
+      marker.
+    - Every variant renders the same scene with the same code (:mod:`snell_bench.render.pieces`,
+      :mod:`snell_bench.render.plugins`, :mod:`snell_bench.render.integrator`): arrays cross to
+      Mitsuba as numpy (copied to the device by the variant's array types) and back with
+      ``numpy.array`` (copied to the host). The JIT variants (``llvm_*``, ``cuda_*``) add a pixel's
+      samples in whatever order its threads finish, so their images are reproducible up to float
+      rounding; ``scalar_rgb`` bit for bit. The variant is recorded with every reference.
     - :func:`set_variant` selects the variant and registers the plugins of
       :mod:`snell_bench.render.plugins` for it; every function that builds or renders a Mitsuba scene
       takes the ``mitsuba`` module it returns.
@@ -28,14 +37,27 @@ from snell_bench.render.plugins import register_plugins
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PROBE_OK", "VARIANT_ENV", "import_mitsuba", "mitsuba_variant", "set_variant"]
+__all__ = [
+    "PREFERRED_VARIANTS",
+    "PROBE_OK",
+    "VARIANT_ENV",
+    "cuda_driver",
+    "import_mitsuba",
+    "mitsuba_variant",
+    "probed_variant",
+    "set_variant",
+]
 
 #: Environment variable that forces a Mitsuba variant (e.g. ``scalar_rgb``), skipping the probe.
 VARIANT_ENV = "SNELL_BENCH_MITSUBA_VARIANT"
 #: The line a successful probe prints.
 PROBE_OK = "SNELL_BENCH_MITSUBA_PROBE_OK"
-_PREFERRED_VARIANT = "llvm_ad_rgb"
+#: The variants tried, in order, when none is forced: the GPU, then the vectorised CPU back end.
+PREFERRED_VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb")
+_CUDA_VARIANT = "cuda_ad_rgb"
 _FALLBACK_VARIANT = "scalar_rgb"
+#: The CUDA driver library, as Dr.Jit's CUDA back end loads it.
+_CUDA_LIBRARIES = ("libcuda.so.1", "libcuda.so", "libcuda.dylib", "nvcuda.dll")
 _PROBE_TIMEOUT_S = 300
 _PROBE_CODE = "from snell_bench.render.probe import probe_render; probe_render()"
 _INSTALL_HINT = (
@@ -57,6 +79,26 @@ def import_mitsuba():
     except ImportError as e:
         raise ImportError(f"{_INSTALL_HINT} ({e})") from e
     return mi
+
+
+def cuda_driver() -> bool:
+    """Whether the CUDA driver library loads here (what Dr.Jit's CUDA back end needs; loading it
+    initialises no device): without it ``cuda_ad_rgb`` is not probed."""
+    import ctypes
+
+    for name in _CUDA_LIBRARIES:
+        try:
+            ctypes.CDLL(name)
+        except OSError:
+            continue
+        return True
+    return False
+
+
+def probed_variant() -> str | None:
+    """The variant this process's probes chose, or ``None`` before :func:`mitsuba_variant` probed
+    (a forced variant is not a probe's); imports nothing."""
+    return _probed_variant
 
 
 def _probe(variant: str) -> bool:
@@ -83,9 +125,9 @@ def _probe(variant: str) -> bool:
 def mitsuba_variant() -> str:
     """The Mitsuba variant to render with.
 
-    ``$SNELL_BENCH_MITSUBA_VARIANT`` wins if set. Otherwise ``llvm_ad_rgb`` (vectorised, ~3x faster)
-    if a tiny render with it succeeds in a subprocess, else ``scalar_rgb``. The probe runs once per
-    process.
+    ``$SNELL_BENCH_MITSUBA_VARIANT`` wins if set. Otherwise the first of :data:`PREFERRED_VARIANTS`
+    (``cuda_ad_rgb`` where the CUDA driver loads, then ``llvm_ad_rgb``) that Mitsuba has and whose
+    tiny render succeeds in a subprocess, else ``scalar_rgb``. The probes run once per process.
 
     Returns:
         The variant's name.
@@ -102,8 +144,9 @@ def mitsuba_variant() -> str:
             raise ValueError(f"{VARIANT_ENV}={forced!r} is not a Mitsuba variant; available: {mi.variants()}")
         return forced
     if _probed_variant is None:
-        usable = _PREFERRED_VARIANT in mi.variants() and _probe(_PREFERRED_VARIANT)
-        v = _PREFERRED_VARIANT if usable else _FALLBACK_VARIANT
+        have = mi.variants()
+        candidates = [v for v in PREFERRED_VARIANTS if v in have and (v != _CUDA_VARIANT or cuda_driver())]
+        v = next((v for v in candidates if _probe(v)), _FALLBACK_VARIANT)
         log.info("mitsuba: rendering with the %s variant", v)
         _probed_variant = v
     return _probed_variant
