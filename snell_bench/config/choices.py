@@ -61,6 +61,7 @@ class Job(Choice):
     tradeoff = "tradeoff"
     report = "report"
     plan = "plan"
+    status = "status"
 
 
 #: Jobs whose output is an experiment folder under ``runs_dir`` (their logs go to

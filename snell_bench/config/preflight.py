@@ -25,7 +25,7 @@ __all__ = ["Preflight", "check_writable", "output_folders", "write_nothing", "PR
 _RUNS_JOBS = (Job.grid, Job.tradeoff)
 
 #: Jobs that only print: no folder, no file, no log (:func:`write_nothing`).
-PRINT_JOBS = (Job.plan,)
+PRINT_JOBS = (Job.plan, Job.status)
 
 
 def check_writable(folder: str | os.PathLike, key: str) -> None:

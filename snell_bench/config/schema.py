@@ -468,9 +468,34 @@ class GridConfig:
     #: Worker processes that prepare those inputs (each loads no model; the reference renderer
     #: uses every core in each, so more than one pays only where one worker leaves cores idle).
     workers: int = 1
+    #: Split the grid's (scene, variation, object) groups between this many jobs (a Slurm job
+    #: array with ``-m hydra/launcher=slurm``): each job computes its own groups, so every group's
+    #: shared inputs are computed once in the whole cluster. With ``-m``, ``grid.shards=N`` adds
+    #: ``grid.shard=range(0,N)`` to the sweep.
+    shards: int = 1
+    #: Which shard this job is (0 .. shards - 1); ``null``: every group.
+    shard: Optional[int] = None
+    #: How a process claims a cell: ``flock`` (the kernel frees the lock of a dead process),
+    #: ``lease`` (lease files with a heartbeat and an expiry: for file systems where flock is
+    #: missing or unreliable, Lustre without ``flock``, some NFS setups) or ``auto`` (probed per
+    #: run folder).
+    lock: str = "auto"
+    #: A lease not renewed for this long belongs to a dead process and may be broken (``lease``).
+    lease_ttl_s: float = 120.0
 
     def __post_init__(self) -> None:
         p = Problems("grid")
+        p.int_at_least("shards", self.shards, 1, " (jobs the groups are split between)", 2)
+        if self.shard is not None:
+            p.int_at_least("shard", self.shard, 0, " (this job's shard; null: every group)", 0)
+            if isinstance(self.shard, int) and isinstance(self.shards, int) and self.shard >= self.shards:
+                p.append(
+                    f"grid.shard={self.shard!r}: must be below grid.shards={self.shards}; e.g. grid.shard=0 "
+                    "(with -m, grid.shards=N alone runs every shard)"
+                )
+        if self.lock not in ("auto", "flock", "lease"):
+            p.append(f"grid.lock={self.lock!r}: must be one of auto, flock, lease; e.g. grid.lock=lease")
+        p.finite("lease_ttl_s", self.lease_ttl_s, positive=True, fix="e.g. grid.lease_ttl_s=120")
         if self.prefetch is not None:
             p.int_at_least("prefetch", self.prefetch, 0, " (groups prepared ahead; null: automatic)", 2)
         p.int_at_least("workers", self.workers, 1, " (worker processes)", 1)

@@ -1,5 +1,6 @@
 """Jobs run by ``python -m snell_bench``: the refraction preview, generation, the experiment grid,
-the speed/accuracy sweep, the report, and the plan of a grid (what it will do here, before doing it)."""
+the speed/accuracy sweep, the report, the plan of a grid (what it will do here, before doing it) and
+its status across the jobs working on it."""
 
 from __future__ import annotations
 
@@ -60,6 +61,12 @@ def _plan(cfg: DictConfig) -> None:
     run_plan(cfg)
 
 
+def _status(cfg: DictConfig) -> None:
+    from snell_bench.experiment.status import run_status
+
+    run_status(cfg)
+
+
 JOBS = {
     Job.preview: _preview,
     Job.generate: _generate,
@@ -67,6 +74,7 @@ JOBS = {
     Job.tradeoff: _tradeoff,
     Job.report: _report,
     Job.plan: _plan,
+    Job.status: _status,
 }
 
 

@@ -31,7 +31,11 @@ Layout of an experiment ``E`` under ``runs/``::
   cells (``grid.recompute=true`` redoes them); a failing cell records its error (``status:
   failed``) and the sweep goes on; a method that cannot run here is ``skipped`` with the reason.
 - Several processes (Hydra multirun with the joblib or submitit launchers) can share one
-  experiment folder: give each a disjoint part of the grid, e.g. ``grid.scenes=[a],[b]``.
+  experiment folder: ``grid.shards=N`` with ``-m`` runs N jobs (a Slurm job array with
+  ``hydra/launcher=slurm``), each computing whole groups of its shard (:func:`shard_cells`) and
+  writing its summary under ``jobs/<job id>/``; a job that Slurm requeues (preemption, time limit)
+  skips its finished cells and computes the rest. Cells are claimed with a lock, so processes
+  given overlapping parts still compute each cell once.
 """
 
 from __future__ import annotations
@@ -39,6 +43,8 @@ from __future__ import annotations
 import itertools
 import json
 import logging
+import os
+import socket
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
@@ -64,7 +70,7 @@ from snell_bench.utils.tensors import bchw_to_hwc
 
 log = logging.getLogger(__name__)
 
-__all__ = ["run_grid", "plan_grid", "cell_overrides", "check_same_settings"]
+__all__ = ["run_grid", "plan_grid", "cell_overrides", "check_same_settings", "shard_cells", "job_id"]
 
 #: The panorama branch's image in a cell's folder (methods with the panorama branch).
 PANORAMA_FILE = "panorama.png"
@@ -255,14 +261,70 @@ def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") ->
         )
 
 
+def shard_cells(cells: list[Cell], shards: int, shard: int) -> list[Cell]:
+    """The cells of shard ``shard`` of ``shards``: whole groups (a group's cells share its inputs,
+    so each group is computed by one job), dealt in the plan's order to the shard with the fewest
+    cells so far (ties: the lowest index): balanced, deterministic, and the same in every job.
+
+    Examples:
+        >>> cs = [Cell(f"g{i // 2}/m{i % 2}", Path("."), None, {}, shares=f"g{i // 2}") for i in range(6)]
+        >>> [c.name for c in shard_cells(cs, 2, 1)]
+        ['g1/m0', 'g1/m1']
+    """
+    groups: dict = {}
+    for c in cells:
+        groups.setdefault(c.shares if c.shares is not None else c.name, []).append(c)
+    load = [0] * shards
+    mine: list[Cell] = []
+    for members in groups.values():
+        k = min(range(shards), key=lambda i: (load[i], i))
+        load[k] += len(members)
+        if k == shard:
+            mine += members
+    return mine
+
+
+def job_id() -> str:
+    """This job's identity: ``<array job>_<task>`` (or the job id) under Slurm, stable when Slurm
+    requeues it; ``<host>-<pid>`` elsewhere."""
+    env = os.environ
+    if env.get("SLURM_ARRAY_JOB_ID") and env.get("SLURM_ARRAY_TASK_ID"):
+        return f"{env['SLURM_ARRAY_JOB_ID']}_{env['SLURM_ARRAY_TASK_ID']}"
+    if env.get("SLURM_JOB_ID"):
+        return env["SLURM_JOB_ID"]
+    return f"{socket.gethostname()}-{os.getpid()}"
+
+
+def _remove_handovers(cells: list[Cell]) -> None:
+    """Remove the hand-over files (``_inputs/sampling-*.pkl``) an interrupted run of these groups
+    left: this job alone prepares them (its shard), so none is in use."""
+    for folder in {c.shares for c in cells if c.shares is not None}:
+        for path in Path(folder, "_inputs").glob("sampling-*.pkl"):
+            log.info("removing %s, left by an interrupted run", path)
+            path.unlink(missing_ok=True)
+
+
 def run_grid(cfg: DictConfig) -> dict:
-    """Run the grid of ``cfg`` (see the module docs), then build its report (``grid.report``)."""
+    """Run the grid of ``cfg`` (see the module docs), then build its report (``grid.report``).
+
+    With ``grid.shard`` set, this job runs its shard's groups (:func:`shard_cells`), writes its
+    summary to ``runs/<experiment>/jobs/<job id>/summary.json`` (:func:`job_id`) instead of the
+    experiment's, and builds the report only when every cell of the grid has its record (the
+    last job to finish does; ``job=report`` any time)."""
     exp = str(cfg.experiment_name)
     root = Path(cfg.runs_dir) / exp
-    cells = plan_grid(cfg)
+    every = plan_grid(cfg)
     g = cfg.grid
+    sharded = g.get("shard") is not None
+    cells = shard_cells(every, int(g.shards), int(g.shard)) if sharded else every
     n_groups = len(g.scenes) * len(g.variations) * len(g.objects)
-    print(f"experiment {exp}: {n_groups} scene/object groups x {len(g.methods)} methods = {len(cells)} cells -> {root}")
+    print(f"experiment {exp}: {n_groups} scene/object groups x {len(g.methods)} methods = {len(every)} cells -> {root}")
+    summary_root = root
+    if sharded:
+        summary_root = root / "jobs" / job_id()
+        mine = len({c.shares for c in cells})
+        print(f"shard {int(g.shard)} of {int(g.shards)} (job {job_id()}): {mine} groups, {len(cells)} cells")
+        _remove_handovers(cells)
     ahead, workers = settings_of(cfg)
     pool = ModelPool(cfg.models.memory_gb, offload=bool(cfg.models.offload))
     scorers = scorers_of(cfg.metrics, pool)
@@ -274,7 +336,7 @@ def run_grid(cfg: DictConfig) -> dict:
         summary = run_cells(
             cells if order is None else order.order(cells),
             lambda c, s: run_cell(c, s, scorers, pool, order, prefetch),
-            root=root,
+            root=summary_root,
             recompute=bool(g.recompute),
             on_change=g.on_change,
             on_change_key="grid.on_change",
@@ -295,14 +357,24 @@ def run_grid(cfg: DictConfig) -> dict:
         "prefetch": prefetch.summary() if prefetch is not None else {"ahead": 0, "workers": 0},
     }
     summary["models"] = pool.summary()
-    write_json(root / "summary.json", summary)
+    if sharded:
+        summary["job"] = {
+            "id": job_id(),
+            "shard": int(g.shard),
+            "shards": int(g.shards),
+            "host": socket.gethostname(),
+            "restarts": int(os.environ.get("SLURM_RESTART_COUNT", 0) or 0),
+        }
+    write_json(summary_root / "summary.json", summary)
     print(
         f"{exp}: {summary['ok']} ok, {summary['cached']} already done, {summary['skipped']} skipped, "
         f"{summary['failed']} failed" + (f", {summary['busy']} left to another process" if summary["busy"] else "")
     )
     for cdir, reason in summary["failures"]:
         print(f"  FAILED {cdir}: {reason}")
-    if g.report:
+    if g.report and sharded and not all((c.folder / "metrics.json").is_file() for c in every):
+        print(f"report: left to the last job of the grid (or run job=report experiment_name={exp})")
+    elif g.report:
         from snell_bench.experiment.reports import build_reports
 
         check_same_settings(root)
