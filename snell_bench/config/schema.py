@@ -475,12 +475,17 @@ class GridConfig:
     shards: int = 1
     #: Which shard this job is (0 .. shards - 1); ``null``: every group.
     shard: Optional[int] = None
-    #: How a process claims a cell: ``flock`` (the kernel frees the lock of a dead process),
-    #: ``lease`` (lease files with a heartbeat and an expiry: for file systems where flock is
-    #: missing or unreliable, Lustre without ``flock``, some NFS setups) or ``auto`` (probed per
-    #: run folder).
+    #: How a process claims a cell before computing it: ``flock`` (``fcntl.flock`` on
+    #: ``<cell>/.lock``; the kernel frees the lock of a dead process), ``lease`` (a lease file
+    #: ``<cell>/.lease`` renewed every ``lease_ttl_s / 3`` s and broken once not renewed for
+    #: ``lease_ttl_s``, by the file system's clock: for Lustre without ``flock``, NFS with
+    #: ``local_lock``, BeeGFS) or ``auto`` (``lease`` where flock raises or the mount keeps it
+    #: local to one machine, else ``flock``; snell_bench/experiment/locks.py). Every job sharing a
+    #: run folder must claim the same way. Not a result setting.
     lock: str = "auto"
-    #: A lease not renewed for this long belongs to a dead process and may be broken (``lease``).
+    #: Seconds a lease lives without renewal: a cell whose process died on another machine is
+    #: free again this long after (at once on the same machine). Keep it well above the file
+    #: system's timestamp granularity (1 s on some NFS servers), e.g. >= 30.
     lease_ttl_s: float = 120.0
 
     def __post_init__(self) -> None:

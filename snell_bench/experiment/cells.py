@@ -11,9 +11,11 @@ method; a sweep setting: scene x setting). :func:`run_cells` runs a list of them
   changed file makes it unfinished again; other settings stop the run before any work with an
   error naming the changed keys (:class:`SettingsChanged`), or, with ``on_change="recompute"``,
   redo it; ``recompute`` redoes every cell;
-- a process claims a cell with a lock file (:func:`claim`, ``fcntl.flock``) before computing it,
-  so sweeps running at once into one folder compute each cell once; the kernel frees the lock of
-  a process that dies;
+- a process claims a cell (:func:`~snell_bench.experiment.locks.claim`) before computing it, so
+  sweeps running at once into one folder compute each cell once: with ``fcntl.flock`` on
+  ``.lock`` (the kernel frees the lock of a process that dies) or, where flock is missing or holds
+  on one machine only, with a lease file ``.lease`` renewed by a heartbeat and broken once it
+  expires (``lock``: ``auto``, ``flock`` or ``lease``; :mod:`snell_bench.experiment.locks`);
 - ``fn(cell, shared)`` computes one cell and returns its record's fields; it raises
   :class:`~snell_bench.pipeline.Skip` for a method that cannot run here (``skipped`` with the
   reason) and any other exception for a failure (``failed`` with the reason and traceback); the
@@ -29,17 +31,13 @@ method; a sweep setting: scene x setting). :func:`run_cells` runs a list of them
 
 from __future__ import annotations
 
-import fcntl
 import functools
 import hashlib
 import json
 import logging
-import os
-import socket
 import traceback
 from collections import Counter
-from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,9 +47,10 @@ from tqdm.auto import tqdm
 
 from snell_bench.config import Config, OnChange
 from snell_bench.config.recipes import BEFORE_SWITCHES
+from snell_bench.experiment.locks import CLAIM_NAMES, DEFAULT_TTL_S, LOCK_NAME, check_ttl, choose_lock, claim
 from snell_bench.experiment.plan import ABSENT, flatten, result_settings, settings_diff, settings_hash
 from snell_bench.pipeline import Skip
-from snell_bench.utils.io import umask_mode, write_json, write_text
+from snell_bench.utils.io import write_json, write_text
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +62,7 @@ __all__ = [
     "read_record",
     "changed_settings",
     "claim",
+    "LOCK_NAME",
     "cell_files",
     "files_problem",
     "SettingsChanged",
@@ -235,47 +235,12 @@ def changed_settings(cell: Cell, record: dict, current: dict, current_hash: str)
 
 
 # ---------------------------------------------------------------------------- claiming a cell
-LOCK_NAME = ".lock"
-
-
-@contextmanager
-def claim(folder: Path) -> Iterator[bool]:
-    """Hold ``folder/.lock`` (``fcntl.flock``, exclusive, non-blocking) for the block: ``True``
-    when this process has the cell, ``False`` when another one holds it. The kernel drops the
-    lock when its process dies, so a lock left by a killed sweep is free again; the lock file
-    is removed when the block ends."""
-    path = folder / LOCK_NAME
-    while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, umask_mode())
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            yield False
-            return
-        try:  # the file may have been removed (and another made) while we waited: lock the one at path
-            same = os.fstat(fd).st_ino == os.stat(path).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            break
-        os.close(fd)
-    try:
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()} {socket.gethostname()}\n".encode())
-        yield True
-    finally:
-        try:
-            os.unlink(path)
-        finally:
-            os.close(fd)
-
-
 def _remove_leftovers(folder: Path) -> None:
     """Remove the temporaries (``.<name>.<random>.tmp`` / ``.link``) a killed process left in a
-    cell folder this process holds the lock of: no other writer can be using them."""
+    cell folder this process has claimed: no other writer can be using them. The claim files
+    (``.lock``, ``.lease``) stay."""
     for path in folder.glob(".*"):
-        if path.name != LOCK_NAME and path.suffix in (".tmp", ".link") and path.is_file():
+        if path.name not in CLAIM_NAMES and path.suffix in (".tmp", ".link") and path.is_file():
             log.info("removing %s, left by an interrupted run", path)
             path.unlink(missing_ok=True)
 
@@ -306,6 +271,9 @@ def run_cells(
     desc: str = "",
     before: Callable[[list[Cell]], None] | None = None,
     after: Callable[[Cell], None] | None = None,
+    lock: str = "auto",
+    lease_ttl_s: float = DEFAULT_TTL_S,
+    lock_key: str = "grid.lock",
 ) -> dict:
     """Run ``cells`` (see the module docs) and write ``root/summary.json``.
 
@@ -322,6 +290,12 @@ def run_cells(
         before: called with the cells left to compute, before the first one (work that serves
             several cells and must come first, such as model-major passes).
         after: called after each cell's record is written (also for failed cells).
+        lock: how a cell is claimed: ``flock``, ``lease`` or ``auto`` (decided once for ``root``'s
+            file system; :func:`~snell_bench.experiment.locks.choose_lock`).
+        lease_ttl_s: a lease's lifetime without renewal (``lease``): a lease left by a killed
+            process elsewhere is broken this long after its last renewal.
+        lock_key: the config key of ``lock`` named in its errors (``lease_ttl_s``'s is
+            ``<its parent>.lease_ttl_s``).
 
     Returns:
         The summary: ``cells``, counts of ``ok``, ``failed``, ``skipped``, ``cached`` (finished
@@ -329,6 +303,8 @@ def run_cells(
         ``failures`` as ``[cell folder, reason]`` pairs.
     """
     on_change = OnChange.of(on_change, on_change_key)
+    ttl_key = lock_key.rpartition(".")[0] + ".lease_ttl_s" if "." in lock_key else "lease_ttl_s"
+    lease_ttl_s = check_ttl(lease_ttl_s, ttl_key)
     settings = {id(c): result_settings(c.config) for c in cells}
     hashes = {k: settings_hash(v) for k, v in settings.items()}
 
@@ -354,6 +330,7 @@ def run_cells(
     failures: list[tuple[str, str]] = []
     shared = SharedCache(c.shares for c in todo)
     root.mkdir(parents=True, exist_ok=True)
+    lock = choose_lock(lock, root, key=lock_key)
     if before is not None and todo:
         before(todo)
     bar = tqdm(total=len(cells), desc=desc, unit="cell", initial=counts["cached"])
@@ -361,7 +338,7 @@ def run_cells(
         bar.set_postfix_str(cell.name)
         try:
             cell.folder.mkdir(parents=True, exist_ok=True)
-            with claim(cell.folder) as mine:
+            with claim(cell.folder, kind=lock, ttl_s=lease_ttl_s) as mine:
                 if not mine:
                     counts["busy"] += 1
                     log.info("cell %s is being computed by another process; left to it", cell.name)

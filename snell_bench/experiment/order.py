@@ -89,9 +89,12 @@ class ModelMajor:
             inputs pass prepares every group here.
     """
 
-    def __init__(self, pool: ModelPool, prefetch: Prefetcher | None = None) -> None:
+    def __init__(
+        self, pool: ModelPool, prefetch: Prefetcher | None = None, *, lock: str = "auto", lease_ttl_s: float = 120.0
+    ) -> None:
         self.pool = pool
         self.prefetch = prefetch
+        self.lock, self.lease_ttl_s = lock, lease_ttl_s
         self._unrelit: dict[Path, Path] = {}  #: cell folder -> the result this process sampled ahead
 
     # ------------------------------------------------------------------------ the order
@@ -171,7 +174,7 @@ class ModelMajor:
 
     def _sample_ahead(self, cell: Cell) -> None:
         cell.folder.mkdir(parents=True, exist_ok=True)
-        with claim(cell.folder) as mine:
+        with claim(cell.folder, kind=self.lock, ttl_s=self.lease_ttl_s) as mine:
             if not mine:  # another process computes it
                 return
             try:

@@ -194,6 +194,36 @@ def test_sweeps_running_at_once_compute_each_cell_once_and_leave_no_temporary(tm
     assert not [p for p in (tmp_path / "runs").rglob("*") if p.name.startswith(".")]
 
 
+def _lease_sweep_process(root, log, names):
+    import time
+
+    def fn(cell, shared):
+        with open(log, "a") as f:
+            f.write(f"{cell.name}\n")
+        time.sleep(0.2)
+        return {}
+
+    run_cells(cells_in(root, names), fn, root=root, lock="lease", lease_ttl_s=0.6)
+
+
+def test_sweeps_running_at_once_with_leases_compute_each_cell_once(tmp_path):
+    """Lease files (``grid.lock=lease``) exclude like flock: each cell once, no file left."""
+    import multiprocessing
+
+    names = [f"c{i}" for i in range(8)]
+    log = tmp_path / "calls.txt"
+    ctx = multiprocessing.get_context("fork")
+    procs = [ctx.Process(target=_lease_sweep_process, args=(tmp_path / "runs", log, names)) for _ in range(3)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(60)
+    assert all(p.exitcode == 0 for p in procs)
+    assert sorted(log.read_text().split()) == names
+    assert all(record_done(tmp_path / "runs" / n / "metrics.json") for n in names)
+    assert not [p for p in (tmp_path / "runs").rglob("*") if p.name.startswith(".")]
+
+
 def test_a_lock_left_by_a_dead_process_is_free(tmp_path):
     import fcntl
     import os

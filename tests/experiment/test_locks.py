@@ -1,0 +1,261 @@
+"""Claiming a cell: flock locks and lease files exclude other claimants (threads and processes),
+leases are renewed while held, broken once their owner is gone, removed only by their owner;
+``auto`` takes leases where flock raises or is local to one machine."""
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+from omegaconf import OmegaConf
+
+from snell_bench.experiment import locks
+from snell_bench.experiment.cells import Cell, run_cells
+from snell_bench.experiment.locks import LEASE_NAME, LOCK_NAME, Lease, LockUnsupported, choose_lock, claim
+
+# claims each "folder kind" pair given on the command line; prints held/busy for each; with
+# "hold", keeps its claims until stdin closes
+CHILD = """
+import contextlib, sys
+from snell_bench.experiment.locks import claim
+with contextlib.ExitStack() as stack:
+    for arg in sys.argv[2:]:
+        folder, kind = arg.rsplit("=", 1)
+        print("held" if stack.enter_context(claim(folder, kind=kind, ttl_s=30)) else "busy", flush=True)
+    if sys.argv[1] == "hold":
+        sys.stdin.read()
+"""
+
+
+def child(mode, *claims):
+    return subprocess.Popen(
+        [sys.executable, "-c", CHILD, mode, *[f"{folder}={kind}" for folder, kind in claims]],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "HF_HUB_OFFLINE": "1"},
+    )
+
+
+def in_thread(folder, kind, ttl_s=30.0):
+    out = []
+    t = threading.Thread(target=lambda: out.append(_try(folder, kind, ttl_s)))
+    t.start()
+    t.join(10)
+    return out[0]
+
+
+def _try(folder, kind, ttl_s):
+    with claim(folder, kind=kind, ttl_s=ttl_s) as mine:
+        return mine
+
+
+def dotfiles(folder):
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
+
+
+def lease_file(folder, *, host, pid, ttl_s, age_s=0.0, expires_in_s=None):
+    """A lease as another process would have written it, last renewed ``age_s`` ago (file time),
+    recording an expiry ``expires_in_s`` from now on its writer's clock."""
+    now = time.time()
+    rec = {"host": host, "pid": pid, "pidns": locks.PIDNS, "token": "f" * 32, "ttl_s": ttl_s}
+    rec["expires"] = now + (ttl_s - age_s if expires_in_s is None else expires_in_s)
+    path = folder / LEASE_NAME
+    path.write_text(f"{pid} {host}\n{json.dumps(rec)}\n")
+    os.utime(path, (now - age_s, now - age_s))
+    return path
+
+
+def test_a_held_claim_refuses_a_thread_and_another_process_and_is_free_after(tmp_path):
+    folders = {kind: tmp_path / kind for kind in ("flock", "lease")}
+    for f in folders.values():
+        f.mkdir()
+    with claim(folders["flock"], kind="flock") as a, claim(folders["lease"], kind="lease") as b:
+        assert a and b
+        assert dotfiles(folders["flock"]) == [LOCK_NAME] and dotfiles(folders["lease"]) == [LEASE_NAME]
+        assert not in_thread(folders["flock"], "flock") and not in_thread(folders["lease"], "lease")
+        proc = child("try", *[(f, kind) for kind, f in folders.items()])
+        out, _ = proc.communicate(timeout=60)
+        assert out.split() == ["busy", "busy"]
+    for kind, f in folders.items():
+        assert dotfiles(f) == []  # released: nothing left
+        assert in_thread(f, kind)
+
+
+def test_a_lease_of_a_killed_process_on_this_machine_is_taken_at_once(tmp_path):
+    proc = child("hold", (tmp_path, "lease"))
+    try:
+        assert proc.stdout.readline().strip() == "held"
+        assert not in_thread(tmp_path, "lease")  # its owner lives
+        owner = (tmp_path / LEASE_NAME).read_text().splitlines()[0]
+        assert owner.split()[0] == str(proc.pid)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+    assert dotfiles(tmp_path) == [LEASE_NAME]  # a killed process leaves its lease
+    with claim(tmp_path, kind="lease", ttl_s=30) as mine:  # far from expired, but its process is gone
+        assert mine
+        assert json.loads((tmp_path / LEASE_NAME).read_text().splitlines()[1])["pid"] == os.getpid()
+    assert dotfiles(tmp_path) == []
+
+
+def test_an_expired_lease_is_judged_by_its_file_time_not_by_the_writers_clock(tmp_path):
+    # another machine (its pid cannot be checked here); ttl 5 s
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead_pid = int(gone.stdout)
+    # renewed 1 s ago by the file's time, though its writer's clock says it expired an hour ago: held
+    lease_file(tmp_path, host="node-elsewhere", pid=dead_pid, ttl_s=5, age_s=1, expires_in_s=-3600)
+    assert not in_thread(tmp_path, "lease")
+    assert (tmp_path / LEASE_NAME).read_text().startswith(f"{dead_pid} node-elsewhere")
+    # not renewed for 60 s by the file's time, though its writer's clock (an hour ahead) says it runs: broken
+    lease_file(tmp_path, host="node-elsewhere", pid=dead_pid, ttl_s=5, age_s=60, expires_in_s=3600)
+    with claim(tmp_path, kind="lease") as mine:
+        assert mine and "node-elsewhere" not in (tmp_path / LEASE_NAME).read_text()
+    assert dotfiles(tmp_path) == []
+    # on this machine: a pid that no longer exists frees the lease at once, a live one keeps it
+    lease_file(tmp_path, host=locks.HOST, pid=os.getppid(), ttl_s=5)
+    assert not in_thread(tmp_path, "lease")
+    lease_file(tmp_path, host=locks.HOST, pid=dead_pid, ttl_s=5)
+    assert in_thread(tmp_path, "lease") and dotfiles(tmp_path) == []
+
+
+def test_a_held_lease_is_renewed_past_its_ttl(tmp_path):
+    lease = Lease(tmp_path / LEASE_NAME, ttl_s=0.5)
+    assert lease.acquire()
+    try:
+        first = os.stat(tmp_path / LEASE_NAME).st_mtime_ns
+        time.sleep(1.5)  # three lifetimes
+        assert not in_thread(tmp_path, "lease", ttl_s=0.5)
+        rec = json.loads((tmp_path / LEASE_NAME).read_text().splitlines()[1])
+        assert rec["token"] == lease.token and os.stat(tmp_path / LEASE_NAME).st_mtime_ns > first
+        assert lease.lost is None
+    finally:
+        lease.release()
+    assert dotfiles(tmp_path) == []
+
+
+def test_release_removes_only_its_own_lease_and_a_taken_lease_is_reported_lost(tmp_path):
+    lease = Lease(tmp_path / LEASE_NAME, ttl_s=0.3)
+    assert lease.acquire()
+    theirs = lease_file(tmp_path, host="node-elsewhere", pid=4242, ttl_s=30)  # another claimant took it
+    text = theirs.read_text()
+    time.sleep(0.45)  # the heartbeat finds it
+    assert lease.lost and "taken" in lease.lost and "4242 node-elsewhere" in lease.lost
+    lease.release()
+    assert theirs.read_text() == text and dotfiles(tmp_path) == [LEASE_NAME]
+
+
+def test_breaking_puts_back_a_lease_renewed_since_it_was_judged_stale(tmp_path):
+    path = lease_file(tmp_path, host="node-elsewhere", pid=4242, ttl_s=5, age_s=60)
+    contender = Lease(path, ttl_s=5)
+    seen = locks._read(path)
+    assert "not renewed for" in contender.stale(seen)
+    lease_file(tmp_path, host="node-elsewhere", pid=4242, ttl_s=5)  # its owner renews it just then
+    renewed = path.read_text()
+    assert not contender._take_aside(seen)
+    assert path.read_text() == renewed and dotfiles(tmp_path) == [LEASE_NAME]
+    assert not in_thread(tmp_path, "lease")
+
+
+def test_leases_without_hard_links_are_created_exclusively(tmp_path, monkeypatch):
+    def no_link(src, dst):
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(locks.os, "link", no_link)
+    with claim(tmp_path, kind="lease") as mine:
+        assert mine and dotfiles(tmp_path) == [LEASE_NAME] and not in_thread(tmp_path, "lease")
+    assert dotfiles(tmp_path) == [] and in_thread(tmp_path, "lease")
+
+
+@pytest.fixture
+def fresh_choice(monkeypatch):
+    """Forget what auto decided, and see a plain local mount, whatever this machine's is."""
+    monkeypatch.setattr(locks, "_FILE_SYSTEMS", {})
+    monkeypatch.setattr(locks, "mount_of", lambda path, mounts=None: ("/", "ext4", {"rw": True}))
+
+
+def test_auto_takes_flock_where_it_works_and_leases_where_it_raises(tmp_path, monkeypatch, fresh_choice):
+    assert choose_lock("auto", tmp_path) == "flock" and choose_lock("flock", tmp_path) == "flock"
+    monkeypatch.setattr(locks, "_FILE_SYSTEMS", {})
+
+    def no_flock(fd, op):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(locks.fcntl, "flock", no_flock)
+    assert choose_lock("auto", tmp_path) == "lease"
+    with pytest.raises(LockUnsupported, match=r"grid.lock=flock: flock does not work .*set grid.lock=lease"):
+        choose_lock("flock", tmp_path)
+    with claim(tmp_path) as mine:
+        assert mine and dotfiles(tmp_path) == [LEASE_NAME]
+    calls = []
+    with pytest.raises(LockUnsupported):  # forced flock stops the run before any cell
+        run_cells(cells_in(tmp_path, ["a"]), lambda c, s: calls.append(c) or {}, root=tmp_path, lock="flock")
+    assert calls == []
+    summary = run_cells(cells_in(tmp_path, ["a", "b"]), lambda c, s: {}, root=tmp_path)
+    assert summary["ok"] == 2 and summary["failed"] == 0
+
+
+def test_auto_takes_leases_where_the_mount_keeps_flock_local(tmp_path, monkeypatch, fresh_choice):
+    monkeypatch.setattr(locks, "mount_of", lambda p, m=None: ("/scratch", "lustre", {"localflock": True}))
+    assert choose_lock("auto", tmp_path) == "lease"
+    assert choose_lock("flock", tmp_path) == "flock"  # asked for: obeyed
+
+
+MOUNTS = r"""/dev/vda / ext4 rw,relatime 0 0
+srv:/export /home nfs4 rw,vers=4.2,local_lock=none,addr=10.0.0.1 0 0
+srv:/scratch /home/my\040runs nfs rw,vers=3,nolock,local_lock=all 0 0
+lfs@tcp:/lfs /lustre lustre rw,flock,lazystatfs 0 0
+"""
+
+
+def test_the_mount_of_a_folder_and_the_rule_that_reads_it(tmp_path):
+    assert locks.mount_of("/home/me/runs", MOUNTS) == (
+        "/home",
+        "nfs4",
+        {"rw": True, "vers": "4.2", "local_lock": "none", "addr": "10.0.0.1"},
+    )
+    point, fstype, options = locks.mount_of("/home/my runs/exp", MOUNTS)
+    assert (point, fstype, options["local_lock"]) == ("/home/my runs", "nfs", "all")
+    assert locks.mount_of("/lustre/x", MOUNTS)[1] == "lustre" and locks.mount_of("/tmp", MOUNTS)[0] == "/"
+    rule = locks.mount_rule
+    assert rule("nfs4", {"local_lock": "none"}) is None and rule("nfs", {}) is None
+    assert (
+        rule("nfs", {"nolock": True}) and rule("nfs4", {"local_lock": "flock"}) and rule("nfs4", {"local_lock": "all"})
+    )
+    assert rule("lustre", {"flock": True}) is None and rule("lustre", {"localflock": True}) and rule("lustre", {})
+    assert rule("beegfs", {}) and rule("ext4", {}) is None and rule("xfs", {}) is None
+
+
+def cells_in(root, names):
+    cfg = OmegaConf.create({"x": 1, "output_dir": ""})
+    return [Cell(name=n, folder=root / n, config=cfg, record={"name": n}) for n in names]
+
+
+@pytest.mark.parametrize("kind", ["flock", "lease", "auto"])
+def test_run_cells_claims_with_each_kind_and_leaves_no_claim_file(tmp_path, kind):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / ".image.png.k3j2.tmp").write_bytes(b"partial")  # a killed run's temporary
+    held = {}
+
+    def fn(cell, shared):
+        held[cell.name] = dotfiles(cell.folder)
+        return {}
+
+    summary = run_cells(cells_in(tmp_path, ["a", "b"]), fn, root=tmp_path, lock=kind, lease_ttl_s=5)
+    assert summary["ok"] == 2 and summary["failed"] == 0
+    want = {"flock": LOCK_NAME, "lease": LEASE_NAME}[choose_lock(kind, tmp_path)]
+    assert held == {"a": [want], "b": [want]}  # the claim file stays while the cell is computed
+    assert not [p for p in tmp_path.rglob(".*")]
+
+
+def test_a_bad_lock_setting_names_its_key_and_the_fix(tmp_path):
+    with pytest.raises(ValueError, match=r"grid.lock='nfs': must be one of auto, flock, lease; e.g. grid.lock=auto"):
+        run_cells(cells_in(tmp_path, ["a"]), lambda c, s: {}, root=tmp_path, lock="nfs")
+    with pytest.raises(ValueError, match=r"grid.lease_ttl_s=0: must be a finite number of seconds > 0"):
+        run_cells(cells_in(tmp_path, ["a"]), lambda c, s: {}, root=tmp_path, lease_ttl_s=0)
+    assert not (tmp_path / "a").exists()
