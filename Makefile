@@ -12,7 +12,7 @@ TORCH_SPEC ?= torch==2.14.1 torchvision==0.29.1
 comma := ,
 STAMP := $(VENV)/.installed-$(subst $(comma),-,$(EXTRAS))
 
-.PHONY: setup demo test test-slow lint format bench clean system-deps
+.PHONY: setup demo test test-slow lint format bench clean system-deps system-deps-slurm
 
 setup: $(STAMP)
 
@@ -36,6 +36,17 @@ system-deps:
 	  else echo "no libllvm19 package here: the reference renderer uses scalar_rgb"; fi; \
 	fi
 
+# A single-node Slurm for the slow tests of tests/cluster/ (they start and stop their own daemons,
+# with their own configuration, and skip when these binaries are missing): Debian/Ubuntu packages.
+system-deps-slurm:
+	@if ! command -v slurmctld >/dev/null && ! [ -x /usr/sbin/slurmctld ]; then \
+	  echo "installing slurmctld slurmd munge slurm-client (a local Slurm for tests/cluster/)"; \
+	  if command -v apt-get >/dev/null; then \
+	    SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	    $$SUDO apt-get update -qq && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq slurmctld slurmd munge slurm-client; \
+	  else echo "please install slurmctld, slurmd, munge and the Slurm client commands with your system package manager" >&2; exit 1; fi; \
+	fi
+
 $(STAMP): pyproject.toml | system-deps
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
@@ -49,8 +60,8 @@ demo: setup
 test: setup
 	HF_HUB_OFFLINE=1 $(PY) -m pytest -q -n $(WORKERS) --dist loadfile
 
-# the tests marked slow (end-to-end launchers, the installed package, long sweeps)
-test-slow: setup
+# the tests marked slow (end-to-end launchers, a real Slurm, the installed package, long sweeps)
+test-slow: setup system-deps-slurm
 	HF_HUB_OFFLINE=1 $(PY) -m pytest -q -m slow
 
 # import contracts (pyproject.toml [tool.importlinter]) and import cycles between modules: both

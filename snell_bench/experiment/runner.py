@@ -65,7 +65,7 @@ from snell_bench.experiment.plan import (
 from snell_bench.experiment.prefetch import Prefetcher, settings_of
 from snell_bench.experiment.reports.collect import recipe_and_protocol
 from snell_bench.pipeline import ModelPool, apply_method, scorers_of
-from snell_bench.utils.io import link_or_copy, save_png, write_json
+from snell_bench.utils.io import link_or_copy, save_png, write_json, write_text
 from snell_bench.utils.tensors import bchw_to_hwc
 
 log = logging.getLogger(__name__)
@@ -304,6 +304,19 @@ def _remove_handovers(cells: list[Cell]) -> None:
             path.unlink(missing_ok=True)
 
 
+def _count_start(folder: Path) -> int:
+    """This job's starts so far, this one included (``starts`` in its jobs folder: a job requeued
+    after preemption or a time limit keeps its id and counts up)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "starts"
+    try:
+        n = int(path.read_text().split()[0]) + 1
+    except (OSError, ValueError, IndexError):
+        n = 1
+    write_text(path, f"{n}\n")
+    return n
+
+
 def run_grid(cfg: DictConfig) -> dict:
     """Run the grid of ``cfg`` (see the module docs), then build its report (``grid.report``).
 
@@ -325,12 +338,13 @@ def run_grid(cfg: DictConfig) -> dict:
         mine = len({c.shares for c in cells})
         print(f"shard {int(g.shard)} of {int(g.shards)} (job {job_id()}): {mine} groups, {len(cells)} cells")
         _remove_handovers(cells)
+        starts = _count_start(summary_root)
     ahead, workers = settings_of(cfg)
     pool = ModelPool(cfg.models.memory_gb, offload=bool(cfg.models.offload))
     scorers = scorers_of(cfg.metrics, pool)
     model_major = pool.budget is not None  # the models may not fit together
     prefetch = Prefetcher(pool, ahead, workers, keep=model_major) if ahead > 0 else None
-    order = ModelMajor(pool, prefetch) if model_major else None
+    order = ModelMajor(pool, prefetch, lock=str(g.lock), lease_ttl_s=float(g.lease_ttl_s)) if model_major else None
     finished = False
     try:
         summary = run_cells(
@@ -343,6 +357,9 @@ def run_grid(cfg: DictConfig) -> dict:
             desc=exp,
             before=order.prepare if order is not None else (prefetch.plan if prefetch is not None else None),
             after=None if prefetch is None else prefetch.release,
+            lock=str(g.lock),
+            lease_ttl_s=float(g.lease_ttl_s),
+            lock_key="grid.lock",
         )
         finished = True
     finally:
@@ -363,7 +380,7 @@ def run_grid(cfg: DictConfig) -> dict:
             "shard": int(g.shard),
             "shards": int(g.shards),
             "host": socket.gethostname(),
-            "restarts": int(os.environ.get("SLURM_RESTART_COUNT", 0) or 0),
+            "restarts": max(starts - 1, int(os.environ.get("SLURM_RESTART_COUNT", 0) or 0)),
         }
     write_json(summary_root / "summary.json", summary)
     print(
