@@ -26,6 +26,7 @@ import json
 import os
 import platform
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import snell_bench  # noqa: F401  (first: sets the OpenMP wait policy before torch loads)
@@ -163,7 +164,7 @@ def main() -> None:
     def run_pair(s):
         return sample(timed, inputs.warps, inputs.i_minus, prompt, pano_prompt, s, seed=0)
 
-    run_pair(settings.__class__(**{**vars(settings), "steps": 2}))  # warm-up: kernels, allocator, caches
+    run_pair(replace(settings, steps=2))  # warm-up: kernels, allocator, caches
     timed.seconds = dict.fromkeys(timed.seconds, 0.0)
     timed.calls = dict.fromkeys(timed.calls, 0)
     with TransferCounter() as moved:
@@ -171,7 +172,7 @@ def main() -> None:
     parts = {k: v / args.steps for k, v in timed.seconds.items()}
     passes = timed.calls["transformer"]
     with TransferCounter() as moved_1:
-        run_pair(settings.__class__(**{**vars(settings), "steps": 1}))
+        run_pair(replace(settings, steps=1))
     per_step_bytes = (moved.bytes - moved_1.bytes) / max(args.steps - 1, 1)
     parts["warps_blends"] = max(0.0, pair_s / args.steps - sum(parts.values()) - res.timings["setup"] / args.steps)
     out = {

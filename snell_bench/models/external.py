@@ -44,6 +44,7 @@ __all__ = [
     "load_pipeline",
     "offload_mode",
     "folder_component_bytes",
+    "local_folder",
 ]
 
 #: The negative prompt that switches on a ``true_cfg_scale`` pipeline's classifier-free guidance
@@ -225,7 +226,7 @@ def folder_component_bytes(folder: str | Path) -> dict[str, int]:
     return out
 
 
-def _local_folder(model_id: str) -> str | None:
+def local_folder(model_id: str) -> str | None:
     """The folder of a local path or of a Hugging Face id in the cache, or ``None``."""
     path = Path(model_id).expanduser()
     if path.is_dir():
@@ -323,7 +324,7 @@ def load_pipeline(
     dt = parse_dtype(dtype) or default_dtype(dev)
     if not _is_local_or_repo_id(model_id):
         raise _missing(model_id, cls, "no such folder, and not a Hugging Face model id")
-    folder = _local_folder(model_id)
+    folder = local_folder(model_id)
     identities = shared.folder_identities(folder) if folder is not None else {}
     try:
         pipe = cls.from_pretrained(

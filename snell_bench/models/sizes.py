@@ -33,7 +33,7 @@ def node_weights_bytes(node: Any) -> int | None:
 
     from . import shared
     from .devices import default_dtype, parse_dtype, resolve_device
-    from .external import RANDOM_KINDS, _local_folder, folder_component_bytes
+    from .external import RANDOM_KINDS, folder_component_bytes, local_folder
     from .flux_random import build_random_flux_pipeline
 
     if isinstance(node, DictConfig):
@@ -63,7 +63,7 @@ def node_weights_bytes(node: Any) -> int | None:
             for m in [getattr(pipe, c)]
             for t in (*m.parameters(), *m.buffers())
         )
-    folder = _local_folder(str(node.get(id_key)))
+    folder = local_folder(str(node.get(id_key)))
     if folder is None:
         return None
     sizes = folder_component_bytes(folder)

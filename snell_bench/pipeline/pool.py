@@ -274,7 +274,6 @@ class ModelPool:
         e = self._held[k]
         resident = {id(m) for m in self._resident_modules(but=k)}
         away = [m for m in e.modules() if id(m) not in resident]
-        e.offloaded = True  # not counted while room is made
         self._make_room(_bytes(away), keep=k)
         t0 = time.perf_counter()
         devices = e.devices or {}

@@ -257,7 +257,7 @@ class KontextRelighter:
         from diffusers import FluxKontextPipeline
 
         from snell_bench.models import shared
-        from snell_bench.models.external import _local_folder
+        from snell_bench.models.external import local_folder
 
         dev = resolve_device(
             device,
@@ -282,7 +282,7 @@ class KontextRelighter:
             return relighter
         dt = parse_dtype(dtype) or default_dtype(dev)
         text = os.fspath(model_id)
-        folder = _local_folder(text)
+        folder = local_folder(text)
         identities = shared.folder_identities(folder) if folder is not None else {}
         try:
             pipe = FluxKontextPipeline.from_pretrained(

@@ -13,18 +13,12 @@ from pathlib import Path
 
 import pytest
 
+from tests.experiment.test_runner import TINY as RUNNER_TINY
+
 ROOT = Path(__file__).resolve().parents[2]
-#: small cells; scalar_rgb: a reference render independent of thread timing (compared bit for bit)
-TINY = [
-    "+experiment=smoke",
-    "scene.width=160",
-    "scene.height=96",
-    "warps.pano_height=64",
-    "warps.cache_dir=null",
-    "sampler.steps=4",
-    "reference.spp=4",
-    "reference.true_spp=1",
-]
+#: the runner tests' small cells, 4 steps; scalar_rgb (below): a reference render independent of
+#: thread timing (compared bit for bit)
+TINY = ["+experiment=smoke", *RUNNER_TINY, "sampler.steps=4"]
 SLURM = [
     "hydra/launcher=slurm_cpu",
     "grid.shards=2",
