@@ -1,4 +1,5 @@
-"""``python -m snell_bench``: the Hydra entry point. Jobs live in :mod:`snell_bench.experiment`."""
+"""``snell-bench`` and ``python -m snell_bench``: the Hydra entry point (:func:`cli`). Jobs live in
+:mod:`snell_bench.experiment`; ``--help`` lists them (:mod:`snell_bench.config.help`)."""
 
 from __future__ import annotations
 
@@ -9,8 +10,10 @@ import hydra
 from omegaconf import DictConfig
 
 from snell_bench.config import register_configs
+from snell_bench.config.help import register_help
 
 register_configs()
+register_help()
 CONFIG_DIR = "conf"
 
 _SHARDS = re.compile(r"^\+*grid\.shards=(\d+)$")
@@ -45,6 +48,13 @@ def main(cfg: DictConfig) -> None:
     run_job(cfg)
 
 
-if __name__ == "__main__":
+def cli() -> None:
+    """The ``snell-bench`` command (``python -m snell_bench``): Hydra's command line, with a sharded
+    sweep's ``grid.shard=range(0,N)`` added (:func:`shard_sweep`). A command of its own is what Hydra's
+    shell completion needs (``eval "$(snell-bench -sc install=bash)"``)."""
     sys.argv[1:] = shard_sweep(sys.argv[1:])
     main()
+
+
+if __name__ == "__main__":
+    cli()

@@ -167,7 +167,7 @@ class MaskFileSegmenter:
 
     Args:
         path: the mask file (config key ``segment.mask``), the size of the image it is used with
-            (I⁻ as the pipeline uses it); relative paths: the working folder, else the checkout.
+            (I⁻ as the pipeline uses it); relative paths: the working folder, else the installed package.
 
     Raises:
         ValueError: if ``path`` is not set.

@@ -11,7 +11,7 @@ from snell_bench import pipeline
 from snell_bench.config import ConfigError, compose
 
 REPO = Path(__file__).resolve().parents[2]
-FRAME = REPO / "datasets" / "rgbd" / "tum_fr3_office"
+FRAME = REPO / "snell_bench" / "datasets" / "rgbd" / "tum_fr3_office"
 CHEAP = ["warps.pano_height=64", "warps.cache_dir=null", "sampler.steps=4", "reference.spp=2"]
 
 

@@ -123,7 +123,7 @@ def test_real_sam3_finds_the_desk_of_the_tum_frame():
     except WeightsNotFoundError as err:
         pytest.skip(str(err)[:120])
     root = Path(__file__).resolve().parents[2]
-    image = load_image(root / "datasets" / "rgbd" / "tum_fr3_office" / "color.png")
+    image = load_image(root / "snell_bench" / "datasets" / "rgbd" / "tum_fr3_office" / "color.png")
     mask = seg(image, "desk")
     assert mask.shape == image.shape[:2] and mask.dtype == np.bool_
     assert 0.02 < mask.mean() < 0.9

@@ -1,4 +1,4 @@
-"""The bundled meshes (datasets/meshes/SOURCES.md) as configured objects: built from their config,
+"""The bundled meshes (snell_bench/datasets/meshes/SOURCES.md) as configured objects: built from their config,
 placed on a procedural scene's table, upright, on the surface, at the configured size, and seen."""
 
 import json
@@ -20,7 +20,7 @@ SMALL = [
     "warps.cache_dir=null",
 ]
 
-#: object config -> (prompt noun, vertices, faces) after merging, as datasets/meshes/SOURCES.md gives them
+#: object config -> (prompt noun, vertices, faces) after merging, as snell_bench/datasets/meshes/SOURCES.md gives them
 MESHES = {
     "fox": ("fox", 290, 576),
     "dog": ("dog", 977, 1950),

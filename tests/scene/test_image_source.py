@@ -22,7 +22,7 @@ from snell_bench.scene.image_source import (
     read_pfm,
 )
 
-TUM = Path(__file__).resolve().parents[2] / "datasets" / "rgbd" / "tum_fr3_office"
+TUM = Path(__file__).resolve().parents[2] / "snell_bench" / "datasets" / "rgbd" / "tum_fr3_office"
 TUM_INTRINSICS = [525.0, 525.0, 319.5, 239.5]
 
 

@@ -9,7 +9,7 @@ import trimesh
 
 from snell_bench.scene.objects import MATERIALS, GlassObject, resolve_ior
 
-MESHES = Path(__file__).resolve().parents[2] / "datasets" / "meshes"
+MESHES = Path(__file__).resolve().parents[2] / "snell_bench" / "datasets" / "meshes"
 
 
 @pytest.mark.parametrize("make", [GlassObject.sphere, GlassObject.cylinder, GlassObject.pyramid])
