@@ -52,7 +52,7 @@ def _report(cfg: DictConfig) -> None:
 
         check_same_settings(root)
         paths = build_reports(root, out, name)
-    print(f"reports: {out} ({len(paths)} files)")
+    print(f"reports: {out} ({len(paths)} files); open {out / 'index.html'}")
 
 
 def _plan(cfg: DictConfig) -> None:

@@ -493,6 +493,6 @@ def run_tradeoff(cfg: DictConfig) -> dict:
     out = Path(cfg.reports_dir) / exp
     paths = build_tradeoff_report(root, out)
     summary["reports"] = [str(p) for p in paths]
-    print(f"reports: {out} ({len(paths)} files)")
+    print(f"reports: {out} ({len(paths)} files); open {out / 'index.html'}")
     print(stdout_table(tradeoff_table(collect_tradeoff(root))))
     return summary

@@ -25,6 +25,7 @@ from snell_bench.experiment.reports import (
     provenance_line,
     qualitative_pages,
     recipe_and_protocol,
+    scene_table,
     time_travel_table,
     with_recorded_metrics,
 )
@@ -310,6 +311,41 @@ def test_ior_sweep_report_orders_by_ior_and_draws_every_row(tmp_path):
     assert list(dict.fromkeys(t.index.get_level_values(0))) == [f"sphere-ior{x}" for x in iors]
     assert t.loc[("sphere-ior2.418", "Snellcaster"), "psnr"] == pytest.approx(24.0)
     assert round(_height_rows(out / "ior.png")) == len(iors)  # every row, although max_rows is 2
+
+
+def test_tables_never_average_the_swept_ior(tmp_path):
+    """Cells of one object at several IORs: every table that groups cells keeps the IOR apart (a
+    block per IOR), so each value is the mean at one IOR, never across IORs."""
+    root = tmp_path / "runs"
+    psnr = {}
+    for s, scene in enumerate(("kitchen", "office")):
+        for i, ior in enumerate(("1", "1.5", "2.418")):
+            for method, base in (("snellcaster", 20.0), ("t2i", 10.0)):
+                psnr[(scene, ior, method)] = base + 3 * i + s
+                _cell(root, scene, 0, f"sphere-ior{ior}", method, {"psnr": psnr[(scene, ior, method)]}, {})
+    out = tmp_path / "r"
+    build_reports(root, out, "ior_sweep")
+    scene = pd.read_csv(out / "scene_table.csv", index_col=[0, 1, 2])
+    assert list(scene.index.names) == ["IOR", "Scene", "Method"]
+    assert len(scene) == len(psnr)
+    for (sc, ior, method), v in psnr.items():
+        assert (
+            scene.loc[(float(ior), sc, LABELS[method]), "psnr"] == v
+            and scene.loc[(float(ior), sc, LABELS[method]), "n"] == 1
+        )
+    methods = pd.read_csv(out / "method_table.csv", index_col=[0, 1])
+    assert list(methods.index.names) == ["IOR", "Method"]
+    for ior in ("1", "1.5", "2.418"):
+        for method in ("snellcaster", "t2i"):
+            expect = mean(psnr[("kitchen", ior, method)], psnr[("office", ior, method)])
+            assert methods.loc[(float(ior), LABELS[method]), "psnr"] == pytest.approx(expect)
+    # ranked within each IOR (and scene): Snellcaster is best in every block
+    md = (out / "scene_table.md").read_text()
+    assert md.count("| Snellcaster | — | — | **") == 6 and "best per column within each IOR and scene" in md
+    # the scene table of one metric, too; an IOR table grouped by object has no IOR level (one per object)
+    t = scene_table(collect(root))
+    assert list(t.index.names) == ["IOR", "Scene"] and t.loc[("2.418", "office"), "Snellcaster"] == 27.0
+    assert list(pd.read_csv(out / "ior_table.csv", index_col=[0, 1]).index.names) == ["Object", "Method"]
 
 
 TT_PSNR = {"tt_r1": 20.0, "tt_joint_r3": 21.0, "tt_joint_r5": 21.5, "tt_joint_r8": 21.2}

@@ -353,10 +353,11 @@ def test_build_reports_writes_everything_deterministically(runs, tmp_path):
         for s in ("method_table", "scene_table", "ablation_table", "ablation_table_all")
         for e in ("md", "tex", "csv")
     )
-    assert names == sorted(expected + ["qualitative_1.png", "README.md"])  # two rows: one page
-    assert all(p.is_file() and p.parent == out for p in paths)
+    images = sorted(p.name for p in (out / "images").iterdir())
+    assert names == sorted(expected + ["qualitative_1.png", "README.md", "index.html"] + images)  # two rows: one page
+    assert all(p.is_file() and p.parent in (out, out / "images") for p in paths)
     readme = (out / "README.md").read_text()
-    for n in expected + ["qualitative_1.png"]:
+    for n in expected + ["qualitative_1.png", "index.html"]:
         assert f"({n})" in readme
     assert PROVENANCE in readme and "CUDA out of memory" in readme
     method_md = (out / "method_table.md").read_text()

@@ -317,7 +317,7 @@ def test_report_tables_and_pareto_flags(sweep):
 
     tmp, _, _ = sweep
     out = tmp / "reports" / "tradeoff"
-    for name in ("tradeoff.csv", "tradeoff.md", "pareto.png"):
+    for name in ("tradeoff.csv", "tradeoff.md", "pareto.png", "index.html", "plotly.min.js"):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     df = pd.read_csv(out / "tradeoff.csv")
     assert len(df) == len(SCENES) * len(SETTINGS)
@@ -344,7 +344,7 @@ def test_report_tables_and_pareto_flags(sweep):
     assert "lpips_weights" in md and "Reference convergence" in md
     # a pure function of the run folder: rebuilding elsewhere gives the same table
     again = build_tradeoff_report(tmp / "runs" / "tradeoff", tmp / "rebuilt")
-    assert [p.name for p in again] == ["tradeoff.csv", "tradeoff.md", "pareto.png"]
+    assert [p.name for p in again] == ["tradeoff.csv", "tradeoff.md", "pareto.png", "index.html", "plotly.min.js"]
     assert (tmp / "rebuilt" / "tradeoff.csv").read_text() == (out / "tradeoff.csv").read_text()
     # job=report recognises a sweep's folder and rebuilds the same report
     from snell_bench.experiment import run_job

@@ -21,6 +21,10 @@ The reports read those files and nothing else:
   LPIPS against R_main) and :func:`pareto_figure` (a sweep's cost against fidelity).
 - :mod:`.tradeoff`: a sweep's rows (:func:`collect_tradeoff`), per-setting table
   (:func:`tradeoff_table`), Pareto front and reference convergence.
+- :mod:`.html`: ``index.html``, the report as one static page (sortable tables, plots, gallery,
+  missing values) from the Jinja2 templates of ``templates/``; :mod:`.gallery` its images (copies,
+  thumbnails, the |error| maps of the metrics protocol, :func:`error_map`); :mod:`.plots` its
+  Plotly figures (each metric against every swept axis, a sweep's settings and Pareto front).
 - :mod:`.build`: :func:`build_reports` and :func:`build_tradeoff_report` write everything.
 
 Conventions:
@@ -39,6 +43,8 @@ Conventions:
       format), so ties share the mark; a column with fewer than two values gets no mark.
     - Ordering is deterministic: cells sorted by scene, variation, object, method; method rows
       sorted by method name unless an ``order`` is given.
+    - A table never averages over a swept axis (:func:`swept_axes`: the IOR, when one object ran at
+      two or more IORs): where it varies within a row's cells, it is the table's outer index level.
 """
 
 from .build import build_reports, build_tradeoff_report
@@ -54,6 +60,9 @@ from .figures import (
     qualitative_pages,
     time_travel_figure,
 )
+from .gallery import error_map, gallery
+from .html import table_view, write_grid_page, write_tradeoff_page
+from .plots import axis_plots, pareto_plot, tradeoff_axis_plot
 from .spec import (
     ABLATION_METRICS,
     ABLATION_ROWS,
@@ -71,11 +80,13 @@ from .spec import (
     metric_spec,
 )
 from .tables import (
+    DEFAULT_IOR,
     SAVING_METHODS,
     TIME_TRAVEL_METRICS,
     ablation_table,
     block_table,
     cell_notes,
+    ior_label,
     method_labels,
     method_table,
     object_ior,
@@ -83,6 +94,7 @@ from .tables import (
     rank_marks,
     savings_table,
     scene_table,
+    swept_axes,
     time_travel_table,
     with_recorded_metrics,
 )
@@ -128,6 +140,9 @@ __all__ = [
     "method_labels",
     "with_recorded_metrics",
     "object_ior",
+    "ior_label",
+    "DEFAULT_IOR",
+    "swept_axes",
     "method_table",
     "scene_table",
     "block_table",
@@ -148,6 +163,15 @@ __all__ = [
     "panorama_pages",
     "time_travel_figure",
     "build_reports",
+    # the HTML page
+    "table_view",
+    "write_grid_page",
+    "write_tradeoff_page",
+    "gallery",
+    "error_map",
+    "axis_plots",
+    "tradeoff_axis_plot",
+    "pareto_plot",
     # speed/accuracy sweeps
     "STAGES",
     "TOTAL_STAGES",

@@ -1,12 +1,14 @@
-"""Every report of a run folder at once: a grid experiment's tables, figure and README, or a
-speed/accuracy sweep's CSV, Markdown and Pareto plot. Every file is written atomically."""
+"""Every report of a run folder at once: a grid experiment's tables, figures, HTML page and README,
+or a speed/accuracy sweep's CSV, Markdown, Pareto plot and HTML page. Every file is written
+atomically."""
 
 from __future__ import annotations
 
-import math
 import os
 import re
 from pathlib import Path
+
+import pandas as pd
 
 from snell_bench.utils.io import atomic_write_bytes, write_text
 
@@ -19,21 +21,33 @@ from .figures import (
     qualitative_pages,
     time_travel_figure,
 )
+from .gallery import gallery
+from .html import PAGE, frame_view, table_view, tradeoff_view, write_grid_page, write_tradeoff_page
+from .plots import axis_plots, pareto_plot, tradeoff_axis_plot
 from .spec import ABLATION_METRICS, ABLATION_ROWS, ABLATION_TABLE2_METRICS, SCENE_METRICS, TABLE1_METRICS
 from .tables import (
     SAVING_METHODS,
     TIME_TRAVEL_METRICS,
     ablation_table,
     block_table,
+    method_labels,
     method_table,
-    object_ior,
     provenance_line,
     savings_table,
+    swept_axes,
     time_travel_table,
     with_recorded_metrics,
 )
 from .tradeoff import collect_tradeoff, tradeoff_table
-from .writers import plain_markdown, to_csv, to_latex, to_markdown, tradeoff_markdown
+from .writers import (
+    plain_markdown,
+    to_csv,
+    to_latex,
+    to_markdown,
+    tradeoff_markdown,
+    tradeoff_notes,
+    tradeoff_summary,
+)
 
 __all__ = ["build_reports", "build_tradeoff_report"]
 
@@ -49,12 +63,17 @@ def _slug(s: str) -> str:
 
 def _is_ior_sweep(df) -> bool:
     """Whether the cells hold one object at two or more IORs (``name:ior`` objects)."""
-    by_name: dict[str, set] = {}
-    for o in df["object"].dropna().astype(str).unique():
-        name, ior = object_ior(o)
-        if not math.isnan(ior):
-            by_name.setdefault(name, set()).add(ior)
-    return any(len(v) > 1 for v in by_name.values())
+    return "IOR" in swept_axes(df)
+
+
+def _remove_stale_images(folder: Path, keep: list[Path]) -> None:
+    """Remove the files of ``images/`` that this build did not write (cells removed since)."""
+    if not folder.is_dir():
+        return
+    kept = {p.resolve() for p in keep}
+    for path in folder.iterdir():
+        if path.is_file() and path.resolve() not in kept:
+            path.unlink()
 
 
 def build_reports(
@@ -80,8 +99,13 @@ def build_reports(
     Figures: ``qualitative_1.png``, ``qualitative_2.png``, ... (reference | methods, ``max_rows``
     rows a page, every row); ``panorama_1.png``, ... (main image beside its panorama, every cell
     with a ``panorama.png``); ``ior.png`` (every IOR row on one page) and ``time_travel.png``
-    (PSNR and LPIPS against R_main) with their tables. ``README.md`` links everything with the
-    provenance line (model, scene source, recipe, metrics protocol, cell counts).
+    (PSNR and LPIPS against R_main) with their tables.
+
+    ``index.html`` (:mod:`.html`): every table above, sortable, with its notes; a plot per swept
+    axis; the gallery of every group of cells with thumbnails under ``images/`` and the |error|
+    maps; the missing values with their reasons; ``plotly.min.js`` beside it when it has a plot.
+    ``README.md`` links everything with the provenance line (model, scene source, recipe, metrics
+    protocol, cell counts).
 
     Args:
         run_dir: the experiment's run directory.
@@ -90,7 +114,7 @@ def build_reports(
         max_rows: rows per page of the paged figures.
 
     Returns:
-        The written paths.
+        The written paths (``index.html`` and the images included).
 
     Raises:
         FileNotFoundError: there is no cell below ``run_dir``.
@@ -167,11 +191,15 @@ def build_reports(
     written += [p for _, p in figures]
 
     src = Path(os.path.relpath(run_dir.resolve(), out_dir.resolve())).as_posix()
+    written += _write_page(df, run_dir, out_dir, name, src, tables, savings, qualitative + panoramas, figures, ior)
+
     lines = [
         f"# Reports: {name}",
         "",
         f"Built from the cells under `{src}` alone; {provenance_line(df)}.",
         "",
+        f"- The report as one page, to open in a browser (sortable tables, every image with its |error| map, "
+        f"plots of the swept axes): [{PAGE}]({PAGE})",
     ]
     for stem, title, _ in tables:
         lines.append(f"- {title}: [{stem}.md]({stem}.md) · [{stem}.tex]({stem}.tex) · [{stem}.csv]({stem}.csv)")
@@ -195,6 +223,54 @@ def build_reports(
     return written
 
 
+def _write_page(
+    df: pd.DataFrame,
+    run_dir: Path,
+    out_dir: Path,
+    name: str,
+    src: str,
+    tables: list[tuple[str, str, pd.DataFrame]],
+    savings: pd.DataFrame | None,
+    pages: list[Path],
+    figures: list[tuple[str, Path]],
+    ior: bool,
+) -> list[Path]:
+    """``index.html`` of :func:`build_reports` (:func:`~.html.write_grid_page`) with its images:
+    the tables as written beside it, the figure pages and figures linked; the paths written."""
+    views = [table_view(t, title, stem, df, [f"{stem}.{e}" for e in ("md", "tex", "csv")]) for stem, title, t in tables]
+    saving_files = ["savings.md", "savings.csv", "savings_per_cell.csv"]
+    if savings is not None:
+        labels = {v: k for k, v in method_labels(df).items()}
+        views.append(
+            frame_view(
+                savings,
+                f"Time saved against fidelity lost ({name})",
+                "savings",
+                note=_SAVINGS_NOTE,
+                files=saving_files,
+                methods=labels,
+            )
+        )
+    shown = gallery(df, run_dir, out_dir, by_ior=ior)
+    _remove_stale_images(out_dir / "images", shown.files)
+    files = [(title, f"{stem}.{e}") for stem, title, _ in tables for e in ("md", "tex", "csv")]
+    files += [("Time saved against fidelity lost", f) for f in saving_files] if savings is not None else []
+    files += [(p.stem.replace("_", ", page ").capitalize(), p.name) for p in pages]
+    files += [(title, p.name) for title, p in figures] + [("Reports in Markdown", "README.md")]
+    page = write_grid_page(
+        out_dir,
+        name=name,
+        source=src,
+        provenance=provenance_line(df),
+        tables=views,
+        plots=axis_plots(tables),
+        gallery=shown,
+        df=df,
+        files=files,
+    )
+    return shown.files + page
+
+
 def _remove_stale_pages(out_dir: Path, stems: tuple[str, ...]) -> None:
     """Remove the pages of an earlier build (``<stem>_<k>.png``), which may have had more pages."""
     for stem in stems:
@@ -212,7 +288,9 @@ def build_tradeoff_report(runs_root: str | os.PathLike, out_dir: str | os.PathLi
 
     Returns:
         The written paths: ``tradeoff.csv`` (one row per scene x setting), ``tradeoff.md`` (per
-        setting, means over the scenes where it succeeded) and ``pareto.png``.
+        setting, means over the scenes where it succeeded), ``pareto.png``, ``index.html`` (the
+        per-setting table, sortable; fidelity against each setting and the Pareto plot, with
+        Plotly) and ``plotly.min.js``.
 
     Raises:
         FileNotFoundError: there is no ``result.json`` below ``runs_root``.
@@ -229,4 +307,18 @@ def build_tradeoff_report(runs_root: str | os.PathLike, out_dir: str | os.PathLi
         out_dir / "tradeoff.md", tradeoff_markdown(table, df, f"Speed/accuracy trade-off ({runs_root.name})")
     )
     png = pareto_figure(table, out_dir / "pareto.png", f"{runs_root.name}: cost vs fidelity")
-    return [csv, md, png]
+    plots = [p for p in (tradeoff_axis_plot(table, df), pareto_plot(table)) if p is not None]
+    page = write_tradeoff_page(
+        out_dir,
+        title=f"Speed/accuracy trade-off ({runs_root.name})",
+        summary=tradeoff_summary(table, df),
+        table=tradeoff_view(table, ["tradeoff.md", "tradeoff.csv"]),
+        plots=plots,
+        notes=tradeoff_notes(df),
+        files=[
+            ("Per scene and setting", "tradeoff.csv"),
+            ("Per setting", "tradeoff.md"),
+            ("Pareto plot", "pareto.png"),
+        ],
+    )
+    return [csv, md, png, *page]

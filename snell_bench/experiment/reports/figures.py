@@ -459,15 +459,21 @@ def time_travel_figure(
 
     fig = Figure(figsize=(4.2 * len(metrics), 3.4), dpi=110, facecolor="white")
     FigureCanvasAgg(fig)
-    variants = list(dict.fromkeys(k[0] for k in table.index))
-    rs = sorted({int(k[1]) for k in table.index})
+
+    # the last level is R_main; the levels before it (the variant, and a swept axis where the cells
+    # sweep one) name a line
+    def line(k) -> str:
+        return " / ".join(str(x) for x in k[:-1])
+
+    variants = list(dict.fromkeys(line(k) for k in table.index))
+    rs = sorted({int(k[-1]) for k in table.index})
     for pi, m in enumerate(metrics):
         spec = metric_spec(m)
         ax = fig.add_subplot(1, len(metrics), pi + 1)
         values = table[m] if m in table.columns else pd.Series(np.nan, index=table.index)
         drawn = False
         for vi, v in enumerate(variants):
-            sel = [(int(k[1]), float(values.iloc[i])) for i, k in enumerate(table.index) if k[0] == v]
+            sel = [(int(k[-1]), float(values.iloc[i])) for i, k in enumerate(table.index) if line(k) == v]
             sel = [(r, y) for r, y in sel if np.isfinite(y)]
             if sel:
                 x, y = zip(*sel)

@@ -6,7 +6,13 @@ A table is a DataFrame whose index holds the row labels (``index.name`` is the r
 whose columns are metric names plus ``n``, the number of ``ok`` cells averaged (a scene table has
 method labels as columns and one metric for all of them). The builders store display hints in
 ``table.attrs``: ``provenance``, ``notes``, ``caption``, ``metric`` (scene tables), ``highlight``
-(``"columns"`` or ``"rows"``: where best and second best are ranked) and ``methods``.
+(``"columns"``, ``"rows"`` or ``"blocks"``: where best and second best are ranked), ``methods`` and
+``cells`` (per row, the folders of the cells it stands for, every status: the HTML report's
+tooltips and filters read them).
+
+A table never averages cells of different values of a swept axis (:func:`swept_axes`: today the
+IOR, when one object ran at two or more IORs): where the axis varies within the cells a row would
+average, the table gets the axis as its outermost index level (``"IOR"``), one block per value.
 """
 
 from __future__ import annotations
@@ -38,6 +44,9 @@ __all__ = [
     "method_labels",
     "with_recorded_metrics",
     "object_ior",
+    "ior_label",
+    "DEFAULT_IOR",
+    "swept_axes",
     "method_table",
     "scene_table",
     "block_table",
@@ -133,6 +142,112 @@ def object_ior(name: str) -> tuple[str, float]:
     return str(name), float("nan")
 
 
+DEFAULT_IOR = "default"
+"""The IOR label of an object folder without ``-ior`` in its name (the object config's own IOR)."""
+
+
+def ior_label(name: str) -> str:
+    """The IOR of an object folder as written in its name (``"sphere-ior1.333"`` -> ``"1.333"``,
+    ``"sphere-iorwater"`` -> ``"water"``); :data:`DEFAULT_IOR` without ``-ior``."""
+    _, sep, ior = str(name).rpartition("-ior")
+    return ior if sep and ior else DEFAULT_IOR
+
+
+def _object_base(name: str) -> str:
+    base, sep, ior = str(name).rpartition("-ior")
+    return base if sep and ior else str(name)
+
+
+def _axis_sort_key(label: str) -> tuple:
+    """Order of an axis' labels: :data:`DEFAULT_IOR` first, then numbers ascending, then text."""
+    if label == DEFAULT_IOR:
+        return (0, 0.0, "")
+    try:
+        return (1, float(label), "")
+    except ValueError:
+        return (2, 0.0, str(label))
+
+
+def swept_axes(df: pd.DataFrame, within: Sequence[str] = ()) -> dict[str, pd.Series]:
+    """The axes the cells sweep that no mean may average over.
+
+    Today one axis, ``"IOR"``: swept when one object (the folder name before ``-ior``) ran at two
+    or more IORs (:func:`ior_label`; an object folder without ``-ior`` counts as
+    :data:`DEFAULT_IOR`).
+
+    Args:
+        df: cells from ``collect``.
+        within: the columns a table groups the cells by (``["scene", "method"]``); an axis is
+            returned only where it varies within one of those groups (an IOR table grouped by
+            object never has it). Empty: every swept axis.
+
+    Returns:
+        ``{level name: the label of each cell (a Series aligned with df)}``, empty when nothing is
+        swept.
+    """
+    out: dict[str, pd.Series] = {}
+    if "object" not in df.columns or df.empty:
+        return out
+    objects = df["object"].astype(str)
+    labels = objects.map(ior_label)
+    per_object = pd.DataFrame({"base": objects.map(_object_base), "ior": labels}).groupby("base")["ior"].nunique()
+    if not (per_object > 1).any():
+        return out
+    keys = [c for c in within if c in df.columns]
+    varies = labels.groupby([df[c].astype(str) for c in keys]).nunique().gt(1).any() if keys else True
+    if varies:
+        out["IOR"] = labels
+    return out
+
+
+def _cells_of(df: pd.DataFrame, methods: Sequence[str]) -> list[list[str]]:
+    """Per method, the folders of its cells in ``df`` (every status)."""
+    if "cell_dir" not in df.columns:
+        return [[] for _ in methods]
+    return [[str(d) for d in df.loc[df["method"] == m, "cell_dir"]] for m in methods]
+
+
+def _keep_swept(df: pd.DataFrame, build, within: Sequence[str]) -> pd.DataFrame:
+    """``build(df)``, or, where a swept axis varies within the groups ``within``, ``build`` of the
+    cells of each of its values, stacked under an outer index level named after the axis.
+
+    The stacked table keeps the attrs of ``build(df)`` (provenance and notes over every cell) with
+    ``cells`` per row, best and second best ranked within each block (``highlight``
+    ``"columns"`` becomes ``"blocks"``) and the caption saying which axis keeps rows apart.
+    """
+    whole = build(df)
+    axes = swept_axes(df, within)
+    if not axes:
+        return whole
+    names = list(axes)
+    labels = pd.DataFrame(axes)
+    keys = sorted(set(labels.itertuples(index=False, name=None)), key=lambda k: tuple(map(_axis_sort_key, k)))
+    parts, part_keys, cells = [], [], []
+    for key in keys:
+        sel = (labels == pd.Series(key, index=names)).all(axis=1)
+        part = build(df[sel.to_numpy()])
+        if len(part) == 0:
+            continue
+        parts.append(part.reindex(columns=whole.columns))
+        part_keys.append(key if len(key) > 1 else key[0])
+        cells += part.attrs.get("cells", [[] for _ in range(len(part))])
+    if not parts:
+        return whole
+    table = pd.concat(parts, keys=part_keys, names=names + list(whole.index.names))
+    if "n" in table.columns:
+        table["n"] = table["n"].fillna(0).astype(int)
+    highlight = whole.attrs.get("highlight")
+    caption = whole.attrs.get("caption", "")
+    what = " and ".join(names)
+    table.attrs = {
+        **whole.attrs,
+        "cells": cells,
+        "highlight": "blocks" if highlight == "columns" else highlight,
+        "caption": (caption + " " if caption else "") + f"One block per {what}: the cells sweep it.",
+    }
+    return table
+
+
 def _group_order(values: Iterable[str], by: str) -> list[str]:
     values = sorted({str(v) for v in values})
     if by != "object":
@@ -168,26 +283,31 @@ def method_table(
         One row per method, labelled by ``method_label`` (``index.name`` ``"Method"``), with the
         ``metrics`` and ``n``, the number of ``ok`` cells (0 for a method whose cells all failed;
         its values are NaN). The notes end with the references' self-noise where the cells record
-        it (:func:`~snell_bench.experiment.reports.collect.reference_noise_note`).
+        it (:func:`~snell_bench.experiment.reports.collect.reference_noise_note`). Where the cells
+        sweep an axis (:func:`swept_axes`), indexed by ``(IOR, Method)``, ranked per IOR.
 
     Raises:
         ValueError: ``df`` has no ``method`` or ``status`` column.
     """
     _check(df)
-    methods = _method_order(df["method"].dropna().astype(str), order)
-    table = _means(df, methods, metrics)
     labels = method_labels(df)
-    table.index = [labels[m] for m in methods]
-    table.index.name = "Method"
-    noise = reference_noise_note(df)
-    table.attrs.update(
-        provenance=provenance_line(df),
-        notes=cell_notes(df, metrics) + ([noise] if noise else []),
-        caption="Means over cells with status ok; n = cells averaged.",
-        highlight="columns",
-        methods=list(methods),
-    )
-    return table
+
+    def build(d: pd.DataFrame) -> pd.DataFrame:
+        methods = _method_order(d["method"].dropna().astype(str), order)
+        table = _means(d, methods, metrics)
+        table.index = pd.Index([labels[m] for m in methods], name="Method")
+        noise = reference_noise_note(d)
+        table.attrs.update(
+            provenance=provenance_line(d),
+            notes=cell_notes(d, metrics) + ([noise] if noise else []),
+            caption="Means over cells with status ok; n = cells averaged.",
+            highlight="columns",
+            methods=list(methods),
+            cells=_cells_of(d, methods),
+        )
+        return table
+
+    return _keep_swept(df, build, ["method"])
 
 
 def scene_table(df: pd.DataFrame, metric: str = "psnr", order: Sequence[str] | None = None) -> pd.DataFrame:
@@ -201,7 +321,9 @@ def scene_table(df: pd.DataFrame, metric: str = "psnr", order: Sequence[str] | N
     Returns:
         One row per scene (sorted, ``index.name`` ``"Scene"``), one column per method (labelled by
         ``method_label``); NaN where a scene has no value for a method. Best and second best are
-        ranked per scene (``attrs["highlight"] == "rows"``).
+        ranked per scene (``attrs["highlight"] == "rows"``); ``attrs["cells"]`` holds every cell of
+        the row's scene (a column's are those of its method, ``attrs["methods"]``). Where the cells
+        sweep an axis (:func:`swept_axes`), indexed by ``(IOR, Scene)``.
 
     Raises:
         ValueError: ``df`` has no ``method`` or ``status`` column.
@@ -209,25 +331,32 @@ def scene_table(df: pd.DataFrame, metric: str = "psnr", order: Sequence[str] | N
     _check(df)
     methods = _method_order(df["method"].dropna().astype(str), order)
     labels = method_labels(df)
-    scenes = sorted(df["scene"].dropna().astype(str).unique())
-    ok = df[df["status"] == "ok"]
-    if metric in ok.columns and len(ok):
-        table = ok.groupby(["scene", "method"])[metric].agg(_mean).unstack("method")
-    else:
-        table = pd.DataFrame()
-    table = table.reindex(index=scenes, columns=methods).astype(float)
-    table.columns = [labels[m] for m in methods]
-    table.index.name = "Scene"
-    spec = metric_spec(metric)
-    table.attrs.update(
-        provenance=provenance_line(df),
-        notes=cell_notes(df, [metric]),
-        caption=f"{spec.label} {spec.arrow} per scene: means over cells with status ok.",
-        highlight="rows",
-        metric=metric,
-        methods=list(methods),
-    )
-    return table
+
+    def build(d: pd.DataFrame) -> pd.DataFrame:
+        scenes = sorted(d["scene"].dropna().astype(str).unique())
+        ok = d[d["status"] == "ok"]
+        if metric in ok.columns and len(ok):
+            table = ok.groupby(["scene", "method"])[metric].agg(_mean).unstack("method")
+        else:
+            table = pd.DataFrame()
+        table = table.reindex(index=scenes, columns=methods).astype(float)
+        table.columns = [labels[m] for m in methods]
+        table.index.name = "Scene"
+        spec = metric_spec(metric)
+        table.attrs.update(
+            provenance=provenance_line(d),
+            notes=cell_notes(d, [metric]),
+            caption=f"{spec.label} {spec.arrow} per scene: means over cells with status ok.",
+            highlight="rows",
+            metric=metric,
+            methods=list(methods),
+            cells=[[str(c) for c in d.loc[d["scene"].astype(str) == sc, "cell_dir"]] for sc in scenes]
+            if "cell_dir" in d.columns
+            else [[] for _ in scenes],
+        )
+        return table
+
+    return _keep_swept(df, build, ["scene", "method"])
 
 
 def block_table(
@@ -249,6 +378,9 @@ def block_table(
         ``["Object", "Method"]``): in each block the methods that have a cell there, with the mean
         of each metric over their ``ok`` cells (NaN where none has a value) and ``n``. Best and
         second best are ranked per column within each block (``attrs["highlight"] == "blocks"``).
+        Where the cells sweep an axis that varies within a block (:func:`swept_axes`: the IOR in
+        a per-scene table of the IOR sweep), indexed by ``(IOR, Scene, Method)``, a block per IOR
+        and scene.
 
     Raises:
         ValueError: ``df`` has no ``method`` or ``status`` column, or ``by`` is not a column of it.
@@ -258,29 +390,35 @@ def block_table(
         raise ValueError(f"by={by!r} is not a column of the cell table; use 'scene' or 'object'")
     methods = _method_order(df["method"].dropna().astype(str), order)
     labels = method_labels(df)
-    parts, keys, shown = [], [], []
-    for g in _group_order(df[by].dropna(), by):
-        sub = df[df[by].astype(str) == g]
-        here = [m for m in methods if (sub["method"] == m).any()]
-        if not here:
-            continue
-        parts.append(_means(sub, here, metrics))
-        keys += [(g, labels[m]) for m in here]
-        shown += [m for m in here if m not in shown]
-    cols = list(metrics) + ["n"]
-    table = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=cols)
-    table = table[cols]
-    table["n"] = table["n"].astype(int)
-    table.index = pd.MultiIndex.from_tuples(keys, names=[by.capitalize(), "Method"])
-    what = "scene" if by == "scene" else by
-    table.attrs.update(
-        provenance=provenance_line(df),
-        notes=cell_notes(df, metrics),
-        caption=f"Means per {what} over cells with status ok; n = cells averaged.",
-        highlight="blocks",
-        methods=shown,
-    )
-    return table
+
+    def build(d: pd.DataFrame) -> pd.DataFrame:
+        parts, keys, shown, cells = [], [], [], []
+        for g in _group_order(d[by].dropna(), by):
+            sub = d[d[by].astype(str) == g]
+            here = [m for m in methods if (sub["method"] == m).any()]
+            if not here:
+                continue
+            parts.append(_means(sub, here, metrics))
+            keys += [(g, labels[m]) for m in here]
+            shown += [m for m in here if m not in shown]
+            cells += _cells_of(sub, here)
+        cols = list(metrics) + ["n"]
+        table = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=cols)
+        table = table[cols]
+        table["n"] = table["n"].astype(int)
+        table.index = pd.MultiIndex.from_tuples(keys, names=[by.capitalize(), "Method"])
+        what = "scene" if by == "scene" else by
+        table.attrs.update(
+            provenance=provenance_line(d),
+            notes=cell_notes(d, metrics),
+            caption=f"Means per {what} over cells with status ok; n = cells averaged.",
+            highlight="blocks",
+            methods=shown,
+            cells=cells,
+        )
+        return table
+
+    return _keep_swept(df, build, [by, "method"])
 
 
 def ablation_table(df: pd.DataFrame, metrics: Sequence[str] = ABLATION_METRICS) -> pd.DataFrame:
@@ -293,26 +431,30 @@ def ablation_table(df: pd.DataFrame, metrics: Sequence[str] = ABLATION_METRICS) 
 
     Returns:
         One row per variant (Full, w/o reflection, w/o panorama, w/o DPA, w/o LPW, w/o time
-        travel; ``index.name`` ``"Variant"``) with the means over cells with status ``ok`` and ``n``.
+        travel; ``index.name`` ``"Variant"``) with the means over cells with status ``ok`` and ``n``;
+        indexed by ``(IOR, Variant)`` where the cells sweep an axis (:func:`swept_axes`).
 
     Raises:
         ValueError: ``df`` has no ``method`` or ``status`` column.
     """
     _check(df)
-    names = [m for m, _ in ABLATION_ROWS if (df["method"] == m).any()]
-    sub = df[df["method"].isin(names)]
-    table = _means(sub, names, metrics)
     label = dict(ABLATION_ROWS)
-    table.index = [label[m] for m in names]
-    table.index.name = "Variant"
-    table.attrs.update(
-        provenance=provenance_line(sub),
-        notes=cell_notes(sub, metrics),
-        caption="Ablation: means over cells with status ok; n = cells averaged.",
-        highlight="columns",
-        methods=list(names),
-    )
-    return table
+
+    def build(d: pd.DataFrame) -> pd.DataFrame:
+        names = [m for m, _ in ABLATION_ROWS if (d["method"] == m).any()]
+        table = _means(d, names, metrics)
+        table.index = pd.Index([label[m] for m in names], name="Variant")
+        table.attrs.update(
+            provenance=provenance_line(d),
+            notes=cell_notes(d, metrics),
+            caption="Ablation: means over cells with status ok; n = cells averaged.",
+            highlight="columns",
+            methods=list(names),
+            cells=_cells_of(d, names),
+        )
+        return table
+
+    return _keep_swept(df[df["method"].isin([m for m, _ in ABLATION_ROWS])], build, ["method"])
 
 
 def time_travel_table(df: pd.DataFrame, metrics: Sequence[str] = TIME_TRAVEL_METRICS) -> pd.DataFrame:
@@ -329,32 +471,39 @@ def time_travel_table(df: pd.DataFrame, metrics: Sequence[str] = TIME_TRAVEL_MET
         A table indexed by ``(variant label, R_main)`` (``index.names`` ``["Variant", "R_main"]``):
         the variants of :data:`TIME_TRAVEL_VARIANTS` in order, each with its R values ascending
         (the R = 1 run in both), the means over the ``ok`` cells and ``n``; best and second best
-        ranked per column within each variant. Empty when no time-travel method ran.
+        ranked per column within each variant. Empty when no time-travel method ran. Indexed by
+        ``(IOR, Variant, R_main)`` where the cells sweep an axis (:func:`swept_axes`).
 
     Raises:
         ValueError: ``df`` has no ``method`` or ``status`` column.
     """
     _check(df)
-    names = [m for m, _, _ in TIME_TRAVEL_ROWS if (df["method"] == m).any()]
-    sub = df[df["method"].isin(names)]
-    cols = list(metrics) + [c for c in MEASURES if c in sub.columns]
-    parts, keys = [], []
-    for variant, label in TIME_TRAVEL_VARIANTS:
-        rows = sorted((r, m) for m, vs, r in TIME_TRAVEL_ROWS if variant in vs and m in names)
-        if rows:
-            parts.append(_means(sub, [m for _, m in rows], cols))
-            keys += [(label, r) for r, _ in rows]
-    table = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=cols + ["n"])
-    table["n"] = table["n"].astype(int)
-    table.index = pd.MultiIndex.from_tuples(keys, names=["Variant", "R_main"])
-    table.attrs.update(
-        provenance=provenance_line(sub),
-        notes=cell_notes(sub, metrics),
-        caption="Time travel: means over cells with status ok; R_main = repeats of the main view; n = cells averaged.",
-        highlight="blocks",
-        methods=names,
-    )
-    return table
+    cols = list(metrics) + [c for c in MEASURES if c in df.columns]
+
+    def build(d: pd.DataFrame) -> pd.DataFrame:
+        names = [m for m, _, _ in TIME_TRAVEL_ROWS if (d["method"] == m).any()]
+        parts, keys, cells = [], [], []
+        for variant, label in TIME_TRAVEL_VARIANTS:
+            rows = sorted((r, m) for m, vs, r in TIME_TRAVEL_ROWS if variant in vs and m in names)
+            if rows:
+                parts.append(_means(d, [m for _, m in rows], cols))
+                keys += [(label, r) for r, _ in rows]
+                cells += _cells_of(d, [m for _, m in rows])
+        table = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=cols + ["n"])
+        table["n"] = table["n"].astype(int)
+        table.index = pd.MultiIndex.from_tuples(keys, names=["Variant", "R_main"])
+        table.attrs.update(
+            provenance=provenance_line(d),
+            notes=cell_notes(d, metrics),
+            caption="Time travel: means over cells with status ok; R_main = repeats of the main view; "
+            "n = cells averaged.",
+            highlight="blocks",
+            methods=names,
+            cells=cells,
+        )
+        return table
+
+    return _keep_swept(df[df["method"].isin([m for m, _, _ in TIME_TRAVEL_ROWS])], build, ["method"])
 
 
 def _stage_time(df: pd.DataFrame) -> pd.Series:
@@ -380,14 +529,38 @@ def savings_table(
         one row per method: cells, mean times, time saved (share of the reference's), mean and
         largest |ΔPSNR|, cells without the panorama branch, cells without any reflection, mean
         share of object pixels that kept a reflection, mean share of background treated as at
-        infinity. Both are empty when no method shares a cell with ``reference``.
+        infinity. Both are empty when no method shares a cell with ``reference``. Where the cells
+        sweep an axis (:func:`swept_axes`), both have it as their first column (``"IOR"``) and
+        ``summary`` one row per value and method.
     """
+    axes = swept_axes(df, ["method"])
+    if axes:
+        summaries, per_cells = [], []
+        labels = pd.DataFrame(axes)
+        for key in sorted(set(labels.itertuples(index=False, name=None)), key=lambda k: tuple(map(_axis_sort_key, k))):
+            sel = (labels == pd.Series(key, index=list(axes))).all(axis=1).to_numpy()
+            summary, per_cell = _savings(df[sel], reference, methods, method_labels(df))
+            for frame, out in ((summary, summaries), (per_cell, per_cells)):
+                if not frame.empty:
+                    for name, value in reversed(list(zip(axes, key))):
+                        frame.insert(0, name, value)
+                    out.append(frame)
+        return (
+            pd.concat(summaries, ignore_index=True) if summaries else pd.DataFrame(),
+            pd.concat(per_cells, ignore_index=True) if per_cells else pd.DataFrame(),
+        )
+    return _savings(df, reference, methods, method_labels(df))
+
+
+def _savings(
+    df: pd.DataFrame, reference: str, methods: Sequence[str], labels: dict[str, str]
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """:func:`savings_table` of cells that sweep nothing."""
     ok = df[df["status"] == "ok"].copy()
     ok["_time"] = _stage_time(ok)
     keys = ["scene", "variation", "object"]
     ref = ok[ok["method"] == reference].set_index(keys)
     rows, summary = [], []
-    labels = method_labels(df)
     for m in methods:
         sub = ok[ok["method"] == m]
         if sub.empty or ref.empty:
@@ -460,7 +633,7 @@ def rank_marks(table: pd.DataFrame) -> dict[tuple[int, int], int]:
     """Best and second-best cells of a table.
 
     Cells are ranked per column, per row when ``table.attrs["highlight"] == "rows"``, or per
-    column within each block of rows sharing the first index level when it is ``"blocks"``, in
+    column within each block of rows sharing every index level but the last when it is ``"blocks"``, in
     the direction of their metric (:func:`column_metric`), on the values as displayed (rounded to the
     metric's format), so ties share the rank. A column (row) with fewer than two values gets no
     mark; ``n`` and non-metric columns are never ranked.
@@ -477,7 +650,7 @@ def rank_marks(table: pd.DataFrame) -> dict[tuple[int, int], int]:
     if highlight == "rows":
         groups = [[(i, j) for j in range(len(cols))] for i in range(len(table))]
     elif highlight == "blocks":
-        first = [k[0] if isinstance(k, tuple) else k for k in table.index]
+        first = [k[:-1] if isinstance(k, tuple) else k for k in table.index]
         blocks: dict = {}
         for i, b in enumerate(first):
             blocks.setdefault(b, []).append(i)

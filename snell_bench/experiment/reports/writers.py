@@ -32,7 +32,10 @@ __all__ = [
     "to_latex",
     "to_csv",
     "tex_escape",
+    "rank_scope",
     "tradeoff_markdown",
+    "tradeoff_summary",
+    "tradeoff_notes",
     "stdout_table",
 ]
 
@@ -105,11 +108,22 @@ def _index_cells(table: pd.DataFrame) -> list[list[str]]:
 
 
 def _block_starts(table: pd.DataFrame) -> list[int]:
-    """Row positions (after the first) where the first index level changes."""
+    """Row positions (after the first) where a block starts: any index level but the last changes."""
     if table.index.nlevels < 2:
         return []
-    first = [k[0] for k in table.index]
+    first = [k[:-1] for k in table.index]
     return [i for i in range(1, len(first)) if first[i] != first[i - 1]]
+
+
+def rank_scope(table: pd.DataFrame) -> str:
+    """Where best and second best are ranked, for a legend: ``"column"``, ``"scene"`` (scene
+    tables) or ``"column within each <leading index levels>"`` (``"... within each IOR and scene"``)."""
+    heads = _index_header(table)
+    return {
+        "rows": "scene",
+        "blocks": "column within each "
+        + (" and ".join(h if h == "IOR" else h.lower() for h in heads[:-1] if h) or "block"),
+    }.get(table.attrs.get("highlight"), "column")
 
 
 def _resolve(table: pd.DataFrame, provenance: str | None, notes: Sequence[str] | None) -> tuple[str, list[str]]:
@@ -155,11 +169,7 @@ def to_markdown(
     )
     lines.append("")
     caption = table.attrs.get("caption")
-    highlight = table.attrs.get("highlight")
-    where = {
-        "rows": "scene",
-        "blocks": f"column within each {str(index_head[0]).lower() or 'block'}",
-    }.get(highlight, "column")
+    where = rank_scope(table)
     lines.append(
         (caption + " " if caption else "") + f"**Bold**: best per {where}; _italic_: second best; {MISSING}: no value."
     )
@@ -327,27 +337,7 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
         front starred, "missing" for LPIPS without a value), the reference convergence of the spp
         axes, and notes listing failed settings and missing metrics with their reasons.
     """
-    models = sorted({str(m) for m in df["model"].dropna()}) if "model" in df else []
-    status = Counter(str(s) for s in df["status"])
-    counts = ", ".join(f"{v} {k}" for k, v in sorted(status.items()))
-    spps = sorted({int(v) for v in df.get("converged_spp", pd.Series(dtype=float)).dropna()})
-    conv_text = f"{'/'.join(map(str, spps))} spp" if spps else "none in this sweep"
-    fid_text = "PSNR (conv.)" if fidelity_column(table) == "psnr_converged" else "PSNR"
-    lines = [
-        f"# {title}",
-        "",
-        f"Means over the scenes where a setting succeeded ({', '.join(sorted(df['scene'].dropna().unique()))}); "
-        f"model: {', '.join(models) or 'unknown'}; {len(df)} runs ({counts}). "
-        f"Times in seconds; {TOTAL_NOTE}. PSNR: masked, vs the setting's own reference render (so it also "
-        "moves with reference.spp, see the reference convergence below); PSNR (conv.): vs a converged reference "
-        f"of the same scene, object and resolution ({conv_text}); PSNR (true): vs the true render, traced with "
-        "reference.true_max_bounces (the setting's warps.max_bounces where that is null); ref. self-noise: the "
-        "PSNR of the setting's reference against its own noise-free limit, estimated from two independent "
-        "halves of its samples (the ceiling of its PSNR column). "
-        f"**pareto**: on the front of (mean total ↓, mean {fid_text} ↑) among the settings that succeeded on "
-        "every scene. Presets in bold.",
-        "",
-    ]
+    lines = [f"# {title}", "", tradeoff_summary(table, df, bold="**"), ""]
     head = [
         "setting",
         "scene",
@@ -415,6 +405,54 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
         lines += pipe_table(
             ["setting", "spp", "PSNR vs max spp", "self-noise (two halves)"], rows, [None, "right", "right", "right"]
         )
+    notes = tradeoff_notes(df)
+    if notes:
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
+    return "\n".join(lines) + "\n"
+
+
+def tradeoff_summary(table: pd.DataFrame, df: pd.DataFrame, bold: str = "") -> str:
+    """What a sweep's per-setting numbers are: scenes, model, runs, times, every PSNR column and
+    the Pareto flag (the paragraph under the heading of :func:`tradeoff_markdown`).
+
+    Args:
+        table: from :func:`tradeoff_table`.
+        df: the rows it was built from (:func:`collect_tradeoff`).
+        bold: the mark around the word "pareto" (``"**"`` in Markdown).
+
+    Returns:
+        One paragraph.
+    """
+    models = sorted({str(m) for m in df["model"].dropna()}) if "model" in df else []
+    status = Counter(str(s) for s in df["status"])
+    counts = ", ".join(f"{v} {k}" for k, v in sorted(status.items()))
+    spps = sorted({int(v) for v in df.get("converged_spp", pd.Series(dtype=float)).dropna()})
+    conv_text = f"{'/'.join(map(str, spps))} spp" if spps else "none in this sweep"
+    fid_text = "PSNR (conv.)" if fidelity_column(table) == "psnr_converged" else "PSNR"
+    return (
+        f"Means over the scenes where a setting succeeded ({', '.join(sorted(df['scene'].dropna().unique()))}); "
+        f"model: {', '.join(models) or 'unknown'}; {len(df)} runs ({counts}). "
+        f"Times in seconds; {TOTAL_NOTE}. PSNR: masked, vs the setting's own reference render (so it also "
+        "moves with reference.spp, see the reference convergence below); PSNR (conv.): vs a converged reference "
+        f"of the same scene, object and resolution ({conv_text}); PSNR (true): vs the true render, traced with "
+        "reference.true_max_bounces (the setting's warps.max_bounces where that is null); ref. self-noise: the "
+        "PSNR of the setting's reference against its own noise-free limit, estimated from two independent "
+        "halves of its samples (the ceiling of its PSNR column). "
+        f"{bold}pareto{bold}: on the front of (mean total ↓, mean {fid_text} ↑) among the settings that succeeded on "
+        "every scene. Presets in bold."
+    )
+
+
+def tradeoff_notes(df: pd.DataFrame) -> list[str]:
+    """A sweep's notes: every setting not ok on a scene with its reason, and every metric of
+    :data:`RECORD_METRICS` missing in ok runs, grouped by the recorded reason.
+
+    Args:
+        df: rows from :func:`collect_tradeoff`.
+
+    Returns:
+        One line each, reasons on one line.
+    """
     notes = []
     for _, r in df[df["status"] != "ok"].iterrows():
         notes.append(f"{r['status']}: {r['scene']} / {r['setting']} — {' '.join(str(r['reason']).split())}")
@@ -424,9 +462,7 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
         if col in ok and ok[m].isna().any():
             for why, n in Counter(str(v) for v in ok.loc[ok[m].isna(), col]).items():
                 notes.append(f"{m}: missing in {n} of {len(ok)} ok runs — {' '.join(why.split())}")
-    if notes:
-        lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
-    return "\n".join(lines) + "\n"
+    return notes
 
 
 def _is_spp_axis_row(r) -> bool:
