@@ -39,6 +39,7 @@ from snell_bench.config.schema import (
     RelightConfig,
     SceneConfig,
     SegmentConfig,
+    TrackerConfig,
     TradeoffConfig,
     WarpConfig,
 )
@@ -70,6 +71,7 @@ __all__ = [
     "SceneConfig",
     "SegmentConfig",
     "Source",
+    "TrackerConfig",
     "TradeoffConfig",
     "WarpConfig",
     "check_config",

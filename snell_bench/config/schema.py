@@ -12,6 +12,7 @@ Convention:
 
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -49,6 +50,7 @@ __all__ = [
     "RelightConfig",
     "GridConfig",
     "TradeoffConfig",
+    "TrackerConfig",
     "SamplerSettings",
     "CHECKED_NODES",
 ]
@@ -79,7 +81,7 @@ class SceneConfig:
     supersample: int = 2
     #: ``source=image``: the object-free photo I⁻ (PNG/JPEG, any size; centre-cropped to a multiple
     #: of ``model.multiple``, the intrinsics adjusted); relative paths: the working folder, else the
-    #: checkout (``datasets/``).
+    #: installed package (its ``datasets/``).
     image: Optional[str] = None
     #: ``source=image``: its depth (16-bit PNG or TIFF with ``depth_scale``, ``.npy``, ``.pfm``,
     #: ``.exr``); 0 and NaN are missing depth (unobserved space).
@@ -145,7 +147,7 @@ class ObjectConfig:
     #: e.g. ``snell_bench.scene.objects.GlassObject.sphere`` or ``...GlassObject.from_file``.
     factory: Any = None
     #: A mesh file, for factories that read one (relative paths: to the working folder, else to the
-    #: checkout, where ``datasets/`` lies).
+    #: installed package, where ``datasets/`` lies).
     path: Optional[str] = None
     #: The mesh file's up axis (``y``, ``z``, ``-z``, ...).
     up_axis: str = "y"
@@ -538,12 +540,63 @@ class TradeoffConfig:
         p.raise_if_any()
 
 
+#: ``tracker.mode`` values (W&B's run modes).
+TRACKER_MODES = ("offline", "online", "shared", "disabled")
+
+
+@dataclass
+class TrackerConfig:
+    """Where each finished grid cell's settings, metrics and images are also logged (conf/tracker/):
+    ``none`` (nothing), ``mlflow`` (a local MLflow file store), ``tensorboard`` (event files),
+    ``wandb`` (Weights & Biases, offline unless ``mode`` says otherwise). One run per cell, grouped
+    by ``experiment``; the cell's own files stay the record (snell_bench/experiment/tracking.py).
+    Not a result setting."""
+
+    name: str = "none"
+    #: The name the runs are grouped under (the MLflow experiment, the W&B group).
+    experiment: str = "${experiment_name}"
+    #: Also log image.png, reference.png, mask.png and panorama.png (where a cell has them).
+    log_images: bool = True
+    #: ``mlflow``: the tracking URI (``file:PATH`` or a plain path: a local file store; or a
+    #: tracking server's ``http(s)://`` address).
+    uri: Optional[str] = None
+    #: ``tensorboard``: the log folder (a run folder per cell under it); ``wandb``: the folder
+    #: W&B writes its ``wandb/`` folder into.
+    dir: Optional[str] = None
+    #: ``wandb``: the project and the entity (``null``: the account's default entity).
+    project: Optional[str] = None
+    entity: Optional[str] = None
+    #: ``wandb``: ``offline`` (files only, nothing sent; ``wandb sync`` uploads them later),
+    #: ``online``, ``shared`` or ``disabled``.
+    mode: Optional[str] = None
+    #: The Python modules the back-end imports, checked before any work.
+    requires: list = field(default_factory=list)
+    #: What logs: a ``_target_`` node (a :class:`~snell_bench.experiment.tracking.Tracker`;
+    #: ``null``: no tracking).
+    backend: Any = None
+
+    def __post_init__(self) -> None:
+        p = Problems("tracker")
+        # a module that is not installed stops the run here, before any cell is computed (a
+        # tracker that fails later only warns: the cells' results are kept either way)
+        missing = [str(m) for m in self.requires if importlib.util.find_spec(str(m)) is None]
+        if missing:
+            p.append(
+                f"tracker={self.name} needs {', '.join(missing)}: pip install 'snell_bench[track]' or set tracker=none"
+            )
+        if self.mode is not None and self.mode not in TRACKER_MODES:
+            p.append(
+                f"tracker.mode={self.mode!r}: must be one of {', '.join(TRACKER_MODES)}; e.g. tracker.mode=offline"
+            )
+        p.raise_if_any()
+
+
 @dataclass
 class PlanConfig:
     """``job=plan``: what a grid will do on this machine, before doing it."""
 
     #: A ``benchmarks/bench_gpu.py --json`` file whose measured times and GPU memory the plan uses
-    #: (the pipeline baselines keep the README's figures); ``null``: the README's basis (the
+    #: (the pipeline baselines keep the documented figures); ``null``: the documented basis (docs/gpu.md) (the
     #: paper's A100 time scaled), labelled as such.
     bench: Optional[str] = None
 
@@ -568,6 +621,8 @@ class Config:
     grid: GridConfig = field(default_factory=GridConfig)
     tradeoff: TradeoffConfig = field(default_factory=TradeoffConfig)
     plan: PlanConfig = field(default_factory=PlanConfig)
+    #: Where each finished cell is also logged (conf/tracker/: none, mlflow, tensorboard, wandb).
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
     #: The recipe (conf/recipe/) the switches come from: ``paper`` (what the paper's text says) or
     #: ``authors`` (what the authors' released code does); set by the recipe file, recorded with
     #: every cell.
@@ -585,4 +640,16 @@ class Config:
 
 #: The nodes whose dataclass checks its own ranges (``sampler`` is checked with the method's
 #: switches applied, the root's ``seed`` by :func:`~snell_bench.config.checks.check_config`).
-CHECKED_NODES = ("scene", "object", "warps", "model", "models", "method", "reference", "relight", "grid", "tradeoff")
+CHECKED_NODES = (
+    "scene",
+    "object",
+    "warps",
+    "model",
+    "models",
+    "method",
+    "reference",
+    "relight",
+    "grid",
+    "tradeoff",
+    "tracker",
+)

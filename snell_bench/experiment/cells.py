@@ -271,6 +271,7 @@ def run_cells(
     desc: str = "",
     before: Callable[[list[Cell]], None] | None = None,
     after: Callable[[Cell], None] | None = None,
+    recorded: Callable[[Cell, dict], None] | None = None,
     lock: str = "auto",
     lease_ttl_s: float = DEFAULT_TTL_S,
     lock_key: str = "grid.lock",
@@ -290,6 +291,10 @@ def run_cells(
         before: called with the cells left to compute, before the first one (work that serves
             several cells and must come first, such as model-major passes).
         after: called after each cell's record is written (also for failed cells).
+        recorded: called with each cell this process computed (``ok``, ``failed`` or ``skipped``)
+            and its record, once the record is written: not for cells finished before, nor for
+            cells left to another process (such as an experiment tracker's logging,
+            :mod:`snell_bench.experiment.tracking`; it must not raise).
         lock: how a cell is claimed: ``flock``, ``lease`` or ``auto`` (decided once for ``root``'s
             file system; :func:`~snell_bench.experiment.locks.choose_lock`).
         lease_ttl_s: a lease's lifetime without renewal (``lease``): a lease left by a killed
@@ -346,7 +351,7 @@ def run_cells(
                     counts["cached"] += 1  # another process finished it meanwhile
                 else:
                     _remove_leftovers(cell.folder)
-                    counts[_run_one(cell, fn, shared, record_name, settings, hashes, failures)] += 1
+                    counts[_run_one(cell, fn, shared, record_name, settings, hashes, failures, recorded)] += 1
         except OSError as e:  # the cell's folder cannot be written: it fails alone
             reason = f"{type(e).__name__}: {e} (the cell's folder {cell.folder} cannot be written)"
             failures.append((str(cell.folder), reason))
@@ -363,7 +368,7 @@ def run_cells(
     return summary
 
 
-def _run_one(cell, fn, shared, record_name, settings, hashes, failures) -> str:
+def _run_one(cell, fn, shared, record_name, settings, hashes, failures, recorded=None) -> str:
     record = {**cell.record, "status": "ok", "reason": None}
     try:
         record.update(fn(cell, shared))
@@ -377,4 +382,6 @@ def _run_one(cell, fn, shared, record_name, settings, hashes, failures) -> str:
         log.error("cell %s failed: %s", cell.folder, record["reason"])
     record["settings_hash"] = hashes[id(cell)]
     _write_record(cell, record, record_name)
+    if recorded is not None:
+        recorded(cell, record)
     return record["status"]

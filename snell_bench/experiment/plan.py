@@ -54,6 +54,7 @@ NOT_RESULT_KEYS = (
     "scene.cache_dir",
     "method.label",
     "models",
+    "tracker",
 )
 
 

@@ -36,6 +36,10 @@ Layout of an experiment ``E`` under ``runs/``::
   writing its summary under ``jobs/<job id>/``; a job that Slurm requeues (preemption, time limit)
   skips its finished cells and computes the rest. Cells are claimed with a lock, so processes
   given overlapping parts still compute each cell once.
+- With ``tracker=mlflow | tensorboard | wandb`` each cell this process computes is also logged
+  as one run, after its record is written (:mod:`snell_bench.experiment.tracking`); a tracker that
+  cannot start stops the run before any work, one that fails on a cell only warns.
+  ``summary.json`` says how many runs were logged, where, and the time it took (``tracker``).
 """
 
 from __future__ import annotations
@@ -64,6 +68,7 @@ from snell_bench.experiment.plan import (
 )
 from snell_bench.experiment.prefetch import Prefetcher, settings_of
 from snell_bench.experiment.reports.collect import recipe_and_protocol
+from snell_bench.experiment.tracking import log_cell, make_tracker
 from snell_bench.pipeline import ModelPool, apply_method, scorers_of
 from snell_bench.utils.io import link_or_copy, save_png, write_json, write_text
 from snell_bench.utils.tensors import bchw_to_hwc
@@ -339,6 +344,7 @@ def run_grid(cfg: DictConfig) -> dict:
         print(f"shard {int(g.shard)} of {int(g.shards)} (job {job_id()}): {mine} groups, {len(cells)} cells")
         _remove_handovers(cells)
         starts = _count_start(summary_root)
+    tracker = make_tracker(cfg)  # before any work: a tracker that cannot start stops the run here
     ahead, workers = settings_of(cfg)
     pool = ModelPool(cfg.models.memory_gb, offload=bool(cfg.models.offload))
     scorers = scorers_of(cfg.metrics, pool)
@@ -357,6 +363,7 @@ def run_grid(cfg: DictConfig) -> dict:
             desc=exp,
             before=order.prepare if order is not None else (prefetch.plan if prefetch is not None else None),
             after=None if prefetch is None else prefetch.release,
+            recorded=None if tracker is None else lambda c, record: log_cell(tracker, c, record),
             lock=str(g.lock),
             lease_ttl_s=float(g.lease_ttl_s),
             lock_key="grid.lock",
@@ -367,6 +374,8 @@ def run_grid(cfg: DictConfig) -> dict:
             order.close()
         if prefetch is not None:
             prefetch.close(wait=finished)
+        if tracker is not None:
+            tracker.close()
     summary = {
         "experiment": exp,
         **summary,
@@ -374,6 +383,8 @@ def run_grid(cfg: DictConfig) -> dict:
         "prefetch": prefetch.summary() if prefetch is not None else {"ahead": 0, "workers": 0},
     }
     summary["models"] = pool.summary()
+    if tracker is not None:
+        summary["tracker"] = tracker.summary()
     if sharded:
         summary["job"] = {
             "id": job_id(),
@@ -389,6 +400,12 @@ def run_grid(cfg: DictConfig) -> dict:
     )
     for cdir, reason in summary["failures"]:
         print(f"  FAILED {cdir}: {reason}")
+    if tracker is not None:
+        t = summary["tracker"]
+        print(
+            f"tracker {t['name']}: {t['runs']} runs logged to {t['where']}"
+            + (f", {t['failures']} cells could not be logged (see the warnings)" if t["failures"] else "")
+        )
     if g.report and sharded and not all((c.folder / "metrics.json").is_file() for c in every):
         print(f"report: left to the last job of the grid (or run job=report experiment_name={exp})")
     elif g.report:
@@ -397,6 +414,6 @@ def run_grid(cfg: DictConfig) -> dict:
         check_same_settings(root)
         out = Path(cfg.reports_dir) / exp
         paths = build_reports(root, out, exp)
-        print(f"reports: {out} ({len(paths)} files)")
+        print(f"reports: {out} ({len(paths)} files); open {out / 'index.html'}")
         summary["reports"] = [str(p) for p in paths]
     return summary
