@@ -12,7 +12,7 @@ TORCH_SPEC ?= torch==2.14.1 torchvision==0.29.1
 comma := ,
 STAMP := $(VENV)/.installed-$(subst $(comma),-,$(EXTRAS))
 
-.PHONY: setup demo test test-slow lint format bench clean system-deps system-deps-slurm
+.PHONY: setup demo test test-slow lint format bench clean docs docs-serve docs-results system-deps system-deps-slurm system-deps-browser
 
 setup: $(STAMP)
 
@@ -47,6 +47,17 @@ system-deps-slurm:
 	  else echo "please install slurmctld, slurmd, munge and the Slurm client commands with your system package manager" >&2; exit 1; fi; \
 	fi
 
+# A headless browser for the slow test that opens the HTML report (tests/experiment/test_html_browser.py):
+# Debian's chromium and its WebDriver (the test skips, saying so, when they are missing).
+system-deps-browser:
+	@if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; then \
+	  echo "installing chromium chromium-driver (the HTML report's browser test)"; \
+	  if command -v apt-get >/dev/null; then \
+	    SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	    $$SUDO apt-get update -qq && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver; \
+	  else echo "please install chromium and its chromedriver with your system package manager" >&2; exit 1; fi; \
+	fi
+
 $(STAMP): pyproject.toml | system-deps
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
@@ -60,8 +71,24 @@ demo: setup
 test: setup
 	HF_HUB_OFFLINE=1 $(PY) -m pytest -q -n $(WORKERS) --dist loadfile
 
+# the documentation site (mkdocs-material, API pages by mkdocstrings) into site/, every warning an error
+DOCS_STAMP := $(VENV)/.installed-docs
+$(DOCS_STAMP): pyproject.toml | $(STAMP)
+	$(PY) -m pip install -q -e ".[docs]"
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	HF_HUB_OFFLINE=1 $(VENV)/bin/mkdocs build --strict
+
+# the docs' result tables: reports/<experiment>/ tables -> docs/results/data/, and docs/assets/smoke.png
+docs-results: setup
+	HF_HUB_OFFLINE=1 $(PY) tools/docs_results.py
+
+docs-serve: $(DOCS_STAMP)
+	HF_HUB_OFFLINE=1 $(VENV)/bin/mkdocs serve
+
 # the tests marked slow (end-to-end launchers, a real Slurm, the installed package, long sweeps)
-test-slow: setup system-deps-slurm
+test-slow: setup system-deps-slurm system-deps-browser
 	HF_HUB_OFFLINE=1 $(PY) -m pytest -q -m slow
 
 # import contracts (pyproject.toml [tool.importlinter]) and import cycles between modules: both

@@ -113,7 +113,7 @@ def main() -> None:
 
 
 def markdown(rows) -> None:
-    """The README's recipe table: every switch with its values and the measured effects."""
+    """The recipe table of docs/paper.md: every switch with its values and the measured effects."""
 
     def cell(v) -> str:
         return "–" if v is None else f"`{str(v).lower() if isinstance(v, bool) else v}`"

@@ -182,7 +182,7 @@ def _files(cfg: DictConfig, out: list[str]) -> None:
     if bench and not Path(str(bench)).is_file():
         out.append(
             f"plan.bench={str(bench)!r}: no such file (the figures of benchmarks/bench_gpu.py --json); fix the path, "
-            "or set plan.bench=null for the README's basis"
+            "or set plan.bench=null for the documented basis (docs/gpu.md)"
         )
     segmenter = _get(cfg, "segment.segmenter")
     if isinstance(segmenter, DictConfig) and str(segmenter.get("_target_", "")).endswith("MaskFileSegmenter"):

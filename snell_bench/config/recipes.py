@@ -2,8 +2,8 @@
 options differ, with the value each recipe sets.
 
 ``conf/recipe/paper.yaml`` (the default) and ``conf/recipe/authors.yaml`` set exactly these keys
-(a test holds them to this table), and README's "Reproducing the paper" prints it with the effect of
-each switch measured on CPU (``benchmarks/bench_recipes.py``).
+(a test holds them to this table), and the documentation's "Reproducing the paper" (``docs/paper.md``)
+prints it with the effect of each switch measured on CPU (``benchmarks/bench_recipes.py``).
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ SWITCHES: tuple[Switch, ...] = (
     ),
     Switch("relight.lora", None, "kontext-community/relighting-kontext-dev-lora-v3", None, "relighting LoRA"),
 )
-"""Every recipe switch, in the README table's order."""
+"""Every recipe switch, in the order of the table in ``docs/paper.md``."""
 
 #: Keys a recipe sets beyond :data:`SWITCHES` (the authors' relighting candidates; the paper's
 #: count, 20, is the ``paper`` preset's, a cost setting).

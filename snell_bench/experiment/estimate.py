@@ -11,7 +11,7 @@
   this machine (a folder or the Hugging Face cache, looked up with the models' own resolvers,
   never downloading) and, where not, the config key to set; whether a GPU is needed and present;
 - the time and GPU memory per cell and in total, from a ``benchmarks/bench_gpu.py --json`` file
-  (``plan.bench``) or else the README's basis, always labelled with where the figures come from;
+  (``plan.bench``) or else the documented basis (docs/gpu.md), always labelled with where the figures come from;
   whether the models fit together, else the model-major order with offloading.
 
 Convention:
@@ -27,7 +27,7 @@ Convention:
       :func:`~snell_bench.experiment.runner.plan_grid`). Objects are composed only when a cell
       has a record to compare with.
     - Times are seconds per cell as ``(low, high)``; memory is in GB (10⁹ bytes) of bfloat16
-      weights, the README's unit (``models.memory_gb`` is GiB and is converted). FLUX Fill and
+      weights, the documented unit (``models.memory_gb`` is GiB and is converted). FLUX Fill and
       FLUX Kontext share FLUX.1-dev's text encoders and VAE: loaded together, those count once.
     - A basis is scaled to a cell's settings linearly: the synchronized sampler by its model
       calls weighted by their pixels (:func:`model_calls`), the pipelines by steps x pixels. The
@@ -92,10 +92,8 @@ __all__ = [
 RECORD = "metrics.json"
 
 # ---------------------------------------------------------------------------- the bases of the estimates
-#: The README's label of its figures (section "Running on a GPU").
-README_LABEL = (
-    "estimate: README basis (the paper's 126 s per pair on an A100, scaled to an 80 GB GPU), not a measurement"
-)
+#: The label of the documented figures (docs/gpu.md).
+README_LABEL = "estimate: documented basis (docs/gpu.md: the paper's 126 s per pair on an A100, scaled to an 80 GB GPU), not a measurement"
 
 
 @dataclass(frozen=True)
@@ -104,7 +102,7 @@ class Basis:
 
     Attributes:
         label: where the figures come from (printed with the plan).
-        measured: a measurement (``plan.bench``) rather than the README's basis.
+        measured: a measurement (``plan.bench``) rather than the documented basis (docs/gpu.md).
         pair_s: one Snellcaster image + panorama pair, ``(low, high)`` seconds.
         pair_calls: its model calls ``(main, pano)``.
         size: ``(height, width, pano_height)`` of the pair, the t2i image and the pipelines.
@@ -131,7 +129,7 @@ class Basis:
     peak_gb: dict[str, float] = field(default_factory=dict)
 
 
-#: The README's basis ("Running on a GPU"): 44 main-view + 20 panorama model calls at 720 x 1280 with
+#: The documented basis (docs/gpu.md): 44 main-view + 20 panorama model calls at 720 x 1280 with
 #: a 1024 x 2048 panorama, t2i at 20 steps, Fill at 30, Kontext at its 28 per candidate.
 README_BASIS = Basis(
     label=README_LABEL,
@@ -148,7 +146,7 @@ README_BASIS = Basis(
     memory_gb={"flux_dev": 34.0, "fill": 34.0, "kontext": 34.0, "shared_text_vae": 10.0},
 )
 
-#: The pipeline baselines (README, "Running on a GPU"): ``method.name -> (label, seconds per cell
+#: The pipeline baselines (docs/gpu.md): ``method.name -> (label, seconds per cell
 #: or None, bf16 weights GB, the pipeline's default steps)`` at 720 x 1280.
 PIPELINES: dict[str, tuple[str, float | None, float, int]] = {
     "flux2_dev": ("FLUX.2-dev", None, 112.0, 50),
@@ -156,7 +154,7 @@ PIPELINES: dict[str, tuple[str, float | None, float, int]] = {
     "sd35_large": ("SD3.5-Large", 15.0, 27.0, 28),
 }
 
-#: The README's CPU measurements of the full method per image with the mixture stand-in on 2 cores
+#: The documented CPU measurements (docs/presets.md) of the full method per image with the mixture stand-in on 2 cores
 #: (warps, sampling, reference and metrics; "Presets and the speed/accuracy trade"), by
 #: ``(height, width, pano_height, steps)``.
 CPU_PRESETS: dict[tuple[int, int, int, int], tuple[str, float]] = {
@@ -166,9 +164,9 @@ CPU_PRESETS: dict[tuple[int, int, int, int], tuple[str, float]] = {
 }
 
 #: The label of :data:`CPU_PRESETS`.
-CPU_LABEL = "the README's CPU measurement of the CPU stand-ins (mixture, 2 cores), not a GPU figure"
+CPU_LABEL = "the documented CPU measurement of the CPU stand-ins (mixture, 2 cores), not a GPU figure"
 
-#: GB of other models' weights (README): MoGe-2 and SAM 3.
+#: GB of other models' weights (docs/gpu.md): MoGe-2 and SAM 3.
 OTHER_GB = {"moge2": 1.3, "sam3": 3.4}
 
 _BENCH_KEYS = (
@@ -209,7 +207,7 @@ def load_bench(path: str | os.PathLike) -> Basis:
     from snell_bench.utils.paths import data_path
 
     file = data_path(str(path), "plan.bench", "bench_gpu.py JSON file")
-    fix = "give the file `python benchmarks/bench_gpu.py --json` wrote, or plan.bench=null for the README's basis"
+    fix = "give the file `python benchmarks/bench_gpu.py --json` wrote, or plan.bench=null for the documented basis (docs/gpu.md)"
     try:
         data = json.loads(Path(file).read_text())
     except (OSError, ValueError) as e:
@@ -747,7 +745,7 @@ class Estimate:
         seconds: ``(low, high)`` seconds; ``None``: no basis for it.
         weights_gb: GPU weights its models hold together, GB (shared text encoders counted once).
         peak_gb: measured peak GPU memory of its stages (``plan.bench``), or ``None``.
-        basis: ``bench``, ``README``, ``CPU`` (the README's CPU measurement) or ``none``.
+        basis: ``bench``, ``README``, ``CPU`` (the documented CPU measurement) or ``none``.
         note: how the basis was scaled, or why there is none.
     """
 
@@ -781,9 +779,9 @@ def estimate_cell(scene_cfg: DictConfig, method_cfg: DictConfig, models: Sequenc
     Convention: the synchronized sampler (``snellcaster``, ``t2i``, the inpainting stand-in) scales
     the basis's pair (or t2i) by the cell's model calls weighted by their pixels; FLUX Fill by
     steps x pixels; relighting adds ``relight.candidates`` x Kontext's time per candidate
-    (steps x pixels); a pipeline baseline takes the README's figure x pixels (x steps when
+    (steps x pixels); a pipeline baseline takes the documented figure x pixels (x steps when
     ``method.steps`` is set). A generator that is not FLUX.1-dev on CUDA has no GPU basis: the
-    README's CPU measurement where the cell is the full method at a preset's settings, else none."""
+    documented CPU measurement where the cell is the full method at a preset's settings, else none."""
     H, W = int(scene_cfg.scene.height), int(scene_cfg.scene.width)
     Hb, Wb, Pb = basis.size
     pixels = H * W / (Hb * Wb)
@@ -802,7 +800,7 @@ def estimate_cell(scene_cfg: DictConfig, method_cfg: DictConfig, models: Sequenc
             why = (
                 "on the CPU (model.device=cpu): no basis"
                 if pipe is not None and not pipe.needs_gpu
-                else "no time in the README's basis"
+                else "no time in the documented basis (docs/gpu.md)"
             )
             return Estimate(None, weights, None, "none", f"{label}: {why}")
         steps = default_steps if c.method.steps is None else int(c.method.steps)
@@ -1057,7 +1055,7 @@ def _method_time(method: str, kind: str, rows: list[tuple[Estimate, int]]) -> Me
 #: GB (10⁹ bytes) in a GiB (``models.memory_gb``'s unit).
 GIB = 2**30 / 1e9
 
-#: GB of activations beside a model's weights when no bench measured them: the README's "a few GB
+#: GB of activations beside a model's weights when no bench measured them: the documented "a few GB
 #: of activations at 720 x 1280", taken as 10.
 ACTIVATIONS_GB = 10.0
 
@@ -1097,7 +1095,7 @@ def memory_plan(models: Sequence[ModelNeed], models_cfg: DictConfig, device: Dev
         + (
             "(the bench's largest peak less its weights)"
             if basis.peak_gb
-            else "(the README's 'a few GB' at 720 x 1280, taken as 10)"
+            else "(the documented 'a few GB' at 720 x 1280, taken as 10)"
         )
     )
     budget_gib = models_cfg.get("memory_gb")
@@ -1108,7 +1106,7 @@ def memory_plan(models: Sequence[ModelNeed], models_cfg: DictConfig, device: Dev
     if device.cuda:
         capacity, what = device.memory_gb, f"{device.name} ({device.memory_gb:.0f} GB)"
     else:
-        capacity, what = 80.0, "an 80 GB GPU (no GPU here: the README's reference)"
+        capacity, what = 80.0, "an 80 GB GPU (no GPU here: the documented reference)"
     if budget_gib is None:
         if together + act <= capacity:
             lines.append(f"they fit together on {what}: group-major order, every model stays loaded")
@@ -1268,7 +1266,7 @@ def format_plan(plan: Plan) -> str:
     if any(t.basis in ("README", "bench") for t in known):
         out.append(
             "  not included: model loads (each model once per sweep), each group's inputs on the CPU (warps and the "
-            "reference render; README, paper preset on 2 cores: 2.6 s + 36.5 s per group)"
+            "reference render; docs/gpu.md, paper preset on 2 cores: 2.6 s + 36.5 s per group)"
         )
     return "\n".join(out)
 

@@ -591,7 +591,12 @@ def lod_warp(
     Where the map does not compress this is exactly :func:`remap`.
 
     Args:
-        src, coords, levels, wrap_x, mask, dest_wrap_x: as :func:`pyramid_warp`.
+        src: ``(B, C, H, W)`` source image.
+        coords: ``(H', W', 2)`` or ``(B, H', W', 2)`` source coordinates, NaN where invalid.
+        levels: levels of the source's Gaussian pyramid.
+        wrap_x: the source is a panorama (periodic in x).
+        mask: optional bool ``(H', W')`` / ``(B, 1, H', W')``, ANDed with the map's validity.
+        dest_wrap_x: the destination is a panorama (circular finite differences).
 
     Returns:
         ``(warped (B, C, H', W'), valid (B, 1, H', W') bool)``; invalid pixels are 0.

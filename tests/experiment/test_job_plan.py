@@ -219,7 +219,7 @@ def test_the_main_grid_is_planned_per_part_and_names_missing_weights(empty_cache
         assert models[kind].weights == "missing" and f"metrics.{key}=" in models[kind].fix
     text = format_plan(plan)
     assert "MISSING FLUX.1-dev" in text and "set model.path=/data/FLUX.1-dev" in text
-    assert "README basis" in text and "not a measurement" in text and "no CUDA GPU here" in text
+    assert "documented basis" in text and "not a measurement" in text and "no CUDA GPU here" in text
     assert not runs.exists()
 
 
@@ -348,7 +348,7 @@ def test_a_bench_file_sets_the_figures_and_the_label(tmp_path):
     }
     assert t["snellcaster_relit"].weights_gb == pytest.approx(33.7 * 2 - 9.9)
     text = format_plan(plan)
-    assert "bench: measured: benchmarks/bench_gpu.py" in text and "README: estimate: README basis" in text
+    assert "bench: measured: benchmarks/bench_gpu.py" in text and "README: estimate: documented basis" in text
 
 
 @pytest.mark.parametrize(
@@ -414,7 +414,7 @@ def test_the_command_line_prints_the_plan_and_writes_nothing(tmp_path):
     res = run_cli(cwd, "job=plan", "+experiment=main", "model=flux_dev")
     assert res.returncode == 0, res.stderr[-3000:]
     assert "1800 cells" in res.stdout and "set model.path=/data/FLUX.1-dev" in res.stdout
-    assert "README basis" in res.stdout
+    assert "documented basis" in res.stdout
     assert list(cwd.rglob("*")) == []  # no runs/ folder, no Hydra folder, .hydra/ or log file
 
 
