@@ -18,7 +18,7 @@ from snell_bench.utils.io import atomic_write
 
 from .collect import collect
 from .tables import method_labels, object_ior
-from .tradeoff import PRESET_AXIS, fidelity_column, pareto_front
+from .tradeoff import PRESET_AXIS, complete_front, fidelity_column
 
 __all__ = [
     "figure_rows",
@@ -584,13 +584,9 @@ def pareto_figure(table: pd.DataFrame, out_png: str | os.PathLike, title: str = 
                         xytext=(5, -10),
                         textcoords="offset points",
                     )
-        complete = (table["n"] == table["n_scenes"]).to_numpy()
-        front = pareto_front(np.where(complete, x, np.nan), np.where(complete, y, np.nan))
-        if front.any():
-            o = np.argsort(x[front], kind="mergesort")
-            ax.step(
-                x[front][o], y[front][o], where="post", color="grey", lw=1.2, ls="--", label="Pareto front", zorder=2
-            )
+        front = complete_front(table, x, y)
+        if front.size:
+            ax.step(x[front], y[front], where="post", color="grey", lw=1.2, ls="--", label="Pareto front", zorder=2)
             ax.scatter(x[front], y[front], s=150, facecolors="none", edgecolors="grey", linewidths=1.0, zorder=2)
         finite = x[np.isfinite(x)]
         if finite.size and (finite > 0).all():

@@ -27,7 +27,7 @@ import pandas as pd
 
 from .spec import MEASURES, metric_spec
 from .tables import column_metric
-from .tradeoff import PRESET_AXIS, fidelity_column, pareto_front
+from .tradeoff import PRESET_AXIS, complete_front, fidelity_column
 
 __all__ = [
     "Plot",
@@ -330,18 +330,16 @@ def pareto_plot(table: pd.DataFrame) -> Plot:
                 hovertemplate="%{text}<br>total %{x:.2f} s<br>%{y:.2f} dB<extra></extra>",
             )
         )
-    complete = (table["n"] == table["n_scenes"]).to_numpy()
-    front = pareto_front(np.where(complete, x, np.nan), np.where(complete, y, np.nan))
-    if front.any():
-        o = np.argsort(x[front], kind="mergesort")
+    front = complete_front(table, x, y)
+    if front.size:
         fig.add_trace(
             go.Scatter(
-                x=_floats(x[front][o]),
-                y=_floats(y[front][o]),
+                x=_floats(x[front]),
+                y=_floats(y[front]),
                 mode="lines",
                 line={"shape": "hv", "dash": "dash", "color": "grey"},
                 name="Pareto front",
-                text=[_esc(s) for s in table.index[front][o]],
+                text=[_esc(s) for s in table.index[front]],
                 hovertemplate="%{text}<extra>Pareto front</extra>",
             )
         )

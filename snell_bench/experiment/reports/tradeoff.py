@@ -30,6 +30,7 @@ __all__ = [
     "PRESET_AXIS",
     "SPP_KEY",
     "pareto_front",
+    "complete_front",
     "collect_tradeoff",
     "reference_psnr_vs_max_spp",
     "update_spp_records",
@@ -162,6 +163,22 @@ def update_spp_records(scene_dir: Path) -> None:
 
 
 # ---------------------------------------------------------------------------- Pareto front
+def complete_front(table: pd.DataFrame, cost: np.ndarray, score: np.ndarray) -> np.ndarray:
+    """The settings on the Pareto front of those that succeeded on every scene, cheapest first.
+
+    Args:
+        table: a per-setting table (:func:`tradeoff_table`) with ``n`` and ``n_scenes``.
+        cost: one value per row of ``table``.
+        score: one value per row of ``table``.
+
+    Returns:
+        Row positions into ``table``, sorted by cost (stable); empty when no setting is complete.
+    """
+    complete = (table["n"] == table["n_scenes"]).to_numpy()
+    front = np.flatnonzero(pareto_front(np.where(complete, cost, np.nan), np.where(complete, score, np.nan)))
+    return front[np.argsort(np.asarray(cost, dtype=float)[front], kind="mergesort")]
+
+
 def pareto_front(cost: Sequence[float], score: Sequence[float]) -> np.ndarray:
     """The points not dominated when minimising ``cost`` and maximising ``score``.
 
