@@ -81,6 +81,7 @@ __all__ = [
     "LockUnsupported",
     "Lease",
     "claim",
+    "hold",
     "choose_lock",
     "check_ttl",
     "probe_flock",
@@ -260,6 +261,23 @@ def claim(folder: str | os.PathLike, kind: str = "auto", ttl_s: float = DEFAULT_
         yield True
     finally:
         lease.release()
+
+
+@contextmanager
+def hold(
+    folder: str | os.PathLike, kind: str = "auto", ttl_s: float = DEFAULT_TTL_S, *, poll_s: float = 0.2
+) -> Iterator[None]:
+    """Wait until this process has the claim of ``folder`` (:func:`claim`, polled every ``poll_s``
+    seconds), then hold it for the block: for work that must not run twice at once in one folder,
+    such as two shards of a grid writing the same report."""
+    folder = Path(folder)
+    kind = choose_lock(kind, folder)
+    while True:
+        with claim(folder, kind, ttl_s) as mine:
+            if mine:
+                yield
+                return
+        time.sleep(poll_s)
 
 
 @contextmanager

@@ -6,6 +6,7 @@ and the speed/accuracy sweep's page."""
 import json
 import math
 import re
+import time
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -599,3 +600,47 @@ def test_labels_in_plots_cannot_close_their_script(tmp_path):
     assert [s.attrs.get("type") for s in doc.find_all("script") if "src" not in s.attrs] == [None, "application/json"]
     names = {t["name"] for t in _plots(doc)["plot-ior"]["data"]}
     assert names == {"Snellcaster", label.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")}
+
+
+def test_reports_built_at_once_into_one_folder_take_turns(ior, monkeypatch):
+    """Two shards of a grid that finish together both build the report: the builds take turns on
+    the folder (one build's clean-up of ``images/`` would otherwise delete the other's
+    temporaries), so both succeed and the report is the one a single build writes."""
+    import threading
+
+    from snell_bench.experiment.reports import build as build_module
+
+    runs, out, _ = ior
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    inside, most = [0], [0]
+    lock = threading.Lock()
+    real = build_module._write_reports
+
+    def counted(*args, **kwargs):
+        with lock:
+            inside[0] += 1
+            most[0] = max(most[0], inside[0])
+        try:
+            time.sleep(0.2)  # widen the window the two builds would overlap in
+            return real(*args, **kwargs)
+        finally:
+            with lock:
+                inside[0] -= 1
+
+    monkeypatch.setattr(build_module, "_write_reports", counted)
+    errors = []
+
+    def build():
+        try:
+            build_reports(runs, out, "ior_sweep")
+        except Exception as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=build) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert errors == [] and most[0] == 1
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before

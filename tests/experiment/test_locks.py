@@ -259,3 +259,23 @@ def test_a_bad_lock_setting_names_its_key_and_the_fix(tmp_path):
     with pytest.raises(ValueError, match=r"grid.lease_ttl_s=0: must be a finite number of seconds > 0"):
         run_cells(cells_in(tmp_path, ["a"]), lambda c, s: {}, root=tmp_path, lease_ttl_s=0)
     assert not (tmp_path / "a").exists()
+
+
+@pytest.mark.parametrize("kind", ["flock", "lease"])
+def test_hold_waits_for_the_claim_and_then_holds_it(tmp_path, kind):
+    order = []
+    with claim(tmp_path, kind=kind, ttl_s=30) as mine:
+        assert mine
+
+        def waiter():
+            with locks.hold(tmp_path, kind=kind, ttl_s=30, poll_s=0.05):
+                order.append("waiter holds")
+                assert not _try(tmp_path, kind, 30)  # held: others are refused
+
+        t = threading.Thread(target=waiter)
+        t.start()
+        time.sleep(0.3)
+        order.append("first releases")
+    t.join(10)
+    assert order == ["first releases", "waiter holds"]
+    assert dotfiles(tmp_path) == []

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from snell_bench.experiment.locks import hold
 from snell_bench.utils.io import atomic_write_bytes, write_text
 
 from .collect import collect
@@ -124,7 +125,12 @@ def build_reports(
     if df.empty:
         raise FileNotFoundError(f"no cells (metrics.json) below {run_dir}")
     out_dir.mkdir(parents=True, exist_ok=True)
-    name = experiment_name
+    with hold(out_dir):  # the shards of a grid that finish together write one report in turn
+        return _write_reports(df, run_dir, out_dir, experiment_name, max_rows)
+
+
+def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -> list[Path]:
+    """The body of :func:`build_reports`, while it holds ``out_dir``."""
     tables = [
         ("method_table", f"Table 1: methods ({name})", method_table(df, with_recorded_metrics(df, TABLE1_METRICS))),
         ("scene_table", f"Table 3: per scene ({name})", block_table(df, with_recorded_metrics(df, SCENE_METRICS))),
@@ -300,6 +306,12 @@ def build_tradeoff_report(runs_root: str | os.PathLike, out_dir: str | os.PathLi
     if df.empty:
         raise FileNotFoundError(f"no settings (result.json) below {runs_root}")
     out_dir.mkdir(parents=True, exist_ok=True)
+    with hold(out_dir):
+        return _write_tradeoff_report(df, runs_root, out_dir)
+
+
+def _write_tradeoff_report(df, runs_root: Path, out_dir: Path) -> list[Path]:
+    """The body of :func:`build_tradeoff_report`, while it holds ``out_dir``."""
     table = tradeoff_table(df)
     csv = out_dir / "tradeoff.csv"
     atomic_write_bytes(csv, df.to_csv(index=False, lineterminator="\n").encode())
