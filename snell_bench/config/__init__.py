@@ -3,7 +3,9 @@ checks every config passes before any work.
 
 Modules: :mod:`.schema` (one dataclass per node, ranges checked in ``__post_init__``),
 :mod:`.choices` (the enums of string settings), :mod:`.sampler` (the ``sampler`` node),
-:mod:`.materials` (``object.ior``), :mod:`.grid` (the entries of the grid's lists),
+:mod:`.materials` (``object.ior`` and ``object.ior_range``), :mod:`.camera` (the range of
+``scene.fov_deg``), :mod:`.names` (names that become folder names), :mod:`.grid` (the entries of
+the grid's lists and the sweep's axes),
 :mod:`.compose` (Hydra composition, the ``prompts`` resolver), :mod:`.checks` (unknown keys,
 values across nodes, files, devices), :mod:`.preflight` (the checks as a Hydra callback, before
 any folder is created). Nothing here imports a stage package except the ``prompts`` resolver.

@@ -12,26 +12,37 @@ reported together in one :class:`ConfigError`.
   ``method.warps`` are checked against the ``sampler`` and ``warps`` schemas they override.
 - **Values.** Choices are enums of the schema, checked when the config is composed; here each
   node's dataclass checks its ranges (``__post_init__``, the warps with ``method.warps`` applied,
-  the sampler with ``method.sampler``), then what depends on several nodes (the image size and the
-  generator's block, the pyramid's depth against the image and the panorama), the files a config
-  names, the devices and dtypes, and the grid's and the sweep's lists.
+  the sampler with ``method.sampler``: a bad value the method sets is named
+  ``method.sampler.<key>``), then what depends on several nodes (the image's and the panorama's
+  sizes against the generator's block, the pyramid's depth against both, the camera of a photo
+  and the field of view the object fits in), the files a config names, the devices and dtypes,
+  and the grid's and the sweep's lists (names of config files, IORs inside ``object.ior_range``,
+  the sweep's axes).
+- **Names.** ``experiment_name`` (and every other name that becomes a folder,
+  :mod:`snell_bench.config.names`) is one folder name: nothing is written outside ``runs_dir``
+  and ``reports_dir``. The folders themselves are checked writable by
+  :func:`snell_bench.config.preflight.check_output_folders`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
+import re
 from pathlib import Path
 from typing import Any
 
 import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
-from omegaconf.errors import InterpolationResolutionError
+from omegaconf.errors import InterpolationResolutionError, OmegaConfBaseException
 
+from snell_bench.config.camera import MAX_FOV_DEG, fov_problem
 from snell_bench.config.choices import DTYPE_NAMES, Job, Source, dtype_name
-from snell_bench.config.errors import ConfigError, Problems, is_int
-from snell_bench.config.grid import check_names, check_unique, object_dir_name, parse_object_spec
-from snell_bench.config.materials import MATERIALS, resolve_ior
+from snell_bench.config.errors import MAX_SEED, ConfigError, Problems, is_int, is_number
+from snell_bench.config.grid import axis_settings, check_names, check_unique, object_dir_name, parse_object_spec
+from snell_bench.config.materials import MATERIALS, ior_out_of_range, ior_range_problem, resolve_ior
+from snell_bench.config.names import NAME_MAX, folder_name_problem, setting_slug
 from snell_bench.config.sampler import SamplerSettings
 from snell_bench.config.schema import CHECKED_NODES, Config
 from snell_bench.utils.paths import data_path
@@ -110,17 +121,43 @@ def max_levels(height: int, width: int) -> int:
     return max(1, int(min(height, width)).bit_length() - 1)
 
 
+def _with_method(cfg: DictConfig, name: str, out: list[str]) -> DictConfig | None:
+    """The node ``name`` (``warps``, ``sampler``) with the method's overrides of it
+    (``method.<name>``) merged in, as the method runs it; ``None`` (and a line naming
+    ``method.<name>.<key>``) where an override does not fit the key's type."""
+    try:
+        return OmegaConf.merge(cfg[name], _get(cfg, f"method.{name}") or {})
+    except OmegaConfBaseException as e:
+        key = f"method.{name}.{e.key}" if getattr(e, "key", None) is not None else f"method.{name}"
+        value = _get(cfg, key) if getattr(e, "key", None) is not None else None
+        first = str(getattr(e, "msg", e)).splitlines()[0]
+        out.append(
+            f"{key}={value!r}: {first} (method={_get(cfg, 'method.name')} overrides {name}.{e.key} with it); give a "
+            f"value of the type of {name}.{e.key}"
+        )
+        return None
+
+
 def _nodes(cfg: DictConfig, out: list[str]) -> None:
-    """Each node's own ranges (its dataclass's ``__post_init__``) and the root's seed."""
+    """Each node's own ranges (its dataclass's ``__post_init__``) and the root's settings: the
+    seed, the experiment's name (a folder name: ``<runs_dir>/<experiment_name>/``, its log
+    ``<experiment_name>.log``) and the output folders' names."""
     p = Problems()
-    p.int_at_least("seed", _get(cfg, "seed"), 0, " (random generators take no negative seed)", 0)
+    p.seed("seed", _get(cfg, "seed"))
+    p.append_if(folder_name_problem(_get(cfg, "experiment_name"), "experiment_name", suffix=".log"))
+    for key in ("runs_dir", "reports_dir"):
+        value = _get(cfg, key)
+        if not isinstance(value, str) or not value.strip():
+            p.append(f"{key}={value!r}: must be a folder; e.g. {key}={key.removesuffix('_dir')}")
     out += p
     for name in CHECKED_NODES:
         node = cfg.get(name)
         if not isinstance(node, DictConfig):
             continue
         if name == "warps":  # with the method's switches applied, as the method traces them
-            node = OmegaConf.merge(node, _get(cfg, "method.warps") or {})
+            node = _with_method(cfg, "warps", out)
+            if node is None:
+                continue
         try:
             OmegaConf.to_object(node)
         except ConfigError as e:
@@ -130,10 +167,31 @@ def _nodes(cfg: DictConfig, out: list[str]) -> None:
 
 
 def _sizes(cfg: DictConfig, out: list[str]) -> None:
-    """The image size against the generator's block (``model.multiple``)."""
+    """The image and the panorama sizes against the generator's block (``model.multiple``): the
+    generator samples the ``warps.pano_height x 2 warps.pano_height`` panorama too, so both of
+    its sides must be multiples of the block (a preview only traces: any height)."""
     mult = _get(cfg, "model.multiple")
     if not is_int(mult) or mult < 1:
         return  # the model node's own check names it
+    pano = _get(cfg, "warps.pano_height")
+    method_pano = (_get(cfg, "method.warps") or {}).get("pano_height")
+    key = "warps.pano_height" if method_pano is None else "method.warps.pano_height"
+    pano = pano if method_pano is None else method_pano
+    if _get(cfg, "job") != Job.preview and is_int(pano) and pano >= 2 and pano % mult:
+        lo, hi = pano // mult * mult, (pano // mult + 1) * mult
+        use = " or ".join(f"{key}={h} ({h}x{2 * h})" for h in (lo, hi) if h >= mult)
+        out.append(
+            f"{key}={pano}: the {pano}x{2 * pano} panorama ({key} x 2 {key}) must have sides that are multiples of "
+            f"model.multiple={mult}, the block of the generator (model={_get(cfg, 'model.name')}) that samples it; "
+            f"use {use}"
+        )
+    max_side = _get(cfg, "scene.max_side")
+    if _get(cfg, "scene.source") == Source.image and is_int(max_side) and 1 <= max_side < mult:
+        out.append(
+            f"scene.max_side={max_side}: the photo's sides are cropped to multiples of model.multiple={mult} after "
+            f"the resize, so its longer side needs at least {mult} pixels; e.g. scene.max_side={max(mult * 80, 1280)} "
+            "or null"
+        )
     if _get(cfg, "scene.source") in (Source.procedural, Source.generated):
         for key in ("scene.width", "scene.height"):
             v = _get(cfg, key)
@@ -189,12 +247,61 @@ def _files(cfg: DictConfig, out: list[str]) -> None:
         need("segment.mask", "a PNG mask file, nonzero on the surface", f"segment={_get(cfg, 'segment.name')}")
 
 
+def _camera(cfg: DictConfig, out: list[str]) -> None:
+    """The camera of a photo or a generated scene: one of ``scene.intrinsics`` and
+    ``scene.fov_deg`` (a photo with a depth file needs one), and a field of view in which the
+    object at its default size fits (:mod:`snell_bench.config.camera`). A procedural scene has
+    its camera: a preview or a generation of one would ignore either setting, so neither may be
+    set (a sweep's settings apply to all its scenes, photos among them)."""
+    source = _get(cfg, "scene.source")
+    fov, intrinsics = _get(cfg, "scene.fov_deg"), _get(cfg, "scene.intrinsics")
+    if source not in (Source.image, Source.generated):  # a procedural scene has its own camera
+        if _get(cfg, "job") not in (Job.preview, Job.generate):
+            return  # a sweep's cells have scenes of their own, each checked when it is composed
+        for key, value in (("scene.fov_deg", fov), ("scene.intrinsics", intrinsics)):
+            if value is not None and not any(line.startswith(f"{key}=") for line in out):  # once per key
+                out.append(
+                    f"{key}={value!r}: scene.source={source} renders with its own camera and would ignore it; it is "
+                    f"for a photo or a generated scene (scene.source=image or generated): set {key}=null"
+                )
+        return
+    if fov is not None and intrinsics is not None:
+        out.append(
+            f"scene.fov_deg={fov!r} and scene.intrinsics={list(intrinsics)!r} are both set: the camera takes one; "
+            "set scene.fov_deg=null (the intrinsics) or scene.intrinsics=null (the field of view)"
+        )
+    elif source == Source.image and _get(cfg, "scene.depth") and fov is None and intrinsics is None:
+        out.append(
+            "scene.source=image with scene.depth needs the camera: set scene.intrinsics=[fx,fy,cx,cy] (pixels of the "
+            "image file) or scene.fov_deg (the horizontal field of view in degrees, e.g. scene.fov_deg=60)"
+        )
+    size, rel = _get(cfg, "object.size"), _get(cfg, "object.relative_size")
+    if is_number(fov) and 0 < fov <= MAX_FOV_DEG and size is None and is_number(rel) and math.isfinite(rel) and rel > 0:
+        problem = fov_problem(fov, rel)
+        if problem:
+            out.append(problem)
+
+
+#: A line of :class:`SamplerSettings` about one key: ``sampler.<key>...``.
+_SAMPLER_LINE = re.compile(r"^sampler\.(\w+)")
+
+
 def _sampler(cfg: DictConfig, out: list[str]) -> None:
     """The sampler with the method's switches applied (its own ranges), and its pyramid against
-    the image and the panorama."""
-    node = OmegaConf.merge(cfg.sampler, _get(cfg, "method.sampler") or {})
+    the image and the panorama. A bad value the method sets is named ``method.sampler.<key>``."""
+    node = _with_method(cfg, "sampler", out)
+    if node is None:
+        return
+    by_method = set(map(str, (_get(cfg, "method.sampler") or {}).keys()))
     try:
         s = SamplerSettings(**OmegaConf.to_container(node, resolve=True))
+    except ConfigError as e:
+        for line in e.problems:
+            m = _SAMPLER_LINE.match(line)
+            if m and m.group(1) in by_method:
+                line = f"method.{line} (method={_get(cfg, 'method.name')} sets it)"
+            out.append(line)
+        return
     except (ValueError, TypeError) as e:
         out.append(str(e))
         return
@@ -208,7 +315,7 @@ def _sampler(cfg: DictConfig, out: list[str]) -> None:
         and w > 0
     ):
         limits.append((max_levels(h, w), f"the {h}x{w} image (scene.height x scene.width)"))
-    pano = _get(cfg, "warps.pano_height")
+    pano = (_get(cfg, "method.warps") or {}).get("pano_height", _get(cfg, "warps.pano_height"))
     if s.uses_panorama and is_int(pano) and pano > 1:
         limits.append((max_levels(pano, 2 * pano), f"the {pano}x{2 * pano} panorama (warps.pano_height)"))
     if limits:
@@ -276,21 +383,30 @@ def check_grid_entries(cfg: DictConfig) -> list[str]:
         except ValueError as e:
             out.append(str(e))
     for v in g.variations:
-        if not is_int(v) or v < 0:
+        if not is_int(v) or not 0 <= v <= MAX_SEED:
             out.append(
-                f"grid.variations: entry {v!r} is not an integer >= 0 (a variation seeds its scene); "
+                f"grid.variations: entry {v!r} is not an integer >= 0 (a variation seeds its scene; at most 2**63 - 1); "
                 "e.g. grid.variations=[0,1,2]"
             )
+    ior_range = _get(cfg, "object.ior_range")
     for spec in g.objects:
         name, ior = parse_object_spec(spec)
         if ior is not None:
             try:
-                resolve_ior(ior)
+                value = resolve_ior(ior)
             except ValueError:
                 out.append(
                     f"grid.objects: entry {str(spec)!r}: {ior!r} is neither a number (the IOR) nor a material; "
                     f"write {name}:1.45 or {name}:<material> with one of {sorted(MATERIALS)}"
                 )
+                continue
+            if ior_range_problem(ior_range) is None:
+                problem = ior_out_of_range(value, ior_range)
+                if problem:
+                    out.append(f"grid.objects: entry {str(spec)!r}: IOR {value:g} is {problem}")
+        folder = folder_name_problem(object_dir_name(str(spec)), f"grid.objects entry {str(spec)!r}", example=name)
+        if folder:
+            out.append(folder)
     return out
 
 
@@ -318,15 +434,54 @@ def check_tradeoff_entries(cfg: DictConfig) -> list[str]:
             check_unique(values, key)
         except ValueError as e:
             out.append(str(e))
+    ior_range = _get(cfg, "object.ior_range") if ior_range_problem(_get(cfg, "object.ior_range")) is None else None
     if ior is not None:
         try:
-            resolve_ior(ior)
+            value = resolve_ior(ior)
         except ValueError as e:
             out.append(f"tradeoff.object={str(t.object)!r}: {e}")
+        else:
+            if ior_range is not None and ior_out_of_range(value, ior_range):
+                out.append(f"tradeoff.object={str(t.object)!r}: IOR {value:g} is {ior_out_of_range(value, ior_range)}")
+    axes = OmegaConf.to_container(t.axes, resolve=True) if isinstance(t.axes, DictConfig) else dict(t.axes or {})
     if t.only is not None:
-        unknown = [str(a) for a in t.only if str(a) not in (t.axes or {})]
+        unknown = [str(a) for a in t.only if str(a) not in axes]
         if unknown:
-            out.append(f"tradeoff.only: unknown axes {unknown}; choose from {list(t.axes or {})}")
+            out.append(f"tradeoff.only: unknown axes {unknown}; choose from {list(axes)}")
+    for name in [str(a) for a in t.only if str(a) in axes] if t.only is not None else list(axes):
+        out += _axis_problems(str(name), axes[name], ior_range)
+    return out
+
+
+def _axis_problems(name: str, spec: Any, ior_range) -> list[str]:
+    """Problems of one axis of the speed/accuracy sweep: its form (:func:`~snell_bench.config.grid.axis_settings`),
+    its settings' folder names (``<axis>=<value>``, at most :data:`~snell_bench.config.names.NAME_MAX`
+    bytes) and any IOR it sweeps (``object.ior=...``, inside ``object.ior_range``)."""
+    try:
+        settings = axis_settings(name, spec)
+    except ValueError as e:
+        return [str(e)]
+    out = []
+    for label, overrides in settings:
+        slug = setting_slug(label)
+        if len(slug.encode()) > NAME_MAX:
+            out.append(
+                f"tradeoff.axes.{name}: the setting {label[:40]!r}... names a folder of {len(slug.encode())} bytes, "
+                f"longer than the {NAME_MAX} a file system takes; give it a shorter label (a mapping label -> "
+                "[override, ...])"
+            )
+        for override in overrides:
+            key, _, value = override.partition("=")
+            if key.lstrip("+~") != "object.ior":
+                continue
+            try:
+                ior = resolve_ior(value.strip().strip("'\""))
+            except ValueError as e:
+                out.append(f"tradeoff.axes.{name}: {override!r}: {e}")
+                continue
+            problem = ior_out_of_range(ior, ior_range) if ior_range is not None else None
+            if problem:
+                out.append(f"tradeoff.axes.{name}: {override!r}: IOR {ior:g} is {problem}")
     return out
 
 
@@ -347,7 +502,7 @@ def check_config(cfg: DictConfig, *, grid: bool | None = None) -> DictConfig:
     problems = unknown_keys(cfg)
     if problems:  # a value check may trip over an unknown key's node
         raise ConfigError(problems)
-    for check in (_nodes, _sizes, _files, _sampler, _devices):
+    for check in (_nodes, _sizes, _camera, _files, _sampler, _devices):
         check(cfg, problems)
     job = _get(cfg, "job")
     if grid if grid is not None else job == Job.grid:

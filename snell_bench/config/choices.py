@@ -15,6 +15,7 @@ __all__ = [
     "Job",
     "SWEEP_JOBS",
     "Source",
+    "SCENE_KINDS",
     "DepthKind",
     "Normals",
     "PanoPrior",
@@ -75,6 +76,12 @@ class Source(Choice):
     procedural = "procedural"
     image = "image"
     generated = "generated"
+
+
+#: The kinds of procedural scene (``scene.kind`` of ``scene.source=procedural``): those of
+#: :data:`snell_bench.scene.procedural.scene.SCENE_KINDS`, listed here so that checking a config
+#: does not import the scene package.
+SCENE_KINDS = ("room", "outdoor", "kitchen")
 
 
 class DepthKind(Choice):

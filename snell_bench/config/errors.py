@@ -7,10 +7,14 @@ Every line names the key, the bad value and the fix (``scene.variation=-1: must 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
 
-__all__ = ["ConfigError", "Problems", "is_int", "is_number"]
+__all__ = ["ConfigError", "MAX_SEED", "Problems", "is_int", "is_number"]
+
+#: The largest seed a setting takes: a cell's seed is ``seed + scene.variation``, and
+#: ``torch.Generator.manual_seed`` takes at most ``2**64 - 1``, so each stays below ``2**63``.
+MAX_SEED = 2**63 - 1
 
 
 class ConfigError(ValueError):
@@ -48,13 +52,20 @@ class Problems(list):
     def key(self, name: str) -> str:
         return f"{self.prefix}{name}"
 
-    def int_at_least(self, name: str, v: Any, lo: int, why: str = "", example: int | None = None) -> None:
-        """``v`` is an integer >= ``lo``."""
+    def int_at_least(
+        self, name: str, v: Any, lo: int, why: str = "", example: int | None = None, hi: int | None = None
+    ) -> None:
+        """``v`` is an integer >= ``lo`` (and <= ``hi``)."""
+        key = self.key(name)
+        fix = f"e.g. {key}={lo if example is None else example}"
         if not is_int(v) or v < lo:
-            key = self.key(name)
-            self.append(
-                f"{key}={v!r}: must be an integer >= {lo}{why}; e.g. {key}={lo if example is None else example}"
-            )
+            self.append(f"{key}={v!r}: must be an integer >= {lo}{why}; {fix}")
+        elif hi is not None and v > hi:
+            self.append(f"{key}={v!r}: must be an integer <= {hi}{why}; {fix}")
+
+    def seed(self, name: str, v: Any, why: str = "") -> None:
+        """``v`` is an integer in ``[0, MAX_SEED]`` (:data:`MAX_SEED`)."""
+        self.int_at_least(name, v, 0, why or " (random generators take a seed in [0, 2**63 - 1])", 0, hi=MAX_SEED)
 
     def finite(self, name: str, v: Any, *, positive=False, lo=None, hi=None, optional=False, fix="") -> None:
         """``v`` is a finite number (``> 0`` with ``positive``, in ``[lo, hi]``; ``None`` allowed
@@ -75,6 +86,38 @@ class Problems(list):
             self.append(
                 f"{self.key(name)}={v!r}: must be {rng}{' or null' if optional else ''}{'; ' + fix if fix else ''}"
             )
+
+    def append_if(self, line: str | None, prefix: str = "") -> None:
+        """Add ``prefix + line`` unless ``line`` is ``None`` (a check that found nothing)."""
+        if line is not None:
+            self.append(prefix + line)
+
+    def nonempty_or_null(self, name: str, v: Any, what: str) -> None:
+        """``v`` is ``None`` or a non-blank string (a folder or an address)."""
+        if v is not None and not str(v).strip():
+            self.append(f"{self.key(name)}={v!r}: must be {what}, not empty; e.g. {self.key(name)}=null")
+
+    def numbers(self, name: str, v: Any, length: int, *, optional: bool = False, fix: str = "") -> list[float] | None:
+        """``v`` is a list of ``length`` finite numbers (``None`` allowed with ``optional``).
+
+        Returns:
+            The numbers as floats, or ``None`` (``v`` is ``None``, or a line was added).
+        """
+        if v is None and optional:
+            return None
+        values = list(v) if isinstance(v, Sequence) and not isinstance(v, str) else None
+        if values is None or len(values) != length:
+            got = f"{len(values)} value{'' if len(values) == 1 else 's'}" if values is not None else "not a list"
+            self.append(
+                f"{self.key(name)}={v!r}: must be a list of {length} numbers, got {got}{'; ' + fix if fix else ''}"
+            )
+            return None
+        if not all(is_number(x) and math.isfinite(float(x)) for x in values):
+            self.append(
+                f"{self.key(name)}={values!r}: must hold finite numbers (no NaN, inf or text){'; ' + fix if fix else ''}"
+            )
+            return None
+        return [float(x) for x in values]
 
     def raise_if_any(self) -> None:
         if self:

@@ -1,13 +1,22 @@
 """The entries of the grid's and the sweep's lists: object specs (``sphere``, ``sphere:1.333``,
-``sphere:water``), names of config-group options, no repeats."""
+``sphere:water``), names of config-group options, no repeats, and the settings of the sweep's
+axes."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 from snell_bench.config.compose import group_options
 
-__all__ = ["parse_object_spec", "object_overrides", "object_dir_name", "check_names", "check_unique"]
+__all__ = [
+    "parse_object_spec",
+    "object_overrides",
+    "object_dir_name",
+    "check_names",
+    "check_unique",
+    "axis_settings",
+]
 
 
 def parse_object_spec(spec: str) -> tuple[str, float | str | None]:
@@ -58,3 +67,44 @@ def check_unique(values: Sequence, key: str, name=str) -> None:
             f"{key} lists {', '.join(repr(r) for r in repeated)} more than once ({list(values)}); "
             "each entry is one set of cells: remove the repeats"
         )
+
+
+def axis_settings(name: str, spec: Any) -> list[tuple[str, list[str]]]:
+    """``(label, overrides)`` of each setting of the speed/accuracy sweep's axis ``name``.
+
+    ``spec`` is a Hydra override (``"sampler.steps=4,8,12"``: one setting per value, labelled
+    ``steps=4``, ...) or a mapping ``label -> [override, ...]`` (labelled ``name=label``).
+
+    Args:
+        name: the axis (``tradeoff.axes.<name>``).
+        spec: its value, as plain Python (lists, dicts, strings).
+
+    Returns:
+        The settings in order.
+
+    Raises:
+        ValueError: naming ``tradeoff.axes.<name>``, for a spec of neither form, an override that
+            Hydra cannot parse, or no values.
+    """
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
+    where = f"tradeoff.axes.{name}"
+    if isinstance(spec, str):
+        try:
+            ov = OverridesParser.create().parse_override(spec)
+        except HydraException as e:  # the parser's and the lexer's errors
+            first = str(e).splitlines()[0] if str(e) else type(e).__name__
+            raise ValueError(
+                f"{where}: {spec!r} is not a Hydra override ({first}); write e.g. sampler.steps=4,8,12"
+            ) from None
+        values = list(ov.sweep_string_iterator()) if ov.is_sweep_override() else [ov.get_value_element_as_str()]
+        if not values:
+            raise ValueError(f"{where}: {spec!r} has no values; write e.g. sampler.steps=4,8,12 (non-empty)")
+        return [(f"{name}={v}", [f"{ov.get_key_element()}={v}"]) for v in values]
+    if isinstance(spec, dict) and spec and all(isinstance(v, list) for v in spec.values()):
+        return [(f"{name}={label}", [str(o) for o in ovs]) for label, ovs in spec.items()]
+    raise ValueError(
+        f"{where}: expected a Hydra sweep override (sampler.steps=4,8) or a mapping label -> [override, ...] "
+        f"(non-empty), got {spec!r}"
+    )

@@ -1,7 +1,9 @@
 """Checks before Hydra creates its output folder or configures logging (a Hydra callback,
 ``hydra.callbacks.preflight`` in ``conf/config.yaml``): the config is valid
-(:func:`snell_bench.config.checks.check_config`) and every folder the job writes is writable, so a
-bad setting or a read-only folder fails with its key named, and no folder is created first.
+(:func:`snell_bench.config.checks.check_config`) and every folder the job writes is writable
+(:func:`check_output_folders`: Hydra's run folder, the experiment's folders under ``runs_dir``
+and ``reports_dir``, the caches, the tracker's folder), so a bad setting or a read-only folder
+fails with its key named, and no folder is created first.
 
 A job that only prints (``job=plan``) writes nothing at all: :func:`write_nothing` turns Hydra's run
 folder, its ``.hydra/`` copy of the config and its log file off before Hydra makes them."""
@@ -10,6 +12,8 @@ from __future__ import annotations
 
 import os
 import sys
+import tempfile
+import urllib.parse
 from pathlib import Path
 from typing import Any
 
@@ -17,9 +21,21 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
 from snell_bench.config.checks import check_config
-from snell_bench.config.choices import SWEEP_JOBS, Job
+from snell_bench.config.choices import Job, Source
+from snell_bench.config.errors import ConfigError
+from snell_bench.config.names import folder_name_problem
 
-__all__ = ["Preflight", "check_writable", "output_folders", "write_nothing", "PRINT_JOBS"]
+__all__ = [
+    "Preflight",
+    "check_writable",
+    "check_output_folders",
+    "has_records",
+    "nothing_to_report",
+    "output_folders",
+    "output_folder_problems",
+    "write_nothing",
+    "PRINT_JOBS",
+]
 
 #: Jobs that write under ``runs_dir`` and ``reports_dir``.
 _RUNS_JOBS = (Job.grid, Job.tradeoff)
@@ -28,37 +44,136 @@ _RUNS_JOBS = (Job.grid, Job.tradeoff)
 PRINT_JOBS = (Job.plan, Job.status)
 
 
-def check_writable(folder: str | os.PathLike, key: str) -> None:
-    """Raise ``PermissionError`` naming ``key`` unless ``folder`` exists as a writable folder or
-    can be created (its nearest existing parent is a writable folder). Creates nothing."""
-    path = Path(folder).absolute()
+def _nearest_existing(path: Path) -> Path:
+    """``path`` or its nearest ancestor that exists (a link counts, even a broken one)."""
     probe = path
-    while not probe.exists():
+    while not (probe.exists() or probe.is_symlink()) and probe != probe.parent:
         probe = probe.parent
-    if not probe.is_dir():
-        raise NotADirectoryError(f"{key}={str(folder)!r}: {probe} is a file, not a folder; set {key} to a folder")
+    return probe
+
+
+def check_writable(folder: str | os.PathLike, key: str, value: Any = None) -> None:
+    """Raise an ``OSError`` naming ``key`` unless ``folder`` exists as a writable folder or can be
+    created (its nearest existing ancestor is a folder this user can create files in).
+
+    ``os.access`` alone is not enough: it reads the permission bits, which root passes everywhere
+    and which say nothing of procfs or sysfs (``/proc`` takes no new files even from root), of an
+    NFS export that maps root to nobody, or of a full disk. So a probe file is created and removed
+    in that nearest existing folder (``folder`` itself when it exists); nothing else is created.
+
+    Args:
+        folder: the folder the job writes into.
+        key: the setting it comes from, named in the message (``runs_dir``).
+        value: the setting's value, when ``folder`` is derived from it (``runs_dir`` for
+            ``<runs_dir>/<experiment_name>``); default ``folder``.
+
+    Raises:
+        NotADirectoryError: a file stands where a folder is needed.
+        PermissionError: the folder cannot be created or written.
+    """
+    shown = f"{key}={str(folder if value is None else value)!r}"
+    where = "" if value is None else f" (the folder {folder})"
+    fix = f"set {key} to a writable folder (e.g. {key}=/tmp/snell_bench) or change its permissions"
+    path = Path(folder).absolute()
+    try:
+        probe = _nearest_existing(path)
+        if probe.is_symlink() and not probe.exists():
+            raise FileNotFoundError(f"{probe} is a link to {os.readlink(probe)}, which does not exist")
+        if not probe.is_dir():
+            raise NotADirectoryError(f"{shown}{where}: {probe} is a file, not a folder; set {key} to a folder")
+    except NotADirectoryError:
+        raise
+    except OSError as e:
+        raise PermissionError(f"{shown}{where}: cannot be looked up ({e.strerror or e}); {fix}") from None
+    what = "is" if probe == path else f"would be created in {probe}, which is"
     if not os.access(probe, os.W_OK | os.X_OK):
-        what = "is" if probe == path else f"would be created in {probe}, which is"
+        raise PermissionError(f"{shown}{where}: the folder {what} not writable by this user; {fix}")
+    try:
+        fd, name = tempfile.mkstemp(prefix=".snell_bench-probe-", dir=probe)
+        os.close(fd)
+        os.unlink(name)
+    except OSError as e:
         raise PermissionError(
-            f"{key}={str(folder)!r}: the folder {what} not writable by this user; set {key} to a writable folder "
-            f"(e.g. {key}=/tmp/snell_bench) or change its permissions"
-        )
+            f"{shown}{where}: the folder {what} not writable: no file can be created there ({e.strerror or e}); {fix}"
+        ) from None
 
 
-def output_folders(cfg: DictConfig) -> list[tuple[str, str]]:
-    """``(key, folder)`` of every folder the job of ``cfg`` writes into (Hydra's own included; none
-    for a job that only prints)."""
-    if cfg.get("job") in PRINT_JOBS:
-        return []
-    out = []
-    if OmegaConf.select(cfg, "hydra.run.dir") is not None:
-        out.append(("hydra.run.dir", str(OmegaConf.select(cfg, "hydra.run.dir"))))
+def _scene_sources(cfg: DictConfig) -> set[str]:
+    """The ``scene.source`` values of the run: the run's own scene's, and for a sweep those of the
+    scenes its cells compose (read from each scene's config file; ``generated`` where one cannot be
+    read, so that its cache folder is checked)."""
+    sources = {str(OmegaConf.select(cfg, "scene.source"))}
     job = cfg.get("job")
+    names = OmegaConf.select(cfg, "grid.scenes") if job == Job.grid else OmegaConf.select(cfg, "tradeoff.scenes")
+    if job not in _RUNS_JOBS or not names:
+        return sources
+    from hydra.core.global_hydra import GlobalHydra
+
+    from snell_bench.config.compose import config_context
+
+    for name in names:
+        try:
+            with config_context():
+                loaded = GlobalHydra.instance().config_loader().repository.load_config(f"scene/{name}")
+            sources.add(str(loaded.config.get("source", "procedural")))
+        except Exception:  # noqa: BLE001 - an unreadable scene file is named by check_config
+            sources.add(str(Source.generated))
+    return sources
+
+
+def output_folders(cfg: DictConfig) -> list[tuple[str, Any, str]]:
+    """``(key, value, folder)`` of every folder the job of ``cfg`` writes into (none for a job
+    that only prints): Hydra's run folder, the experiment's folders under ``runs_dir`` and
+    ``reports_dir``, the caches (``warps.cache_dir``, and ``scene.cache_dir`` for generated scenes)
+    and the tracker's local folder (``tracker.dir``, an MLflow file store's ``tracker.uri``)."""
+    job = cfg.get("job")
+    if job in PRINT_JOBS:
+        return []
+    out: list[tuple[str, Any, str]] = []
+
+    def add(key: str, folder: Any, value: Any = None) -> None:
+        if folder is not None and str(folder).strip():
+            out.append((key, value, str(folder)))
+
+    add("hydra.run.dir", OmegaConf.select(cfg, "hydra.run.dir"))
+    name = str(cfg.get("experiment_name"))
     if job in _RUNS_JOBS:
-        out.append(("runs_dir", str(cfg.runs_dir)))
-    if job in SWEEP_JOBS:
-        out.append(("reports_dir", str(cfg.reports_dir)))
+        add("runs_dir", Path(str(cfg.runs_dir)) / name, cfg.runs_dir)
+    if job in (Job.tradeoff, Job.report) or (job == Job.grid and OmegaConf.select(cfg, "grid.report") is not False):
+        add("reports_dir", Path(str(cfg.reports_dir)) / name, cfg.reports_dir)
+    if job in (Job.preview, Job.generate, Job.grid):  # a sweep of the tradeoff traces without a cache
+        method_warps = OmegaConf.select(cfg, "method.warps") or {}
+        key = "method.warps.cache_dir" if "cache_dir" in method_warps else "warps.cache_dir"
+        add(key, OmegaConf.select(cfg, key))
+    if str(Source.generated) in _scene_sources(cfg):
+        add("scene.cache_dir", OmegaConf.select(cfg, "scene.cache_dir"))
+    if job == Job.grid and OmegaConf.select(cfg, "tracker.backend") is not None:
+        add("tracker.dir", OmegaConf.select(cfg, "tracker.dir"))
+        uri = OmegaConf.select(cfg, "tracker.uri")
+        if uri is not None and urllib.parse.urlparse(str(uri)).scheme in ("", "file"):
+            parsed = urllib.parse.urlparse(str(uri))
+            add("tracker.uri", urllib.parse.unquote(parsed.path) if parsed.scheme else str(uri), uri)
     return out
+
+
+def output_folder_problems(cfg: DictConfig) -> list[str]:
+    """One line per folder of :func:`output_folders` that cannot be written (:func:`check_writable`)."""
+    problems = []
+    for key, value, folder in output_folders(cfg):
+        try:
+            check_writable(folder, key, value)
+        except OSError as e:
+            problems.append(str(e))
+    return problems
+
+
+def check_output_folders(cfg: DictConfig) -> None:
+    """Raise :class:`~snell_bench.config.errors.ConfigError` listing every folder the job of
+    ``cfg`` writes into that cannot be written (:func:`output_folders`), before any work; creates
+    nothing."""
+    problems = output_folder_problems(cfg)
+    if problems:
+        raise ConfigError(problems)
 
 
 def write_nothing(config: DictConfig) -> None:
@@ -81,6 +196,39 @@ def write_nothing(config: DictConfig) -> None:
                 node.handlers = [h for h in node.handlers if h not in files]
 
 
+def has_records(folder: Path) -> bool:
+    """Whether ``folder`` holds a cell record (a grid's ``metrics.json``, a trade-off sweep's ``result.json``)."""
+    return (
+        next(folder.rglob("metrics.json"), None) is not None or next(folder.glob("*/*/result.json"), None) is not None
+    )
+
+
+def nothing_to_report(runs_dir: str | Path, name: str, why: str) -> str:
+    """The one-line error of ``job=report`` for an experiment without cells.
+
+    Args:
+        runs_dir: the ``runs_dir`` setting.
+        name: the ``experiment_name`` setting.
+        why: what is missing (the folder, or any cell record in it).
+
+    Returns:
+        The line: what is missing, the command that makes the cells, and the experiments of
+        ``runs_dir`` that have some (a misspelt name is then seen at once).
+    """
+    runs = Path(runs_dir)
+    others = (
+        [p.name for p in sorted(runs.iterdir()) if p.is_dir() and p.name != name and has_records(p)]
+        if runs.is_dir()
+        else []
+    )
+    have = f"; other experiments with cells in {runs}: {', '.join(others)}" if others else ""
+    return (
+        f"job=report: nothing to report for experiment_name={name}: {why}. Run its cells first "
+        f"(python -m snell_bench +experiment=<experiment> experiment_name={name}, or job=tradeoff for a "
+        f"speed/accuracy sweep), or choose another experiment_name{have}"
+    )
+
+
 def _exit_on_error(check) -> None:
     """Run ``check()``; on a bad setting print it and exit with status 1 (Hydra turns an exception
     raised by a callback into a warning and goes on, so a callback stops the run this way)."""
@@ -100,16 +248,31 @@ class Preflight(Callback):
 
         def check() -> None:
             check_config(config)
-            for key, folder in output_folders(config):
-                check_writable(folder, key)
+            check_output_folders(config)
 
         _exit_on_error(check)
+        if config.get("job") == "report":  # before Hydra makes the log folder inside runs/<name>
+            runs, name = str(config.get("runs_dir")), str(config.get("experiment_name"))
+            if not has_records(Path(runs) / name):
+                print(
+                    f"Error: {nothing_to_report(runs, name, f'no cell records below {Path(runs) / name}')}",
+                    file=sys.stderr,
+                )
+                raise SystemExit(1)
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         job = config.get("job")
         if job in PRINT_JOBS:  # one plan covers the whole grid: a sweep of plans would only make folders
             print(f"Error: job={job} prints and writes nothing: run it without -m/--multirun", file=sys.stderr)
             raise SystemExit(1)
+        name = config.get("experiment_name")
+        if isinstance(name, str):  # the sweep folder is <runs_dir>/<experiment_name>/logs/...
+            _exit_on_error(lambda: _raise_if(folder_name_problem(name, "experiment_name", suffix=".log")))
         sweep = OmegaConf.select(config, "hydra.sweep.dir")
         if sweep is not None:
             _exit_on_error(lambda: check_writable(str(sweep), "hydra.sweep.dir"))
+
+
+def _raise_if(problem: str | None) -> None:
+    if problem is not None:
+        raise ConfigError([problem])

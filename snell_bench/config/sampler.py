@@ -8,8 +8,11 @@ the difference (``tt_mode``, ``tt_renoise``, ``sde``, ``encode``, ``quantize``, 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Optional
+
+from snell_bench.config.errors import Problems, is_number
 
 __all__ = [
     "DPA_DOMAINS",
@@ -125,13 +128,13 @@ class SamplerSettings:
     progress: bool = True
 
     def __post_init__(self) -> None:
-        if self.sync not in SYNC_MODES:
-            raise ValueError(f"sampler.sync={self.sync!r} is unknown; use one of {SYNC_MODES}")
-        if self.latent_dtype not in LATENT_DTYPES:
-            raise ValueError(f"sampler.latent_dtype={self.latent_dtype!r} is unknown; use one of {LATENT_DTYPES}")
-        if self.schedule not in SCHEDULES:
-            raise ValueError(f"sampler.schedule={self.schedule!r} is unknown; use one of {SCHEDULES}")
+        """Check every value; all problems at once in one :class:`~snell_bench.config.errors.ConfigError`
+        (a ``ValueError``), each line naming its key ``sampler.<name>``, the value and the fix."""
+        p = Problems("sampler")
         for name, choices in (
+            ("sync", SYNC_MODES),
+            ("latent_dtype", LATENT_DTYPES),
+            ("schedule", SCHEDULES),
             ("tt_mode", TT_MODES),
             ("tt_renoise", TT_RENOISE),
             ("encode", ENCODE_MODES),
@@ -139,26 +142,40 @@ class SamplerSettings:
             ("pano_to_main", PANO_TO_MAIN),
         ):
             if getattr(self, name) not in choices:
-                raise ValueError(f"sampler.{name}={getattr(self, name)!r} is unknown; use one of {choices}")
+                p.append(f"sampler.{name}={getattr(self, name)!r} is unknown; use one of {choices}")
         if self.sde and self.stochastic:
-            raise ValueError(
+            p.append(
                 "sampler.sde=true and sampler.stochastic=true are two different noisy steps; set one of them to false"
             )
-        for name in ("steps", "levels", "tt_length", "tt_repeats_main", "tt_repeats_pano"):
+        for name, lo, example in (
+            ("steps", 1, 20),
+            ("levels", 1, 5),
+            ("tt_length", 1, 1),
+            ("tt_repeats_main", 1, 3),
+            ("tt_repeats_pano", 1, 1),
+            ("dump_every", 0, 0),
+        ):
             v = getattr(self, name)
-            if int(v) != v or v < 1:
-                raise ValueError(f"sampler.{name} must be an integer >= 1, got {v!r}")
-        lo, hi = self.tt_window
-        if not 0.0 <= lo <= hi <= 1.0:
-            raise ValueError(f"sampler.tt_window must satisfy 0 <= start <= end <= 1, got {self.tt_window}")
-        if not 0.0 <= self.reflection_min_fresnel <= 1.0:
-            raise ValueError(f"sampler.reflection_min_fresnel must be in [0, 1], got {self.reflection_min_fresnel}")
-        if self.skip_panorama_above is not None and not 0.0 <= self.skip_panorama_above <= 1.0:
-            raise ValueError(
-                f"sampler.skip_panorama_above must be in [0, 1] or null (never skip), got {self.skip_panorama_above}"
+            if not (is_number(v) and math.isfinite(v) and float(v).is_integer() and v >= lo):
+                p.append(f"sampler.{name} must be an integer >= {lo}, got {v!r}; e.g. sampler.{name}={example}")
+        window = p.numbers("tt_window", self.tt_window, 2, fix="e.g. sampler.tt_window=[0.2,0.8]")
+        if window is not None and not 0.0 <= window[0] <= window[1] <= 1.0:
+            p.append(
+                f"sampler.tt_window must be [start, end] with 0 <= start <= end <= 1 (fractions of the steps), got "
+                f"{list(self.tt_window)}; e.g. sampler.tt_window=[0.2,0.8]"
             )
-        if not 0.0 <= self.lam <= 1.0:
-            raise ValueError(f"sampler.lam must be in [0, 1], got {self.lam}")
+        for name, fix in (
+            ("eta", "the share of fresh noise in a stochastic step, e.g. sampler.eta=1"),
+            ("lam", "the detail-preserving weight, e.g. sampler.lam=0.5"),
+            ("reflection_min_fresnel", "e.g. sampler.reflection_min_fresnel=0 (keep every reflection)"),
+        ):
+            v = getattr(self, name)
+            if not (is_number(v) and 0.0 <= v <= 1.0):
+                p.append(f"sampler.{name} must be in [0, 1], got {v!r}; {fix}")
+        v = self.skip_panorama_above
+        if v is not None and not (is_number(v) and 0.0 <= v <= 1.0):
+            p.append(f"sampler.skip_panorama_above must be in [0, 1] or null (never skip), got {v!r}; e.g. 0.95")
+        p.raise_if_any()
 
     @property
     def effective_lam(self) -> float:

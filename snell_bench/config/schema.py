@@ -13,12 +13,15 @@ Convention:
 from __future__ import annotations
 
 import importlib.util
+import math
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
 from omegaconf import MISSING
 
+from snell_bench.config.camera import MAX_FOV_DEG, fov_problem
 from snell_bench.config.choices import (
+    SCENE_KINDS,
     DepthKind,
     InpaintMask,
     Job,
@@ -31,9 +34,10 @@ from snell_bench.config.choices import (
     RefSampler,
     Source,
 )
-from snell_bench.config.errors import Problems
-from snell_bench.config.materials import resolve_ior
-from snell_bench.config.sampler import SamplerSettings
+from snell_bench.config.errors import Problems, is_number
+from snell_bench.config.materials import ior_out_of_range, ior_range_problem, resolve_ior
+from snell_bench.config.names import folder_name_problem
+from snell_bench.config.sampler import SCHEDULES, SamplerSettings
 
 __all__ = [
     "Config",
@@ -90,9 +94,14 @@ class SceneConfig:
     depth_scale: Optional[float] = None
     #: ``z`` (depth along the optical axis) or ``range`` (distance along the ray).
     depth_kind: DepthKind = DepthKind.z
-    #: ``[fx, fy, cx, cy]`` in pixels of the file as stored, or ``fov_deg`` (horizontal, square pixels).
+    #: ``[fx, fy, cx, cy]`` in pixels of the file as stored (turned with the photo when its EXIF
+    #: orientation tag turns it), or ``fov_deg`` (horizontal, of the upright photo, square pixels).
     intrinsics: Optional[list] = None
     fov_deg: Optional[float] = None
+    #: ``source=image``: resize the photo (Lanczos; its depth by nearest neighbour; the intrinsics
+    #: scaled) so that its longer side is at most this many pixels, before it is fitted to the
+    #: generator's block; ``null``: the photo's own size. The size used is recorded in the cell.
+    max_side: Optional[int] = None
     #: The surface the object stands on, for a segmenter (``segment=sam3``), e.g. "wooden coffee table".
     surface: Optional[str] = "${prompts:${.text},surface,${.prompt_llm}}"
     #: ``source=generated``: denoising steps and schedule of I⁻ (FluxPipeline's default 28 steps).
@@ -124,14 +133,40 @@ class SceneConfig:
 
     def __post_init__(self) -> None:
         p = Problems("scene")
-        p.int_at_least("variation", self.variation, 0, " (it seeds the scene and the sampling)", 0)
-        p.int_at_least("seed_offset", self.seed_offset, 0, "", 0)
+        p.seed("variation", self.variation, " (it seeds the scene and the sampling)")
+        p.seed("seed_offset", self.seed_offset)
+        # a preview writes into <runs_dir>/preview/<scene.name>-<variation>/<object.name>
+        p.append_if(folder_name_problem(self.name, "scene.name", example="living_room", suffix=f"-{self.variation}"))
         if self.source == Source.procedural:
             p.int_at_least("supersample", self.supersample, 1, "", 2)
+            if self.kind not in SCENE_KINDS:
+                p.append(f"scene.kind={self.kind!r}: no procedural scene of this kind; use one of {list(SCENE_KINDS)}")
         if self.source == Source.generated:
             p.int_at_least("steps", self.steps, 1, "", 28)
-        p.finite("fov_deg", self.fov_deg, positive=True, hi=179.0, optional=True, fix="e.g. scene.fov_deg=60")
+            if self.schedule not in SCHEDULES:
+                p.append(f"scene.schedule={self.schedule!r} is unknown; use one of {list(SCHEDULES)}")
+        if self.fov_deg is not None:
+            p.finite(
+                "fov_deg", self.fov_deg, fix=f"a horizontal field of view in (0, {MAX_FOV_DEG:g}] degrees, e.g. 60"
+            )
+            if is_number(self.fov_deg) and math.isfinite(self.fov_deg):
+                p.append_if(fov_problem(self.fov_deg, None))  # the narrowest one depends on the object (checks)
+        fix = "[fx, fy, cx, cy] in pixels of the image file, e.g. scene.intrinsics=[525,525,319.5,239.5]"
+        k = p.numbers("intrinsics", self.intrinsics, 4, optional=True, fix=fix)
+        if k is not None and not (k[0] > 0 and k[1] > 0):
+            p.append(f"scene.intrinsics={list(self.intrinsics)!r}: the focal lengths fx, fy must be > 0 pixels; {fix}")
+        up = p.numbers("up", self.up, 3, optional=True, fix="a direction in camera coordinates, e.g. scene.up=[0,-1,0]")
+        if up is not None and not math.hypot(*up) > 0:
+            p.append(
+                f"scene.up={list(self.up)!r}: a direction cannot be zero; e.g. scene.up=[0,-1,0] (level camera) or "
+                "[0,-0.87,-0.5] (30 degrees down)"
+            )
+        if self.max_side is not None:
+            p.int_at_least(
+                "max_side", self.max_side, 1, " (pixels of the photo's longer side; null: its own size)", 1280
+            )
         p.finite("depth_scale", self.depth_scale, positive=True, optional=True, fix="e.g. 5000 (TUM) or 1000 (mm)")
+        p.nonempty_or_null("cache_dir", self.cache_dir, "a folder, or null for no cache")
         p.raise_if_any()
 
 
@@ -158,6 +193,15 @@ class ObjectConfig:
     allow_open: bool = False
     #: A material name (glass, water, acrylic, diamond, ...) or a number.
     ior: Any = "glass"
+    #: ``[lowest, highest]`` IOR accepted for ``object.ior``: a transparent solid or liquid has an
+    #: IOR of at least 1 and at most about 3 in visible light. Lower it explicitly for an object
+    #: optically thinner than its surroundings (an air bubble in water: ``object.ior=0.75
+    #: object.ior_range=[0.5,3]``). Not a result setting.
+    ior_range: list = field(default_factory=lambda: [1.0, 3.0])
+    #: Mesh files: trace a mesh whose surface crosses itself anyway (its inside is then ill
+    #: defined, and rays refract at the inner surfaces); else such a mesh is an error.
+    #: Not a result setting.
+    allow_self_intersecting: bool = False
     #: Largest bounding-box side in scene units; ``null``: ``relative_size`` x distance.
     size: Optional[float] = None
     relative_size: float = 0.25
@@ -171,11 +215,18 @@ class ObjectConfig:
         p.finite("size", self.size, positive=True, optional=True, fix=fix)
         p.finite("relative_size", self.relative_size, positive=True, fix="e.g. object.relative_size=0.25")
         p.finite("yaw_deg", self.yaw_deg, fix="a rotation about the up axis in degrees, e.g. object.yaw_deg=30")
-        p.finite("max_tilt_deg", self.max_tilt_deg, lo=0.0, hi=90.0, fix="e.g. object.max_tilt_deg=30")
+        # 0: no fitted plane is ever exactly level, so none would count as horizontal
+        p.finite("max_tilt_deg", self.max_tilt_deg, positive=True, hi=90.0, fix="e.g. object.max_tilt_deg=30")
+        p.append_if(folder_name_problem(self.name, "object.name", example="sphere"))  # a preview's folder
+        range_problem = ior_range_problem(self.ior_range)
+        p.append_if(range_problem)
         try:
-            resolve_ior(self.ior)
+            ior = resolve_ior(self.ior)
         except ValueError as e:
             p.append(f"object.ior={self.ior!r}: {e}")
+        else:
+            if range_problem is None:
+                p.append_if(ior_out_of_range(ior, self.ior_range), prefix=f"object.ior={self.ior!r}: ")
         if str(self.up_axis).lstrip("+-").lower() not in ("x", "y", "z"):
             p.append(f"object.up_axis={self.up_axis!r}: use x, y or z, optionally signed (-z)")
         p.raise_if_any()
@@ -205,6 +256,7 @@ class WarpConfig:
         p.int_at_least("max_bounces", self.max_bounces, 1, "", 8)
         p.finite("edge_threshold", self.edge_threshold, positive=True, fix="e.g. warps.edge_threshold=0.05")
         p.finite("infinity_tolerance_px", self.infinity_tolerance_px, positive=True, optional=True, fix="e.g. 0.5")
+        p.nonempty_or_null("cache_dir", self.cache_dir, "a folder, or null for no cache")
         p.raise_if_any()
 
 
@@ -259,6 +311,10 @@ class ModelConfig:
     def __post_init__(self) -> None:
         p = Problems("model")
         p.int_at_least("multiple", self.multiple, 1, " (the generator's block size)", 16)
+        p.seed("seed", self.seed)
+        p.finite("prior_std", self.prior_std, positive=True, fix="a standard deviation, e.g. model.prior_std=0.05")
+        p.finite("glass_std", self.glass_std, positive=True, fix="a standard deviation, e.g. model.glass_std=0.1")
+        p.finite("guidance", self.guidance, lo=0.0, fix="e.g. model.guidance=3.5")
         p.raise_if_any()
 
 
@@ -271,6 +327,12 @@ class ModelsConfig:
     #: sweep do not fit together, its cells run model by model (all cells of one model, then the
     #: next), so each model still loads once; a model larger than the budget is loaded alone.
     memory_gb: Optional[float] = None
+    #: GB (10^9 bytes) of host memory one cell may use at its peak (estimated from the image and
+    #: the panorama sizes before any work; snell_bench/experiment/memory.py): ``null``: this
+    #: machine's memory (or its cgroup limit). A cell estimated above it stops the run before any
+    #: work, naming the setting that shrinks it (``scene.max_side``, ``scene.width``,
+    #: ``warps.pano_height``) with a value that fits; above 75 % of it, a warning.
+    host_memory_gb: Optional[float] = None
     #: When a model must make room: ``true`` moves the least recently used model's weights to host
     #: memory (brought back on its next use, far faster than loading it again); ``false`` drops it.
     offload: bool = True
@@ -278,6 +340,9 @@ class ModelsConfig:
     def __post_init__(self) -> None:
         p = Problems("models")
         p.finite("memory_gb", self.memory_gb, positive=True, optional=True, fix="e.g. models.memory_gb=70")
+        p.finite(
+            "host_memory_gb", self.host_memory_gb, positive=True, optional=True, fix="e.g. models.host_memory_gb=16"
+        )
         p.raise_if_any()
 
 
@@ -316,6 +381,9 @@ class MethodConfig:
     def __post_init__(self) -> None:
         p = Problems("method")
         p.int_at_least("mask_dilate_px", self.mask_dilate_px, 0, "", 0)
+        if self.steps is not None:
+            p.int_at_least("steps", self.steps, 1, " (null: the pipeline's default)", 28)
+        p.finite("guidance", self.guidance, lo=0.0, optional=True, fix="null: the pipeline's default")
         p.raise_if_any()
 
 
@@ -349,6 +417,11 @@ class SegmentConfig:
     threshold: float = 0.5
     #: What builds it: a ``_target_`` node (``null``: RANSAC only).
     segmenter: Any = None
+
+    def __post_init__(self) -> None:
+        p = Problems("segment")
+        p.finite("threshold", self.threshold, lo=0.0, hi=1.0, fix="a score, e.g. segment.threshold=0.5")
+        p.raise_if_any()
 
 
 @dataclass
@@ -414,7 +487,10 @@ class ReferenceConfig:
             p.int_at_least("unobserved_spp", self.unobserved_spp, 1, "", 25)
         p.int_at_least("crop_margin_px", self.crop_margin_px, 0, "", 4)
         p.int_at_least("true_spp", self.true_spp, 1, "", 4)
-        p.finite("unobserved_threshold", self.unobserved_threshold, lo=0.0, hi=1.0, fix="e.g. 0.05")
+        if self.true_max_bounces is not None:
+            p.int_at_least("true_max_bounces", self.true_max_bounces, 1, " (null: warps.max_bounces)", 16)
+        # a pixel counts when its unobserved share is below the threshold: 0 would leave no pixel to score
+        p.finite("unobserved_threshold", self.unobserved_threshold, positive=True, hi=1.0, fix="e.g. 0.05")
         p.raise_if_any()
 
 
@@ -438,6 +514,10 @@ class RelightConfig:
     def __post_init__(self) -> None:
         p = Problems("relight")
         p.int_at_least("candidates", self.candidates, 1, "", 3)
+        if self.steps is not None:
+            p.int_at_least("steps", self.steps, 1, " (null: the pipeline's default)", 28)
+        p.finite("guidance", self.guidance, lo=0.0, optional=True, fix="null: the pipeline's default")
+        p.finite("lora_scale", self.lora_scale, fix="the LoRA's weight, e.g. relight.lora_scale=1 (0 turns it off)")
         p.raise_if_any()
 
 
@@ -489,6 +569,9 @@ class GridConfig:
     #: free again this long after (at once on the same machine). Keep it well above the file
     #: system's timestamp granularity (1 s on some NFS servers), e.g. >= 30.
     lease_ttl_s: float = 120.0
+    #: Exit with status 0 even when cells failed (for sweeps that expect some to fail); else the
+    #: run's exit status is non-zero when any cell failed.
+    allow_failures: bool = False
 
     def __post_init__(self) -> None:
         p = Problems("grid")
@@ -533,10 +616,14 @@ class TradeoffConfig:
     recompute: bool = False
     #: A finished setting whose recorded config differs from this run's: ``error`` or ``recompute``.
     on_change: OnChange = OnChange.error
+    #: Exit with status 0 even when settings failed; else the exit status is 3 when any did.
+    allow_failures: bool = False
 
     def __post_init__(self) -> None:
         p = Problems("tradeoff")
-        p.int_at_least("variation", self.variation, 0, " (it seeds the scene and the sampling)", 0)
+        p.seed("variation", self.variation, " (it seeds the scene and the sampling)")
+        if self.converged_spp is not None:
+            p.int_at_least("converged_spp", self.converged_spp, 1, " (null: no converged reference)", 1058)
         p.raise_if_any()
 
 
@@ -588,6 +675,13 @@ class TrackerConfig:
             p.append(
                 f"tracker.mode={self.mode!r}: must be one of {', '.join(TRACKER_MODES)}; e.g. tracker.mode=offline"
             )
+        if self.backend is not None and not str(self.experiment).strip():
+            p.append(
+                f"tracker.experiment={self.experiment!r}: the runs of tracker={self.name} are grouped under this name: "
+                "it cannot be empty; e.g. tracker.experiment=my_run (default: experiment_name)"
+            )
+        p.nonempty_or_null("dir", self.dir, "the log folder, or null for the tracker's default")
+        p.nonempty_or_null("uri", self.uri, "a folder, a file: or http(s):// URI, or null")
         p.raise_if_any()
 
 
@@ -649,6 +743,7 @@ CHECKED_NODES = (
     "method",
     "reference",
     "relight",
+    "segment",
     "grid",
     "tradeoff",
     "tracker",

@@ -9,6 +9,7 @@ schema is kept, and later overrides win. The method's switches are then applied
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -55,6 +56,8 @@ NOT_RESULT_KEYS = (
     "method.label",
     "models",
     "tracker",
+    "object.ior_range",
+    "object.allow_self_intersecting",
 )
 
 
@@ -62,21 +65,26 @@ def result_settings(cfg: DictConfig) -> dict[str, Any]:
     """Every setting of ``cfg`` that can change a cell's result, resolved and flattened to
     ``{"sampler.steps": 20, "scene.width": 1280, ...}`` (lists kept as values); the keys of
     :data:`NOT_RESULT_KEYS` left out. A cell's identity is its folder; these are what it was
-    computed with (:func:`settings_hash`)."""
-    plain = OmegaConf.to_container(cfg, resolve=False, enum_to_str=True)  # typed nodes cannot drop keys
-    for key in NOT_RESULT_KEYS:
-        *parents, leaf = key.split(".")
-        node = plain
-        for p in parents:
-            node = node.get(p) if isinstance(node, dict) else None
-        if isinstance(node, dict):
-            node.pop(leaf, None)
-    c = OmegaConf.create(plain)
-    try:
-        values = OmegaConf.to_container(c, resolve=True)
-    except Exception:  # noqa: BLE001 - a value that cannot resolve fails its cell, which says why
-        values = OmegaConf.to_container(c, resolve=False)
-    return flatten(values)
+    computed with (:func:`settings_hash`).
+
+    Each top-level node is resolved against the whole config (so a result setting that
+    interpolates one that is not, such as ``object.factory``'s ``${object.allow_self_intersecting}``,
+    resolves), then the keys of :data:`NOT_RESULT_KEYS` are dropped; a node that cannot resolve
+    is kept as written."""
+    plain = OmegaConf.to_container(cfg, resolve=False, enum_to_str=True)
+    c = OmegaConf.create(plain)  # untyped, every key kept: a result setting may interpolate any other
+    values: dict[str, Any] = {}
+    for key in plain:
+        if key in NOT_RESULT_KEYS:
+            continue  # never resolved (``output_dir`` reads Hydra's runtime)
+        try:
+            node = c._get_node(key)
+            values[key] = OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else c[key]
+        except Exception:  # noqa: BLE001 - a value that cannot resolve fails its cell, which says why
+            values[key] = plain[key]
+    return {
+        k: v for k, v in flatten(values).items() if not any(k == n or k.startswith(f"{n}.") for n in NOT_RESULT_KEYS)
+    }
 
 
 def flatten(d: dict, prefix: str = "") -> dict[str, Any]:
@@ -113,19 +121,47 @@ def _comparable(cfg: DictConfig) -> dict:
     d = OmegaConf.to_container(cfg, resolve=False, enum_to_str=True)
     for k in _NOT_RESULTS:
         d.pop(k, None)
-    return d
+    return _nan_equal(d)
+
+
+#: What a NaN compares as in :func:`_comparable` (NaN != NaN, but the same setting is the same).
+_NAN = "<nan>"
+
+
+def _nan_equal(value: Any) -> Any:
+    """``value`` with every float NaN replaced by :data:`_NAN`, so that two configs holding NaN at
+    the same key compare equal (the value itself is checked by :func:`check_config`)."""
+    if isinstance(value, dict):
+        return {k: _nan_equal(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_nan_equal(v) for v in value]
+    if isinstance(value, float) and math.isnan(value):
+        return _NAN
+    return value
 
 
 def check_reproducible(cfg: DictConfig) -> None:
     """Raise ``ValueError`` unless composing ``cfg.overrides`` gives ``cfg`` again: the cells of a
     sweep are composed from the overrides, so a change made to the object afterwards would be
-    lost silently."""
-    again = compose(list(cfg.overrides))
+    lost silently.
+
+    Any value compares (NaN equals NaN at the same key); overrides that no longer compose (a
+    config file removed since) raise ``ValueError`` naming them, never another exception.
+    """
+    overrides = [str(o) for o in (cfg.get("overrides") or [])]
+    try:
+        again = compose(overrides)
+    except Exception as e:  # noqa: BLE001 - Hydra's composition errors, reported with the overrides
+        first = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise ValueError(
+            f"the config's overrides {overrides} do not compose again ({first}); give every setting as an override "
+            "that composes (snell_bench.config.compose([...]) or the command line)"
+        ) from None
     a, b = _comparable(cfg), _comparable(again)
     if a != b:
         diff = list(settings_diff(flatten(a), flatten(b)))
         raise ValueError(
-            f"the config differs from what its overrides {list(cfg.overrides)} compose, at {diff}; give every "
+            f"the config differs from what its overrides {overrides} compose, at {diff}; give every "
             "setting as an override (snell_bench.config.compose([...]) or the command line)"
         )
 

@@ -22,7 +22,7 @@ from snell_bench.config import (
     "node, kwargs, expected",
     [
         (SceneConfig, {"variation": -1}, "scene.variation=-1: must be an integer >= 0"),
-        (SceneConfig, {"fov_deg": 180.0}, "scene.fov_deg=180.0: must be a number in (0, 179.0]"),
+        (SceneConfig, {"fov_deg": 180.0}, "scene.fov_deg=180.0: must be at most 150 degrees"),
         (ObjectConfig, {"size": float("nan")}, "object.size=nan: must be a finite number > 0 or null"),
         (ObjectConfig, {"ior": "unobtainium"}, "object.ior='unobtainium': unknown material"),
         (ObjectConfig, {"up_axis": "w"}, "object.up_axis='w': use x, y or z"),

@@ -96,7 +96,9 @@ def test_the_runner_computes_the_cells_the_plan_leaves(tiny_run, tmp_path):
     cell = runs / "smoke" / "living_room-0" / "sphere"
     (cell / "t2i" / "image.png").unlink()
     record = json.loads((cell / "snellcaster" / "metrics.json").read_text())
-    (cell / "snellcaster" / "metrics.json").write_text(json.dumps({**record, "status": "failed"}))
+    (cell / "snellcaster" / "metrics.json").write_text(
+        json.dumps({**record, "status": "failed", "reason": "RuntimeError: out of memory"})
+    )
     plan = plan_of(tiny(runs))
     assert states(plan) == {"living_room-0/sphere/snellcaster": "failed", "living_room-0/sphere/t2i": "files"}
     assert "image.png is missing" in plan.cells[1].reason
@@ -105,7 +107,9 @@ def test_the_runner_computes_the_cells_the_plan_leaves(tiny_run, tmp_path):
     assert {c.state for c in plan_of(tiny(runs)).cells} == {"done"}
     # a recorded skip is done: it is not run again
     (cell / "t2i" / "metrics.json").write_text(
-        json.dumps({**json.loads((cell / "t2i" / "metrics.json").read_text()), "status": "skipped"})
+        json.dumps(
+            {**json.loads((cell / "t2i" / "metrics.json").read_text()), "status": "skipped", "reason": "needs a GPU"}
+        )
     )
     plan = plan_of(tiny(runs))
     assert states(plan)["living_room-0/sphere/t2i"] == "skipped" and not plan.left
