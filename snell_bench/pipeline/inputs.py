@@ -1,7 +1,9 @@
 """Stages 1-5: what every method of one (scene, variation, object) shares.
 
 1. scene source: I⁻ (sRGB), its z-depth and camera, from a procedural scene, a photo or RGB-D
-   frame, or generated from p⁻, with a depth estimator where needed (:func:`load_scene`);
+   frame (turned upright by its EXIF orientation, resized for ``scene.max_side``: what was done is
+   the inputs' ``scene.info``, a cell's ``scene_info``), or generated from p⁻, with a depth
+   estimator where needed (:func:`load_scene`);
 2. where the object stands: the surface ``scene.surface`` names, segmented
    (:func:`surface_region`); the glass object, built from ``object.factory``
    (:func:`build_object`), placed on it (:func:`place`);
@@ -32,7 +34,7 @@ from snell_bench.pipeline.pool import ModelPool
 from snell_bench.render import render_reference as render
 from snell_bench.render import render_true
 from snell_bench.scene import sources
-from snell_bench.scene.image_source import fit_to_block, load_frame, load_image
+from snell_bench.scene.image_source import fit_to_block, load_frame, load_photo, photo_info
 from snell_bench.scene.objects import GlassObject
 from snell_bench.scene.placement import place_object
 from snell_bench.scene.sources import SceneInputs
@@ -93,9 +95,14 @@ def _procedural(cfg: DictConfig, pool: ModelPool) -> SceneInputs:
     )
 
 
+def _max_side(sc: DictConfig) -> int | None:
+    return None if sc.get("max_side") is None else int(sc.max_side)
+
+
 def _image(cfg: DictConfig, pool: ModelPool) -> SceneInputs:
     sc = cfg.scene
     image_file = data_path(sc.image, "scene.image", "image file")
+    block = int(cfg.model.multiple)
     if sc.depth:
         frame = load_frame(
             image_file,
@@ -104,18 +111,23 @@ def _image(cfg: DictConfig, pool: ModelPool) -> SceneInputs:
             depth_kind=str(sc.depth_kind),
             intrinsics=_intrinsics(sc),
             fov_deg=sc.fov_deg,
-            block=int(cfg.model.multiple),
+            block=block,
+            max_side=_max_side(sc),
         )
-        return SceneInputs(image=frame.image, depth=frame.depth, camera=frame.camera, up=_up(sc), source=frame)
-    image = load_image(image_file)
-    depth, camera = sources.estimate_depth(
-        image,
-        _depth_estimator(cfg, pool, "scene.depth is not set"),
-        intrinsics=_intrinsics(sc),
-        fov_deg=sc.fov_deg,
+        return SceneInputs(
+            image=frame.image, depth=frame.depth, camera=frame.camera, up=_up(sc), source=frame, info=frame.info
+        )
+    image, camera, header = load_photo(
+        image_file, intrinsics=_intrinsics(sc), fov_deg=sc.fov_deg, max_side=_max_side(sc), block=block
     )
-    image, depth, camera = fit_to_block(image, depth, camera, int(cfg.model.multiple))
-    return SceneInputs(image=image, depth=depth, camera=camera, up=_up(sc), source="image")
+    resized = (image.shape[1], image.shape[0])
+    k = None if camera is None else [camera.K[0, 0], camera.K[1, 1], camera.K[0, 2], camera.K[1, 2]]
+    depth, camera = sources.estimate_depth(
+        image, _depth_estimator(cfg, pool, "scene.depth is not set"), intrinsics=k, fov_deg=None
+    )
+    image, depth, camera = fit_to_block(image, depth, camera, block)
+    info = photo_info(header, _max_side(sc), resized, (camera.width, camera.height))
+    return SceneInputs(image=image, depth=depth, camera=camera, up=_up(sc), source="image", info=info)
 
 
 def generate_i_minus(cfg: DictConfig, pool: ModelPool) -> tuple[np.ndarray, dict]:
@@ -184,6 +196,8 @@ def build_object(obj_cfg: DictConfig) -> GlassObject:
         if not obj_cfg.path:
             raise ValueError(f"object {obj_cfg.name!r} reads a mesh file: set object.path")
         kwargs["path"] = data_path(obj_cfg.path, "object.path", "mesh file (.ply/.obj/.glb/.stl)")
+        if obj_cfg.get("allow_self_intersecting") and "allow_self_intersecting" not in factory:
+            kwargs["allow_self_intersecting"] = True  # a mesh reader's switch (GlassObject.from_file)
     try:
         return instantiate(factory, **kwargs)
     except InstantiationException as e:

@@ -108,3 +108,21 @@ def test_grid_with_the_bundled_meshes(tmp_path):
         )
         assert rec["status"] == "ok", (name, rec.get("reason"))
         assert rec["metrics"]["psnr"] is not None and math.isfinite(rec["metrics"]["psnr"]), (name, rec["metrics"])
+
+
+@pytest.mark.parametrize("name", list(MESHES))
+def test_a_configured_mesh_that_crosses_itself_is_refused_until_allowed(name, tmp_path):
+    """``object.allow_self_intersecting`` reaches the factory of every bundled mesh object: a file of
+    two overlapping closed boxes is refused naming ``object.path`` and the key, and built with it."""
+    import trimesh
+
+    path = tmp_path / "boxes.ply"
+    moved = trimesh.creation.box(transform=trimesh.transformations.translation_matrix([0.5, 0.3, 0.2]))
+    trimesh.util.concatenate([trimesh.creation.box(), moved]).export(path)
+    cfg = compose([f"object={name}", f"object.path={path}", *SMALL, f"output_dir={tmp_path}"])
+    with pytest.raises(
+        ValueError, match=r"object.path=.*boxes.ply.*crosses itself.*object.allow_self_intersecting=true"
+    ):
+        build_object(cfg.object)
+    cfg = compose([f"object={name}", f"object.path={path}", "object.allow_self_intersecting=true", *SMALL])
+    assert len(build_object(cfg.object).faces) == 24
