@@ -1,8 +1,8 @@
 """The files that define a cell: its inputs written beside its results, so anyone can re-render or
 re-score it, and a group's inputs kept between the passes and processes of a sweep.
 
-- ``_inputs/`` of a group: ``I_minus.png``, ``depth.npy``, ``camera.json``, ``object.ply``
-  (:func:`save_scene_files`), ``reference.png``, ``mask.png``, ``unobserved.npy``, ``true.png``
+- ``_inputs/`` of a group: ``I_minus.png``, ``depth.npy``, ``camera.json`` (with a photo's
+  original size and resize), ``object.ply`` (:func:`save_scene_files`), ``reference.png``, ``mask.png``, ``unobserved.npy``, ``true.png``
   (:func:`save_reference_files`), hard-linked into each cell; the two sets can be written apart, by
   the process that computed each (:mod:`snell_bench.experiment.prefetch`).
 - ``_inputs/inputs-<hash>.pkl``: the group's inputs as computed (:func:`keep_inputs`,
@@ -42,15 +42,25 @@ __all__ = [
 
 def save_scene_files(inputs: CellInputs, folder: Path) -> dict[str, Path]:
     """Write ``I_minus.png``, ``depth.npy``, ``camera.json`` and ``object.ply`` of ``inputs`` into
-    ``folder`` (atomically). Returns ``{file name: path}``."""
+    ``folder`` (atomically). ``camera.json`` holds the camera of I⁻ as used (``K``, ``width``,
+    ``height``), the object's IOR, name and up direction, and for a photo what was done to it
+    (``photo``: its size as stored, its EXIF orientation, ``scene.max_side`` and the size it was
+    resized to: :func:`~snell_bench.scene.image_source.photo_info`). Returns ``{file name: path}``."""
     folder.mkdir(parents=True, exist_ok=True)
     obj, sc = inputs.obj, inputs.scene
+    photo = {"photo": sc.info} if "original_size" in (sc.info or {}) else {}
     return {
         "I_minus.png": save_png(folder / "I_minus.png", sc.image),
         "depth.npy": save_npy(folder / "depth.npy", sc.depth.astype(np.float32)),
         "camera.json": write_json(
             folder / "camera.json",
-            dict(sc.camera.to_dict(), ior=obj.ior, object=obj.name, up=obj.up.tolist() if obj.up is not None else None),
+            dict(
+                sc.camera.to_dict(),
+                ior=obj.ior,
+                object=obj.name,
+                up=obj.up.tolist() if obj.up is not None else None,
+                **photo,
+            ),
         ),
         "object.ply": atomic_write_bytes(folder / "object.ply", obj.mesh.export(file_type="ply")),
     }

@@ -23,6 +23,25 @@ Depth formats (by file suffix, case-insensitive):
 
 ``scale`` is in file units per metre (depth in metres = value / scale): 5000 for the TUM RGB-D
 benchmark, 1000 for millimetres. Integer files need it; float files default to metres (scale 1).
+
+Depth values that contradict ``scale`` are refused, naming ``scene.depth_scale`` and what to set
+(:func:`depth_from_raw`): an 8-bit integer file (256 levels: a picture of depth, not a
+measurement), a scale below 1 for an integer file (metres per unit instead of units per metre),
+and a depth that is implausible in metres once scaled: all of it nearer than
+:data:`NEAREST_SCENE_M` or most of it (the median) farther than :data:`FARTHEST_MEDIAN_M`, e.g. a
+float file in metres given the scale of an integer one.
+
+Orientation and size (:func:`load_frame`, :func:`load_photo`):
+    - A photo with an EXIF orientation tag is turned upright, as viewers show it
+      (:func:`load_image`); its depth (and its mask) must be in that upright orientation. The
+      intrinsics ``[fx, fy, cx, cy]`` are in pixels of the file as stored (as a calibration gives
+      them) and are turned with the photo (:func:`orient_intrinsics`); ``fov_deg`` is the
+      horizontal field of view of the upright photo. A depth whose shape does not match the upright
+      photo is an error that names the EXIF rotation.
+    - ``max_side`` resizes the photo so that its longer side is at most that many pixels
+      (:func:`max_side_size`): the image with Lanczos, the depth by nearest neighbour, ``K`` scaled
+      (:func:`fit_to_block` with ``mode="resize"``), before the image is fitted to the generator's
+      block. What was done is recorded in ``RGBDFrame.info`` (:func:`photo_info`).
 """
 
 from __future__ import annotations
@@ -30,7 +49,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -44,17 +63,61 @@ log = logging.getLogger(__name__)
 __all__ = [
     "DEPTH_KINDS",
     "DEPTH_SUFFIXES",
+    "EXIF_ORIENTATION",
+    "FARTHEST_MEDIAN_M",
+    "NEAREST_SCENE_M",
+    "PhotoHeader",
     "RGBDFrame",
     "camera_from",
+    "depth_from_raw",
     "fit_to_block",
+    "inspect_photo",
     "load_depth",
     "load_frame",
     "load_image",
+    "load_photo",
+    "max_side_size",
+    "orient_intrinsics",
+    "photo_camera",
+    "photo_info",
     "read_pfm",
+    "read_photo_header",
 ]
 
 #: What a depth file's values measure: ``"z"`` (along the optical axis) or ``"range"`` (along the ray).
 DEPTH_KINDS = ("z", "range")
+#: Metres: a depth map whose every valid value (scaled) is nearer than this is refused: no scene a
+#: glass object stands in fits within 5 cm of the camera; the scale is wrong.
+NEAREST_SCENE_M = 0.05
+#: Metres: a depth map whose median (scaled) is farther than this is refused: the object stands on
+#: a surface the photo shows near the camera, so most of a scene cannot lie beyond 1 km.
+FARTHEST_MEDIAN_M = 1000.0
+#: The EXIF tag of the orientation.
+EXIF_ORIENTATION = 0x0112
+#: EXIF orientation -> ``(transposed, flip x, flip y)``: the upright pixel ``(x', y')`` of the stored
+#: pixel ``(x, y)`` of a ``W x H`` file is ``(x, y)``, swapped when transposed, then ``x' -> W' - 1 - x'``
+#: and ``y' -> H' - 1 - y'`` where flipped (``W' x H'``: the upright size). Pillow's
+#: ``ImageOps.exif_transpose`` does the same.
+_ORIENTATIONS = {
+    1: (False, False, False),
+    2: (False, True, False),
+    3: (False, True, True),
+    4: (False, False, True),
+    5: (True, False, False),
+    6: (True, True, False),
+    7: (True, True, True),
+    8: (True, False, True),
+}
+#: What each EXIF orientation does to the stored photo to show it upright.
+_ORIENTATION_WORDS = {
+    2: "mirrored left to right",
+    3: "rotated by 180 degrees",
+    4: "mirrored top to bottom",
+    5: "transposed (mirrored about its main diagonal)",
+    6: "rotated by 90 degrees clockwise",
+    7: "transversed (mirrored about its anti-diagonal)",
+    8: "rotated by 90 degrees counter-clockwise",
+}
 
 
 # ---------------------------------------------------------------------------------------------- files
@@ -136,6 +199,203 @@ def _to_rgb01(im: Image.Image) -> np.ndarray:
     return np.ascontiguousarray(np.clip(a, 0.0, 1.0), dtype=np.float32)
 
 
+# ---------------------------------------------------------------------------------------------- header
+@dataclass(frozen=True)
+class PhotoHeader:
+    """What a photo's file header says, read without decoding its pixels.
+
+    Attributes:
+        width: width of the file as stored, in pixels.
+        height: height of the file as stored.
+        orientation: the EXIF orientation tag, 1 (upright, also without a tag) to 8.
+    """
+
+    width: int
+    height: int
+    orientation: int = 1
+
+    @property
+    def transposed(self) -> bool:
+        """Whether turning the photo upright swaps its width and height (orientations 5 to 8)."""
+        return _ORIENTATIONS[self.orientation][0]
+
+    @property
+    def upright_size(self) -> tuple[int, int]:
+        """``(width, height)`` of the photo as shown (after its EXIF orientation)."""
+        return (self.height, self.width) if self.transposed else (self.width, self.height)
+
+    def rotation(self) -> str:
+        """What the EXIF orientation does, in words (``""`` for an upright file), e.g. "the photo was
+        rotated by 90 degrees clockwise by its EXIF orientation tag 6 from 4000x3000 (as stored) to
+        3000x4000 (upright, as viewers show it)"."""
+        if self.orientation == 1:
+            return ""
+        w, h = self.upright_size
+        return (
+            f"the photo was {_ORIENTATION_WORDS[self.orientation]} by its EXIF orientation tag {self.orientation} "
+            f"from {self.width}x{self.height} (as stored) to {w}x{h} (upright, as viewers show it)"
+        )
+
+
+def read_photo_header(path: PathLike, *, key: str = "scene.image") -> PhotoHeader:
+    """The stored size and EXIF orientation of a photo, from its header only (no pixel decoded).
+
+    Args:
+        path: a PNG or JPEG file (any format Pillow reads).
+        key: the configuration key named in error messages.
+
+    Returns:
+        The :class:`PhotoHeader`; an orientation tag outside 1..8 counts as 1 (as Pillow's
+        ``exif_transpose`` does).
+
+    Raises:
+        FileNotFoundError: no file at ``path``.
+        ValueError: ``path`` is a folder, or not an image Pillow can open.
+
+    Examples:
+        >>> import tempfile
+        >>> from PIL import Image
+        >>> with tempfile.TemporaryDirectory() as tmp:
+        ...     exif = Image.Exif()
+        ...     exif[EXIF_ORIENTATION] = 6
+        ...     Image.new("RGB", (40, 30)).save(f"{tmp}/phone.jpg", exif=exif)
+        ...     header = read_photo_header(f"{tmp}/phone.jpg")
+        >>> header, header.upright_size
+        (PhotoHeader(width=40, height=30, orientation=6), (30, 40))
+    """
+    p = _existing_file(path, key, "an image file (PNG or JPEG)")
+    try:
+        with Image.open(p) as im:
+            width, height = im.size
+            orientation = int(im.getexif().get(EXIF_ORIENTATION, 1) or 1)
+    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as e:
+        raise ValueError(
+            f"{key}='{path}' is not a readable image ({type(e).__name__}: {e}); "
+            f"set {key} to a PNG or JPEG file, or re-save the file as one"
+        ) from e
+    return PhotoHeader(int(width), int(height), orientation if orientation in _ORIENTATIONS else 1)
+
+
+def orient_intrinsics(intrinsics: Sequence[float], width: int, height: int, orientation: int) -> list[float]:
+    """``[fx, fy, cx, cy]`` of a stored ``width x height`` photo turned into those of the upright
+    photo its EXIF ``orientation`` shows.
+
+    The principal point moves as a pixel does (:data:`_ORIENTATIONS`); a transposing orientation
+    (5 to 8) swaps the focal lengths. A mirroring orientation (2, 4, 5, 7) shows the scene
+    mirrored: the upright camera is the mirrored scene's (the focal lengths stay positive), so the
+    photo and a depth map in its upright orientation still agree pixel for pixel.
+
+    Args:
+        intrinsics: ``[fx, fy, cx, cy]`` in pixels of the stored file.
+        width: width of the stored file.
+        height: height of the stored file.
+        orientation: the EXIF orientation, 1 to 8.
+
+    Returns:
+        ``[fx', fy', cx', cy']`` in pixels of the upright photo.
+
+    Raises:
+        ValueError: an orientation outside 1..8.
+
+    Examples:
+        >>> orient_intrinsics([500.0, 510.0, 100.0, 60.0], 400, 300, 6)  # 90 degrees clockwise
+        [510.0, 500.0, 239.0, 100.0]
+    """
+    if orientation not in _ORIENTATIONS:
+        raise ValueError(f"EXIF orientation must be 1 to 8, got {orientation!r}")
+    fx, fy, cx, cy = (float(v) for v in intrinsics)
+    transposed, flip_x, flip_y = _ORIENTATIONS[orientation]
+    if transposed:
+        fx, fy, cx, cy, width, height = fy, fx, cy, cx, height, width
+    if flip_x:
+        cx = width - 1 - cx
+    if flip_y:
+        cy = height - 1 - cy
+    return [fx, fy, cx, cy]
+
+
+def photo_camera(
+    header: PhotoHeader, *, intrinsics: Sequence[float] | None = None, fov_deg: float | None = None
+) -> Camera:
+    """The camera of the upright photo of ``header``.
+
+    ``intrinsics`` are in pixels of the file as stored: checked against the stored size
+    (:func:`camera_from`), then turned with the photo (:func:`orient_intrinsics`). ``fov_deg`` is the
+    horizontal field of view of the upright photo.
+
+    Args:
+        header: the photo's :class:`PhotoHeader`.
+        intrinsics: ``scene.intrinsics``, ``[fx, fy, cx, cy]``.
+        fov_deg: ``scene.fov_deg``.
+
+    Returns:
+        The :class:`Camera` of the upright photo.
+
+    Raises:
+        ValueError: as :func:`camera_from` (the message says when the photo was turned by EXIF).
+    """
+    if intrinsics is None or fov_deg is not None:
+        w, h = header.upright_size
+        return camera_from(w, h, intrinsics=intrinsics, fov_deg=fov_deg)
+    try:
+        camera_from(header.width, header.height, intrinsics=intrinsics)
+    except ValueError as e:
+        if header.orientation == 1:
+            raise
+        raise ValueError(
+            f"{e} (scene.intrinsics are in pixels of the file as stored, {header.width}x{header.height}; "
+            f"{header.rotation()})"
+        ) from None
+    w, h = header.upright_size
+    k = orient_intrinsics(intrinsics, header.width, header.height, header.orientation)
+    return camera_from(w, h, intrinsics=k)
+
+
+def max_side_size(width: int, height: int, max_side: int | None, *, block: int = 1) -> tuple[int, int]:
+    """The size a ``width x height`` photo is resized to for ``scene.max_side``.
+
+    The longer side becomes ``max_side`` and the other keeps the aspect ratio (rounded to the
+    nearest pixel); a photo already within ``max_side`` (or ``max_side=None``) keeps its size.
+
+    Args:
+        width: the photo's width.
+        height: its height.
+        max_side: ``scene.max_side``, or ``None``.
+        block: the generator's block (``model.multiple``): both sides must keep at least one block.
+
+    Returns:
+        ``(width, height)`` after the resize.
+
+    Raises:
+        ValueError: ``max_side`` is not a positive integer, or leaves a side shorter than ``block``.
+
+    Examples:
+        >>> max_side_size(4000, 3000, 1024)
+        (1024, 768)
+        >>> max_side_size(640, 480, 1024)
+        (640, 480)
+    """
+    if max_side is None:
+        return int(width), int(height)
+    if isinstance(max_side, bool) or not isinstance(max_side, int | np.integer) or max_side < 1:
+        raise ValueError(
+            f"scene.max_side={max_side!r} must be a positive whole number of pixels (the photo's longer side "
+            "after resizing), e.g. scene.max_side=1024, or null to keep the photo's size"
+        )
+    longer = max(width, height)
+    if longer <= max_side:
+        return int(width), int(height)
+    s = max_side / longer
+    w, h = (int(max_side) if n == longer else max(1, int(math.floor(n * s + 0.5))) for n in (width, height))
+    if min(w, h) < block:
+        need = math.ceil(block * longer / min(width, height))
+        raise ValueError(
+            f"scene.max_side={max_side} makes the {width}x{height} photo {w}x{h}, narrower than one {block}-pixel "
+            f"block of the generator (model.multiple={block}); set scene.max_side to at least {need}"
+        )
+    return w, h
+
+
 # ---------------------------------------------------------------------------------------------- depth
 def load_depth(
     path: PathLike,
@@ -144,6 +404,7 @@ def load_depth(
     kind: str = "z",
     camera: Camera | None = None,
     key: str = "scene.depth",
+    photo: PhotoHeader | None = None,
 ) -> np.ndarray:
     """Read a depth map as float32 ``(H, W)`` z-depth in metres, NaN where it is missing.
 
@@ -159,6 +420,8 @@ def load_depth(
             centre along the pixel's ray; converted to z with ``camera``: z = range / |K⁻¹ [u, v, 1]|).
         camera: the image's camera; when given, the depth must have its size. Needed for ``"range"``.
         key: the configuration key of ``path`` named in error messages.
+        photo: the header of the photo the depth belongs to: a size mismatch then says when the
+            photo was turned by its EXIF orientation.
 
     Returns:
         float32 array ``(H, W)``: z in metres, NaN where missing.
@@ -166,9 +429,9 @@ def load_depth(
     Raises:
         FileNotFoundError: no file at ``path``.
         ValueError: a folder, an unknown suffix, an unreadable file, more than one distinct channel,
-            a missing/zero/negative ``scale`` for integer data (``scene.depth_scale``), an unknown
-            ``kind`` (``scene.depth_kind``), ``"range"`` without a camera, a size other than the
-            camera's, or no valid pixel at all.
+            an unknown ``kind`` (``scene.depth_kind``), ``"range"`` without a camera, a size other
+            than the camera's, no valid pixel at all, or values that contradict ``scale``
+            (:func:`depth_from_raw`).
         ImportError: an ``.exr`` file without the OpenEXR package.
 
     Examples:
@@ -180,37 +443,99 @@ def load_depth(
         >>> depth.dtype, depth.tolist()
         (dtype('float32'), [[nan, 1.0, 2.4690001010894775]])
     """
+    _check_depth_args(scale, kind, camera)
+    p = _existing_file(path, key, f"a depth file ({', '.join(DEPTH_SUFFIXES)})")
+    raw = read_depth_file(p, path, key)
+    depth = depth_from_raw(raw, path, scale=scale, kind=kind, camera=camera, key=key, photo=photo)
+    valid = np.isfinite(depth)
+    log.info(
+        "loaded %s: %dx%d depth, %.1f %% missing, median %.3g m",
+        p,
+        depth.shape[1],
+        depth.shape[0],
+        100.0 * (1.0 - valid.mean()),
+        float(np.median(depth[valid])),
+    )
+    return depth
+
+
+def _check_depth_args(scale, kind: str, camera: Camera | None) -> float | None:
+    """``scale`` as a float (``None`` stays), after checking ``scale``, ``kind`` and ``camera``."""
     if kind not in DEPTH_KINDS:
         raise ValueError(
             f"scene.depth_kind={kind!r} is not a depth kind; choices: z|range "
             "(z: the distance along the optical axis; range: the distance along the pixel's ray)"
         )
-    if scale is not None:
-        scale = _check_scale(scale)
     if kind == "range" and camera is None:
         raise ValueError(
             "scene.depth_kind=range needs the camera to turn ray distances into z: pass camera= "
             "(set scene.intrinsics or scene.fov_deg)"
         )
-    p = _existing_file(path, key, f"a depth file ({', '.join(DEPTH_SUFFIXES)})")
-    raw = read_depth_file(p, path, key)
+    return None if scale is None else _check_scale(scale)
 
+
+def depth_from_raw(
+    raw: np.ndarray,
+    path: PathLike,
+    *,
+    scale: float | None = None,
+    kind: str = "z",
+    camera: Camera | None = None,
+    key: str = "scene.depth",
+    photo: PhotoHeader | None = None,
+) -> np.ndarray:
+    """The z-depth in metres of a depth file's values as stored (:func:`load_depth` after reading).
+
+    Values that contradict ``scale`` are refused (each error names ``scene.depth_scale`` and the
+    setting that fits the file's values):
+
+    - 8-bit integers: 256 levels are a picture of depth (normalised for viewing), not a measurement;
+    - integers with ``scale < 1``: a scale in metres per unit, not units per metre;
+    - scaled depths all nearer than :data:`NEAREST_SCENE_M`, or with a median farther than
+      :data:`FARTHEST_MEDIAN_M` (e.g. a float file in metres given an integer file's scale, or
+      millimetres read as metres).
+
+    Args:
+        raw: ``(H, W)`` values as stored (:func:`~snell_bench.scene.depth_files.read_depth_file`).
+        path: the file, as the user gave it (quoted in error messages).
+        scale, kind, camera, key, photo: as :func:`load_depth`.
+
+    Returns:
+        float32 ``(H, W)`` z in metres, NaN where missing.
+
+    Raises:
+        ValueError: see :func:`load_depth`.
+    """
+    scale = _check_depth_args(scale, kind, camera)
     if raw.dtype.kind in "iu":
+        if raw.dtype.itemsize == 1:
+            steps = (
+                ""
+                if scale is None
+                else f" (at scene.depth_scale={scale:g}: steps of {1 / scale:.3g} m up to {255 / scale:.3g} m)"
+            )
+            raise ValueError(
+                f"{key}='{path}' is an 8-bit file: its 256 levels{steps} are a picture of depth made for viewing, "
+                "not a measurement; save the depth as a 16-bit PNG with its units per metre in scene.depth_scale "
+                "(e.g. millimetres and scene.depth_scale=1000), or as float metres (.npy, .pfm, .exr, 32-bit .tif) "
+                "with scene.depth_scale=null"
+            )
         if scale is None:
             raise ValueError(
                 f"{key}='{path}' holds integers ({raw.dtype}): set scene.depth_scale to the file's units per "
                 "metre (metres = value / scale), e.g. scene.depth_scale=5000 for TUM RGB-D, 1000 for millimetres"
             )
+        if scale < 1.0:
+            raise ValueError(
+                f"scene.depth_scale={scale:g} is below 1 for the integer file {key}='{path}': the scale is file units "
+                f"per metre (metres = value / scale), not metres per unit; set scene.depth_scale={1 / scale:g}"
+            )
     elif raw.dtype.kind != "f":
         raise ValueError(f"{key}='{path}' holds {raw.dtype} values, not numbers; save the depth as numbers")
-    depth = raw.astype(np.float64) / (1.0 if scale is None else scale)
 
-    if camera is not None and depth.shape != camera.shape:
-        raise ValueError(
-            f"{key}='{path}' has shape {depth.shape} (height, width) but scene.image is {camera.shape}; "
-            f"the depth must be registered to the image pixel for pixel: resize or re-register it to "
-            f"{camera.width}x{camera.height} (width x height)"
-        )
+    if camera is not None and raw.shape != camera.shape:
+        raise ValueError(_shape_message(raw.shape, camera, path, key, photo))
+    depth = raw.astype(np.float64) / (1.0 if scale is None else scale)
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(depth) & (depth > 0)
     if not valid.any():
@@ -221,21 +546,59 @@ def load_depth(
     if kind == "range":
         depth = depth / np.linalg.norm(camera.pixel_rays(normalize=False), axis=-1)
     depth = np.where(valid, depth, np.nan).astype(np.float32)
-
-    median = float(np.median(depth[valid]))
-    log.info(
-        "loaded %s: %dx%d depth, %.1f %% missing, median %.3g m",
-        p,
-        depth.shape[1],
-        depth.shape[0],
-        100.0 * (1.0 - valid.mean()),
-        median,
-    )
-    if not 0.01 <= median <= 1000.0:
-        log.warning(
-            "%s: the median depth is %.3g m; is scene.depth_scale (%s units per metre) right?", p, median, scale
-        )
+    _check_plausible(raw, depth[valid], scale, path, key)
     return depth
+
+
+def _shape_message(shape: tuple, camera: Camera, path: PathLike, key: str, photo: PhotoHeader | None) -> str:
+    """The error of a depth of ``shape`` (height, width) that does not match the photo's camera."""
+    msg = (
+        f"{key}='{path}' has shape {tuple(shape)} (height, width) but scene.image is {camera.shape}; "
+        "the depth must be registered to the image pixel for pixel"
+    )
+    if photo is None or photo.orientation == 1:
+        return f"{msg}: resize or re-register it to {camera.width}x{camera.height} (width x height)"
+    stored = tuple(shape) == (photo.height, photo.width)
+    return (
+        f"{msg}: {photo.rotation()}"
+        + (", and the depth has the stored shape" if stored else "")
+        + f"; {'rotate' if photo.transposed else 'turn'} the depth the same way (to {camera.width}x{camera.height}) "
+        "or re-save the photo without its EXIF orientation tag"
+    )
+
+
+def _check_plausible(raw: np.ndarray, metres: np.ndarray, scale: float | None, path: PathLike, key: str) -> None:
+    """Refuse valid depths ``metres`` (scaled from ``raw``) that no scene has (see
+    :func:`depth_from_raw`), naming the scale that fits."""
+    far, median = float(metres.max()), float(np.median(metres))
+    if far >= NEAREST_SCENE_M and median <= FARTHEST_MEDIAN_M:
+        return
+    s = 1.0 if scale is None else scale
+    raw_median = median * s
+    problem = (
+        f"all of it is nearer than {NEAREST_SCENE_M:g} m (the farthest valid value is {far:.3g} m)"
+        if far < NEAREST_SCENE_M
+        else f"its median is {median:.4g} m, farther than {FARTHEST_MEDIAN_M:g} m"
+    )
+    fits = []
+    integer = raw.dtype.kind != "f"
+    for fix, unit in ((None, "metres"), (1000.0, "millimetres"), (5000.0, "TUM RGB-D")):
+        if fix == scale or (fix is None and (integer or scale in (None, 1.0))) or (fix == 5000.0 and not integer):
+            continue
+        m = raw_median / (1.0 if fix is None else fix)
+        if 0.1 <= m <= 100.0:
+            fits.append(f"scene.depth_scale={'null' if fix is None else f'{fix:g}'} ({unit}: median {m:.3g} m)")
+    hint = (
+        ("set " + " or ".join(fits))
+        if fits
+        else "set scene.depth_scale to the file's units per metre (metres = value / scale)"
+    )
+    kind = "integer" if integer else "float"
+    raise ValueError(
+        f"{key}='{path}' ({kind} values, median {raw_median:.4g}) read at scene.depth_scale="
+        f"{'null' if scale is None else f'{scale:g}'} is implausible as depth in metres: {problem}; {hint}"
+        + (" (a float file is read as metres without a scale)" if raw.dtype.kind == "f" and scale is not None else "")
+    )
 
 
 def _check_scale(scale) -> float:
@@ -416,20 +779,26 @@ def fit_to_block(
     K[0, 1] *= sx
     K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
     K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
-    chans = [
-        np.asarray(
-            Image.fromarray(np.ascontiguousarray(image[..., c], np.float32), mode="F").resize(
-                (w, h), Image.Resampling.LANCZOS
-            )
-        )
-        for c in range(image.shape[2])
-    ]
-    out = np.clip(np.stack(chans, axis=-1), 0.0, 1.0).astype(image.dtype if image.dtype.kind == "f" else np.float32)
+    out = _resize_image(image, (w, h))
     if depth is not None:
         xs = np.minimum(((np.arange(w) + 0.5) * (W / w)).astype(np.int64), W - 1)
         ys = np.minimum(((np.arange(h) + 0.5) * (H / h)).astype(np.int64), H - 1)
         depth = np.asarray(depth)[ys[:, None], xs[None, :]]
     return out, depth, Camera(K=K, width=w, height=h)
+
+
+def _resize_image(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """``image (H, W, C)`` resampled to ``size = (width, height)`` with Lanczos (antialiased when
+    shrinking), per channel in float32, clipped to ``[0, 1]``."""
+    chans = [
+        np.asarray(
+            Image.fromarray(np.ascontiguousarray(image[..., c], np.float32), mode="F").resize(
+                tuple(size), Image.Resampling.LANCZOS
+            )
+        )
+        for c in range(image.shape[2])
+    ]
+    return np.clip(np.stack(chans, axis=-1), 0.0, 1.0).astype(image.dtype if image.dtype.kind == "f" else np.float32)
 
 
 # ---------------------------------------------------------------------------------------------- frame
@@ -441,17 +810,150 @@ class RGBDFrame:
         image: float32 ``(H, W, 3)`` sRGB in ``[0, 1]``.
         depth: float32 ``(H, W)`` z-depth in metres, NaN where missing; or ``None``.
         camera: the :class:`Camera` of ``image``.
+        info: what was done to the photo (:func:`photo_info`); empty when not loaded from a file.
     """
 
     image: np.ndarray
     depth: np.ndarray | None
     camera: Camera
+    info: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if np.ndim(self.image) != 3 or np.shape(self.image)[:2] != self.camera.shape or np.shape(self.image)[2] != 3:
             raise ValueError(f"image has shape {np.shape(self.image)}; the camera needs {self.camera.shape + (3,)}")
         if self.depth is not None and np.shape(self.depth) != self.camera.shape:
             raise ValueError(f"depth has shape {np.shape(self.depth)}; the camera needs {self.camera.shape}")
+
+
+def photo_info(header: PhotoHeader, max_side: int | None, resized: tuple[int, int], size: tuple[int, int]) -> dict:
+    """What a cell records about its photo (``scene_info`` of its ``metrics.json``).
+
+    Args:
+        header: the photo's header.
+        max_side: ``scene.max_side``.
+        resized: ``(width, height)`` after :func:`max_side_size` (the upright size when not resized).
+        size: ``(width, height)`` used, after fitting to the generator's block.
+
+    Returns:
+        ``{"original_size": [W, H] (as stored), "exif_orientation": n, "max_side": max_side,
+        "resized_to": [w, h] or None, "size": [w, h]}``.
+
+    Examples:
+        >>> photo_info(PhotoHeader(4000, 3000), 1024, (1024, 768), (1024, 768))
+        {'original_size': [4000, 3000], 'exif_orientation': 1, 'max_side': 1024, 'resized_to': [1024, 768], 'size': [1024, 768]}
+    """
+    return {
+        "original_size": [int(header.width), int(header.height)],
+        "exif_orientation": int(header.orientation),
+        "max_side": None if max_side is None else int(max_side),
+        "resized_to": None if tuple(resized) == header.upright_size else [int(v) for v in resized],
+        "size": [int(v) for v in size],
+    }
+
+
+def _log_orientation(header: PhotoHeader, path: PathLike, with_depth: bool) -> None:
+    if header.orientation == 1:
+        return
+    if with_depth:
+        log.warning("scene.image='%s': %s; its depth must be in that upright orientation too", path, header.rotation())
+    else:
+        log.info("scene.image='%s': %s", path, header.rotation())
+
+
+def load_photo(
+    image: PathLike,
+    *,
+    intrinsics: Sequence[float] | None = None,
+    fov_deg: float | None = None,
+    max_side: int | None = None,
+    block: int = 1,
+) -> tuple[np.ndarray, Camera | None, PhotoHeader]:
+    """A photo without a depth file (for a depth estimator): upright, resized for ``max_side``.
+
+    Args:
+        image: ``scene.image``.
+        intrinsics: ``scene.intrinsics`` (pixels of the file as stored), or ``None``.
+        fov_deg: ``scene.fov_deg`` (of the upright photo), or ``None``.
+        max_side: ``scene.max_side`` (:func:`max_side_size`).
+        block: the generator's block, which both sides must keep.
+
+    Returns:
+        ``(image, camera, header)``: the float32 ``(H, W, 3)`` image, its camera (``None`` when
+        neither ``intrinsics`` nor ``fov_deg`` is given: the estimator's), the file's header.
+
+    Raises:
+        FileNotFoundError, ValueError: see :func:`load_image`, :func:`photo_camera` and
+            :func:`max_side_size`.
+    """
+    header = read_photo_header(image)
+    camera = (
+        None if intrinsics is None and fov_deg is None else photo_camera(header, intrinsics=intrinsics, fov_deg=fov_deg)
+    )
+    img = load_image(image)
+    _log_orientation(header, image, False)
+    size = max_side_size(img.shape[1], img.shape[0], max_side, block=block)
+    if size != (img.shape[1], img.shape[0]):
+        if camera is not None:
+            img, _, camera = fit_to_block(img, None, camera, 1, mode="resize", size=size)
+        else:
+            img = _resize_image(img, size)
+        log.info("scene.image='%s' resized to %dx%d (scene.max_side=%d)", image, size[0], size[1], max_side)
+    return img, camera, header
+
+
+def inspect_photo(
+    image: PathLike,
+    depth: PathLike | None = None,
+    *,
+    depth_scale: float | None = None,
+    depth_kind: str = "z",
+    intrinsics: Sequence[float] | None = None,
+    fov_deg: float | None = None,
+    block: int | None = 16,
+    max_side: int | None = None,
+) -> dict:
+    """What :func:`load_frame` will make of a photo, found before any work: the photo's header only
+    (no pixel decoded), the camera, and the depth file's values (read, checked, not kept).
+
+    It raises what :func:`load_frame` would raise for the photo's header, the camera and the
+    depth's values and shape; a file that cannot be read at all is left for :func:`load_frame`
+    (the depth part is skipped).
+
+    Args:
+        image, depth, depth_scale, depth_kind, intrinsics, fov_deg, block, max_side: as
+            :func:`load_frame`.
+
+    Returns:
+        :func:`photo_info` of the photo, ``size`` being the size :func:`load_frame` gives, and
+        ``"fx"``: the horizontal focal length in pixels of that size (``None`` without intrinsics
+        or field of view).
+
+    Raises:
+        FileNotFoundError, ValueError: see :func:`load_frame`.
+    """
+    header = read_photo_header(image)
+    w0, h0 = header.upright_size
+    camera = None
+    if depth is not None or intrinsics is not None or fov_deg is not None:
+        camera = photo_camera(header, intrinsics=intrinsics, fov_deg=fov_deg)
+    if depth is not None:
+        _check_depth_args(depth_scale, depth_kind, camera)
+        p = _existing_file(depth, "scene.depth", f"a depth file ({', '.join(DEPTH_SUFFIXES)})")
+        try:
+            raw = read_depth_file(p, depth, "scene.depth")
+        except (ValueError, OSError, ImportError) as e:  # unreadable: load_frame reports it in its cell
+            log.debug("not checking scene.depth='%s' before the run: %s", depth, e)
+        else:
+            depth_from_raw(raw, depth, scale=depth_scale, kind=depth_kind, camera=camera, photo=header)
+    size = max_side_size(w0, h0, max_side, block=block or 1)
+    w, h = size
+    if block is not None and block > 1:
+        if w < block or h < block:
+            raise ValueError(f"scene.image is {w}x{h}, smaller than one {block}x{block} block; use a larger image")
+        w, h = w - w % block, h - h % block
+    info = photo_info(header, max_side, size, (w, h))
+    info["fx"] = None if camera is None else float(camera.K[0, 0]) * size[0] / w0
+    return info
 
 
 def load_frame(
@@ -464,35 +966,47 @@ def load_frame(
     fov_deg: float | None = None,
     block: int | None = 16,
     size: tuple[int, int] | None = None,
+    max_side: int | None = None,
 ) -> RGBDFrame:
-    """Load a photo (and its depth) and fit it to a generator's block size.
+    """Load a photo (and its depth), resize it for ``max_side`` and fit it to a generator's block.
 
-    In order: :func:`load_image`, :func:`camera_from` (the intrinsics are in pixels of the image
-    file as stored), :func:`load_depth` (same size as the image), :func:`fit_to_block` (center
-    crop; ``size`` resizes instead).
+    In order: :func:`read_photo_header` and :func:`load_image` (turned upright by its EXIF
+    orientation), :func:`photo_camera` (the intrinsics are in pixels of the file as stored, turned
+    with it), :func:`load_depth` (the size of the upright image), the resize to
+    :func:`max_side_size` (:func:`fit_to_block` with ``mode="resize"``), :func:`fit_to_block`
+    (center crop; ``size`` resizes instead).
 
     Args:
         image: ``scene.image``, the photo (PNG or JPEG).
         depth: ``scene.depth``, its registered depth file, or ``None`` (``RGBDFrame.depth`` is then ``None``).
         depth_scale: ``scene.depth_scale``, file units per metre (required for integer depth files).
         depth_kind: ``scene.depth_kind``, ``"z"`` or ``"range"``.
-        intrinsics: ``scene.intrinsics``, ``[fx, fy, cx, cy]`` in pixels.
+        intrinsics: ``scene.intrinsics``, ``[fx, fy, cx, cy]`` in pixels of the file as stored.
         fov_deg: ``scene.fov_deg``, the horizontal field of view (when the intrinsics are unknown).
         block: width and height become multiples of it; ``None`` or 1 keeps the size.
         size: ``(width, height)``, multiples of ``block``: resize to it instead of cropping.
+        max_side: ``scene.max_side``: first resize so that the longer side is at most this.
 
     Returns:
-        The :class:`RGBDFrame`.
+        The :class:`RGBDFrame`; its ``info`` is :func:`photo_info`.
 
     Raises:
         FileNotFoundError, ValueError, ImportError: see :func:`load_image`, :func:`load_depth`,
-            :func:`camera_from` and :func:`fit_to_block`.
+            :func:`photo_camera`, :func:`max_side_size` and :func:`fit_to_block`.
     """
+    header = read_photo_header(image)
+    cam = photo_camera(header, intrinsics=intrinsics, fov_deg=fov_deg)
     img = load_image(image)
-    cam = camera_from(img.shape[1], img.shape[0], intrinsics=intrinsics, fov_deg=fov_deg)
-    dep = None if depth is None else load_depth(depth, scale=depth_scale, kind=depth_kind, camera=cam)
+    _log_orientation(header, image, depth is not None)
+    dep = None if depth is None else load_depth(depth, scale=depth_scale, kind=depth_kind, camera=cam, photo=header)
+    resized = max_side_size(cam.width, cam.height, max_side, block=block or 1)
+    if resized != (cam.width, cam.height):
+        img, dep, cam = fit_to_block(img, dep, cam, 1, mode="resize", size=resized)
+        log.info("scene.image='%s' resized to %dx%d (scene.max_side=%d)", image, resized[0], resized[1], max_side)
     if size is not None:
         img, dep, cam = fit_to_block(img, dep, cam, block or 1, mode="resize", size=size)
     elif block is not None:
         img, dep, cam = fit_to_block(img, dep, cam, block)
-    return RGBDFrame(image=img, depth=dep, camera=cam)
+    return RGBDFrame(
+        image=img, depth=dep, camera=cam, info=photo_info(header, max_side, resized, (cam.width, cam.height))
+    )

@@ -2,13 +2,14 @@
 
 import dataclasses
 import doctest
+import json
 import math
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
+from PIL import Image, ImageOps
 
 from snell_bench.scene import image_source
 from snell_bench.scene.camera import Camera
@@ -105,11 +106,9 @@ def test_depth_png16_exact_and_missing(tmp_path):
     np.testing.assert_array_equal(d.ravel()[1:], expected)
 
 
-def test_depth_millimetres_and_8bit(tmp_path):
+def test_depth_millimetres(tmp_path):
     Image.fromarray(np.array([[1500, 0]], np.uint16)).save(tmp_path / "mm.png")
     np.testing.assert_array_equal(load_depth(tmp_path / "mm.png", scale=1000), [[1.5, np.nan]])
-    Image.fromarray(np.array([[10, 255]], np.uint8)).save(tmp_path / "d8.png")
-    np.testing.assert_array_equal(load_depth(tmp_path / "d8.png", scale=10), [[1.0, 25.5]])
 
 
 def test_depth_tiff_integer_and_float(tmp_path):
@@ -447,3 +446,257 @@ def test_tum_frame_has_a_desk_top_above_the_floor(tum):
     assert desk.normal @ floor.normal > math.cos(math.radians(5.0))
     assert (desk.point - floor.point) @ floor.normal == pytest.approx(0.70, abs=0.08)
     assert desk.pixel[1] < floor.pixel[1]  # the desk is seen above the floor in the image
+
+
+# ---------------------------------------------------------------------------------------------- depth vs. scale
+def test_an_8bit_depth_file_is_refused_at_any_scale(tmp_path):
+    """256 levels are a picture of depth: refused with or without a scale, naming the fix."""
+    Image.fromarray(np.array([[10, 255]], np.uint8)).save(tmp_path / "d8.png")
+    assert Image.open(tmp_path / "d8.png").mode == "L"
+    for scale in (10, 1000, None):
+        with pytest.raises(
+            ValueError, match=r"scene\.depth=.*d8\.png' is an 8-bit file.*16-bit PNG.*scene\.depth_scale"
+        ):
+            load_depth(tmp_path / "d8.png", scale=scale)
+    np.save(tmp_path / "d8.npy", np.array([[10, 255]], np.uint8))
+    with pytest.raises(
+        ValueError, match=r"8-bit file: its 256 levels \(at scene\.depth_scale=10: steps of 0\.1 m up to 25\.5 m\)"
+    ):
+        load_depth(tmp_path / "d8.npy", scale=10)
+
+
+def test_an_integer_file_with_a_scale_below_one_names_its_inverse(tmp_path):
+    Image.fromarray(np.full((4, 4), 2500, np.uint16)).save(tmp_path / "mm.png")
+    with pytest.raises(
+        ValueError, match=r"scene\.depth_scale=0\.001 is below 1.*not metres per unit; set scene\.depth_scale=1000$"
+    ):
+        load_depth(tmp_path / "mm.png", scale=0.001)
+
+
+@pytest.mark.parametrize(
+    "values, dtype, scale, fix",
+    [
+        # float metres given the TUM frame's scale: all nearer than 5 cm
+        ([0.5, 2.0, 9.0], np.float32, 5000, r"set scene\.depth_scale=null \(metres: median 2 m\)"),
+        # float millimetres read as metres: a median of 2 km
+        ([800.0, 2000.0, 4000.0], np.float32, None, r"set scene\.depth_scale=1000 \(millimetres: median 2 m\)"),
+        # 16-bit millimetres at scale 1
+        ([800, 2000, 4000], np.uint16, 1, r"set scene\.depth_scale=1000 \(millimetres: median 2 m\)"),
+        # 16-bit millimetres with the scale of metres to millimetres inverted twice
+        ([800, 2000, 4000], np.uint16, 1e6, r"set scene\.depth_scale=1000 \(millimetres: median 2 m\)"),
+    ],
+)
+def test_a_depth_implausible_in_metres_names_the_scale_that_fits(tmp_path, values, dtype, scale, fix):
+    np.save(tmp_path / "d.npy", np.array([values], dtype))
+    with pytest.raises(ValueError, match=r"scene\.depth=.*implausible as depth in metres.*" + fix):
+        load_depth(tmp_path / "d.npy", scale=scale)
+
+
+def test_the_plausible_range_boundaries(tmp_path):
+    """Farthest value exactly 5 cm and a median of exactly 1 km pass; just beyond either fails."""
+    ok_near = np.array([[0.01, 0.05]], np.float64)
+    ok_far = np.array([[1.0, 1000.0, 5000.0]], np.float64)
+    for name, a in (("near", ok_near), ("far", ok_far)):
+        np.save(tmp_path / f"{name}.npy", a)
+        np.testing.assert_allclose(load_depth(tmp_path / f"{name}.npy"), a.astype(np.float32))
+    np.save(tmp_path / "nearer.npy", ok_near * 0.99)
+    with pytest.raises(ValueError, match=r"all of it is nearer than 0\.05 m \(the farthest valid value is 0\.0495 m\)"):
+        load_depth(tmp_path / "nearer.npy")
+    np.save(tmp_path / "farther.npy", ok_far * 1.01)
+    with pytest.raises(ValueError, match=r"its median is 1010 m, farther than 1000 m"):
+        load_depth(tmp_path / "farther.npy")
+
+
+def test_a_float_file_in_millimetres_with_its_scale_is_accepted(tmp_path):
+    np.save(tmp_path / "mm.npy", np.array([[800.0, 2000.0]], np.float32))
+    np.testing.assert_allclose(load_depth(tmp_path / "mm.npy", scale=1000), [[0.8, 2.0]], rtol=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------- EXIF orientation
+def _exif_photo(path, w, h, orientation, marks=()):
+    """A stored ``w x h`` JPEG (PNG for exact pixels) with EXIF ``orientation``; ``marks``: stored
+    pixels set to distinct values (in a grey channel copied to RGB)."""
+    arr = np.zeros((h, w), np.uint8)
+    for i, (x, y) in enumerate(marks):
+        arr[y, x] = 10 * (i + 1)
+    exif = Image.Exif()
+    exif[image_source.EXIF_ORIENTATION] = orientation
+    Image.fromarray(arr).convert("RGB").save(path, exif=exif)
+    return arr
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_intrinsics_turn_with_the_exif_orientation(tmp_path, orientation):
+    """Independent reference: Pillow's exif_transpose moves marked pixels; the upright camera
+    (orient_intrinsics) sees each moved pixel along a ray at the same angles to the others as the
+    stored camera sees the stored pixel (a camera turn or mirror keeps angles), and the principal
+    point moves as a pixel does."""
+    w, h = 9, 6
+    K = [7.0, 11.0, 3.0, 2.0]  # fx != fy and an off-centre principal point: a swap would show
+    marks = [(3, 2), (0, 0), (8, 1), (5, 5), (1, 4)]  # the first is the principal point
+    _exif_photo(tmp_path / "p.png", w, h, orientation, marks)
+    upright = (np.asarray(ImageOps.exif_transpose(Image.open(tmp_path / "p.png")))[..., 0]).astype(int)
+    moved = [tuple(np.argwhere(upright == 10 * (i + 1))[0][::-1]) for i in range(len(marks))]
+    k2 = image_source.orient_intrinsics(K, w, h, orientation)
+    assert (k2[2], k2[3]) == moved[0]
+    header = image_source.read_photo_header(tmp_path / "p.png")
+    assert header.orientation == orientation and header.upright_size == upright.shape[::-1]
+    cam = camera_from(w, h, intrinsics=K)
+    cam2 = image_source.photo_camera(header, intrinsics=K)
+    np.testing.assert_allclose([cam2.K[0, 0], cam2.K[1, 1], cam2.K[0, 2], cam2.K[1, 2]], k2)
+    rays = cam.pixel_rays(np.array(marks, float))
+    rays2 = cam2.pixel_rays(np.array(moved, float))
+    np.testing.assert_allclose(rays2 @ rays2.T, rays @ rays.T, atol=1e-12)
+    if orientation in (5, 6, 7, 8):
+        assert (k2[0], k2[1]) == (11.0, 7.0)
+
+
+def test_exif_needs_no_upright_intrinsics_error_for_a_portrait_photo(tmp_path):
+    """Intrinsics of a landscape file stored sideways are valid for it (they would be outside the
+    upright photo): checked against the file as stored, and the error says so when they are not."""
+    _exif_photo(tmp_path / "p.jpg", 40, 20, 6)
+    header = image_source.read_photo_header(tmp_path / "p.jpg")
+    cam = image_source.photo_camera(header, intrinsics=[30.0, 30.0, 35.0, 9.5])  # cx = 35 < 40 only as stored
+    assert cam.shape == (40, 20) and cam.K[0, 2] == pytest.approx(20 - 1 - 9.5) and cam.K[1, 2] == 35.0
+    with pytest.raises(
+        ValueError, match=r"principal point.*as stored, 40x20; the photo was rotated by 90 degrees clockwise"
+    ):
+        image_source.photo_camera(header, intrinsics=[30.0, 30.0, 45.0, 9.5])
+    cam = image_source.photo_camera(header, fov_deg=90.0)  # the upright photo's horizontal field of view
+    assert cam.K[0, 0] == pytest.approx(10.0) and cam.shape == (40, 20)
+
+
+def test_a_depth_of_the_stored_shape_names_the_exif_rotation(tmp_path, caplog):
+    _exif_photo(tmp_path / "phone.jpg", 48, 32, 6)
+    Image.fromarray(np.full((32, 48), 2000, np.uint16)).save(tmp_path / "d.png")
+    with pytest.raises(ValueError) as e:
+        load_frame(tmp_path / "phone.jpg", tmp_path / "d.png", depth_scale=1000, fov_deg=60.0, block=8)
+    msg = str(e.value)
+    assert "\n" not in msg
+    assert "scene.depth=" in msg and "has shape (32, 48)" in msg and "scene.image is (48, 32)" in msg
+    assert "rotated by 90 degrees clockwise by its EXIF orientation tag 6 from 48x32 (as stored) to 32x48" in msg
+    assert "the depth has the stored shape" in msg and "rotate the depth the same way (to 32x48)" in msg
+    assert "re-save the photo without its EXIF orientation tag" in msg
+    # the upright depth loads, with a warning that the photo was turned
+    Image.fromarray(np.full((48, 32), 2000, np.uint16)).save(tmp_path / "up.png")
+    with caplog.at_level("WARNING"):
+        f = load_frame(tmp_path / "phone.jpg", tmp_path / "up.png", depth_scale=1000, fov_deg=60.0, block=8)
+    assert f.image.shape == (48, 32, 3) and f.depth.shape == (48, 32) and f.info["exif_orientation"] == 6
+    assert "EXIF orientation tag 6" in caplog.text and "upright orientation" in caplog.text
+
+
+def test_load_frame_turns_the_intrinsics_of_the_stored_file(tmp_path):
+    _exif_photo(tmp_path / "p.png", 64, 48, 8)
+    Image.fromarray(np.full((64, 48), 2000, np.uint16)).save(tmp_path / "d.png")
+    f = load_frame(tmp_path / "p.png", tmp_path / "d.png", depth_scale=1000, intrinsics=[50.0, 52.0, 30.0, 20.0])
+    assert f.camera.shape == (64, 48)
+    np.testing.assert_allclose(f.camera.K[[0, 1, 0, 1], [0, 1, 2, 2]], [52.0, 50.0, 20.0, 64 - 1 - 30.0])
+
+
+# ---------------------------------------------------------------------------------------------- max_side
+def test_max_side_size():
+    assert image_source.max_side_size(4000, 3000, 1024) == (1024, 768)
+    assert image_source.max_side_size(3000, 4000, 1000) == (750, 1000)
+    assert image_source.max_side_size(1001, 333, 500) == (500, 166)  # 166.33 rounds down
+    assert image_source.max_side_size(640, 480, 640) == (640, 480)
+    assert image_source.max_side_size(640, 480, None) == (640, 480)
+    for bad in (0, -5, 1.5, True, "512"):
+        with pytest.raises(ValueError, match=r"scene\.max_side=.*positive whole number"):
+            image_source.max_side_size(640, 480, bad)
+    with pytest.raises(
+        ValueError, match=r"scene\.max_side=32 makes the 4000x1000 photo 32x8.*model\.multiple=16.*at least 64"
+    ):
+        image_source.max_side_size(4000, 1000, 32, block=16)
+
+
+def test_load_frame_resizes_for_max_side_then_fits_the_block(tmp_path):
+    """The resize is fit_to_block's (Lanczos, depth by nearest neighbour, K scaled per axis):
+    compared with it, and with the analytic scaling of K; then the centre crop to the block."""
+    raw = _write_frame(tmp_path, 300, 200)
+    k = [280.0, 281.0, 150.2, 99.7]
+    f = load_frame(tmp_path / "rgb.png", tmp_path / "depth.png", depth_scale=5000, intrinsics=k, max_side=100, block=16)
+    # 300x200 -> 100x67 (66.67 rounds up) -> cropped to 96x64: 2 columns cut on the left, 1 row at the top
+    assert f.info == {
+        "original_size": [300, 200],
+        "exif_orientation": 1,
+        "max_side": 100,
+        "resized_to": [100, 67],
+        "size": [96, 64],
+    }
+    assert f.image.shape == (64, 96, 3)
+    s = (100 / 300, 67 / 200)
+    np.testing.assert_allclose(
+        f.camera.K[[0, 1, 0, 1], [0, 1, 2, 2]],
+        [280 * s[0], 281 * s[1], (150.2 + 0.5) * s[0] - 0.5 - 2, (99.7 + 0.5) * s[1] - 0.5 - 1],
+    )
+    full = load_frame(tmp_path / "rgb.png", tmp_path / "depth.png", depth_scale=5000, intrinsics=k, block=None)
+    img, dep, _ = fit_to_block(full.image, full.depth, full.camera, 1, mode="resize", size=(100, 67))
+    np.testing.assert_array_equal(f.image, img[1:65, 2:98])
+    np.testing.assert_array_equal(f.depth, dep[1:65, 2:98])
+    xs = np.floor((np.arange(100) + 0.5) * 3.0).astype(int)
+    ys = np.minimum(np.floor((np.arange(67) + 0.5) * 200 / 67).astype(int), 199)
+    expected = np.where(raw > 0, raw / 5000, np.nan).astype(np.float32)[ys[:, None], xs[None, :]]
+    np.testing.assert_array_equal(f.depth, expected[1:65, 2:98])
+    # within max_side: untouched, and recorded as such
+    g = load_frame(tmp_path / "rgb.png", tmp_path / "depth.png", depth_scale=5000, intrinsics=k, max_side=300)
+    assert g.info["resized_to"] is None and g.info["size"] == [288, 192] and g.camera.K[0, 0] == 280.0
+
+
+def test_load_photo_without_depth_resizes_image_and_camera(tmp_path):
+    _write_frame(tmp_path, 300, 200)
+    img, cam, header = image_source.load_photo(
+        tmp_path / "rgb.png", intrinsics=[280.0, 281.0, 150.2, 99.7], max_side=150
+    )
+    assert img.shape == (100, 150, 3) and cam.shape == (100, 150) and header == image_source.PhotoHeader(300, 200)
+    assert cam.K[0, 0] == pytest.approx(140.0)
+    img, cam, _ = image_source.load_photo(tmp_path / "rgb.png", max_side=150)
+    assert img.shape == (100, 150, 3) and cam is None
+
+
+# ---------------------------------------------------------------------------------------------- before any work
+def test_inspect_photo_agrees_with_load_frame_without_decoding(tmp_path, monkeypatch):
+    _write_frame(tmp_path, 300, 200)
+    kw = dict(depth_scale=5000, intrinsics=[280.0, 281.0, 150.2, 99.7], max_side=100, block=16)
+    info = image_source.inspect_photo(tmp_path / "rgb.png", tmp_path / "depth.png", **kw)
+    frame = load_frame(tmp_path / "rgb.png", tmp_path / "depth.png", **kw)
+    assert {k: v for k, v in info.items() if k != "fx"} == frame.info
+    assert info["fx"] == pytest.approx(frame.camera.K[0, 0])
+    monkeypatch.setattr(image_source, "load_image", lambda *a, **k: pytest.fail("decoded the photo"))
+    image_source.inspect_photo(tmp_path / "rgb.png", tmp_path / "depth.png", **kw)
+
+
+def test_inspect_photo_refuses_what_load_frame_refuses(tmp_path):
+    _write_frame(tmp_path, 64, 48)
+    Image.fromarray(np.full((48, 64), 40, np.uint8)).save(tmp_path / "d8.png")
+    with pytest.raises(ValueError, match="8-bit"):
+        image_source.inspect_photo(tmp_path / "rgb.png", tmp_path / "d8.png", depth_scale=1000, fov_deg=60.0)
+    Image.fromarray(np.full((24, 32), 1000, np.uint16)).save(tmp_path / "half.png")
+    with pytest.raises(ValueError, match=r"scene\.depth=.*\(24, 32\).*scene\.image is \(48, 64\)"):
+        image_source.inspect_photo(tmp_path / "rgb.png", tmp_path / "half.png", depth_scale=1000, fov_deg=60.0)
+    (tmp_path / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n not a png any more")
+    # a file that cannot be read is left to load_frame (its cell records why)
+    info = image_source.inspect_photo(tmp_path / "rgb.png", tmp_path / "broken.png", depth_scale=1000, fov_deg=60.0)
+    assert info["size"] == [64, 48]
+
+
+# ---------------------------------------------------------------------------------------------- the cell's record
+def test_a_photo_resized_for_max_side_is_recorded_with_the_cells_inputs(tmp_path):
+    """scene.max_side through the pipeline's scene stage: half the TUM frame, K halved (pixel
+    centres kept), and what was done recorded in the inputs' info (a cell's scene_info) and in
+    camera.json."""
+    from types import SimpleNamespace
+
+    from snell_bench import pipeline
+    from snell_bench.config import compose
+    from snell_bench.experiment.files import save_scene_files
+    from snell_bench.scene.objects import GlassObject
+
+    sc = pipeline.load_scene(compose(["scene=tum_office", "scene.max_side=320", "output_dir=/tmp/x"]))
+    assert sc.image.shape == (240, 320, 3) and sc.depth.shape == (240, 320)
+    np.testing.assert_allclose(sc.camera.K[[0, 1, 0, 1], [0, 1, 2, 2]], [262.5, 262.5, 159.5, 119.5])
+    info = {"original_size": [640, 480], "exif_orientation": 1, "max_side": 320, "resized_to": [320, 240]}
+    assert sc.info == {**info, "size": [320, 240]}
+    save_scene_files(SimpleNamespace(obj=GlassObject.sphere(), scene=sc), tmp_path)
+    cam = json.loads((tmp_path / "camera.json").read_text())
+    assert cam["photo"] == sc.info and (cam["width"], cam["height"]) == (320, 240)
+    assert Camera.from_dict(cam) == sc.camera
