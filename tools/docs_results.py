@@ -112,7 +112,14 @@ def read_report_markdown(text: str) -> dict:
             out["provenance"] = s.split(" Times in seconds")[0].rstrip(".")
         elif after_table and not out["caption"]:
             out["caption"] = s.split("**Bold**")[0].strip()
+    out["provenance"] = _unescape(out["provenance"])
+    out["notes"] = [_unescape(n) for n in out["notes"]]
     return out
+
+
+def _unescape(s: str) -> str:
+    """Markdown text without the report writer's backslash escapes (the page escapes it again)."""
+    return re.sub(r"\\([\\`*_\[\]<>|&~])", r"\1", s)
 
 
 def tradeoff_means(raw):

@@ -1,58 +1,86 @@
 """Jobs run by ``python -m snell_bench``: the refraction preview, generation, the experiment grid,
 the speed/accuracy sweep, the report, the plan of a grid (what it will do here, before doing it) and
-its status across the jobs working on it."""
+its status across the jobs working on it.
+
+:func:`run_job` returns the job's exit status: 0, or 3 when cells of a sweep failed (unless
+``grid.allow_failures`` / ``tradeoff.allow_failures``; :data:`~.cells.CELLS_FAILED_EXIT`). A job
+that cannot do what it was asked raises :class:`JobError`, one line saying what to run instead;
+:class:`CellsFailed` is what a job of a multirun raises for its failed cells
+(:mod:`snell_bench.__main__` turns both into the process's exit status)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
+from hydra.errors import CompactHydraException
 from omegaconf import DictConfig
 
 from snell_bench.config import Job, check_config
+from snell_bench.config.preflight import check_output_folders, nothing_to_report
 
-__all__ = ["run_job", "JOBS"]
+__all__ = ["run_job", "JOBS", "JobError", "CellsFailed", "nothing_to_report"]
+
+
+class JobError(CompactHydraException):
+    """A job cannot do what it was asked (nothing to report, cells of other settings): the message
+    says what to run. Hydra prints a ``CompactHydraException`` as its message alone."""
+
+
+class CellsFailed(CompactHydraException):
+    """Cells of a sweep failed (their records and the report say why): raised by a job of a
+    multirun, so that Hydra runs every other job first and then exits non-zero."""
 
 
 def _preview(cfg: DictConfig) -> None:
+    from snell_bench.experiment.memory import check_memory
     from snell_bench.experiment.preview import run_preview
 
+    check_memory([cfg])
     run_preview(cfg)
 
 
 def _generate(cfg: DictConfig) -> None:
     from snell_bench.experiment.generate import run_generate
+    from snell_bench.experiment.memory import check_memory
 
+    check_memory([cfg])
     run_generate(cfg)
 
 
-def _grid(cfg: DictConfig) -> None:
+def _grid(cfg: DictConfig) -> int:
     from snell_bench.experiment.runner import run_grid
 
-    run_grid(cfg)
+    return int(run_grid(cfg)["exit_status"])
 
 
-def _tradeoff(cfg: DictConfig) -> None:
+def _tradeoff(cfg: DictConfig) -> int:
     from snell_bench.experiment.tradeoff import run_tradeoff
 
-    run_tradeoff(cfg)
+    return int(run_tradeoff(cfg)["exit_status"])
 
 
 def _report(cfg: DictConfig) -> None:
-    from pathlib import Path
-
-    from snell_bench.experiment.reports import build_reports
+    from snell_bench.experiment.reports import NoCells, build_reports, summary_line
 
     name = str(cfg.experiment_name)
     out = Path(cfg.reports_dir) / name
     root = Path(cfg.runs_dir) / name
-    if next(root.rglob("result.json"), None) is not None and next(root.rglob("metrics.json"), None) is None:
-        from snell_bench.experiment.tradeoff import build_tradeoff_report  # a speed/accuracy sweep
+    try:
+        if next(root.rglob("result.json"), None) is not None and next(root.rglob("metrics.json"), None) is None:
+            from snell_bench.experiment.tradeoff import build_tradeoff_report  # a speed/accuracy sweep
 
-        paths = build_tradeoff_report(root, out)
-    else:
-        from snell_bench.experiment.runner import check_same_settings
+            paths = build_tradeoff_report(root, out)
+        else:
+            from snell_bench.experiment.runner import check_same_settings
 
-        check_same_settings(root)
-        paths = build_reports(root, out, name)
-    print(f"reports: {out} ({len(paths)} files); open {out / 'index.html'}")
+            try:
+                check_same_settings(root)
+            except ValueError as e:  # cells of other settings: the message says what to run
+                raise JobError(f"job=report: {e}") from None
+            paths = build_reports(root, out, name)
+    except NoCells as e:
+        raise JobError(nothing_to_report(cfg.runs_dir, name, str(e))) from None
+    print(summary_line(out, paths))
 
 
 def _plan(cfg: DictConfig) -> None:
@@ -78,8 +106,22 @@ JOBS = {
 }
 
 
-def run_job(cfg: DictConfig) -> None:
+def run_job(cfg: DictConfig) -> int:
     """Run ``cfg.job`` (:data:`JOBS`) after checking every key and value of ``cfg``
-    (:func:`snell_bench.config.check_config`)."""
+    (:func:`snell_bench.config.check_config`).
+
+    Args:
+        cfg: the composed config.
+
+    Returns:
+        The job's exit status: 0, or :data:`~snell_bench.experiment.cells.CELLS_FAILED_EXIT` when
+        cells of a sweep (``job=grid``, ``job=tradeoff``) failed and its ``allow_failures`` is false.
+
+    Raises:
+        JobError: the job cannot do what it was asked (e.g. ``job=report`` without cells).
+        snell_bench.config.ConfigError: a setting is unusable.
+    """
     check_config(cfg)
-    JOBS[Job(cfg.job)](cfg)
+    if cfg.job not in (Job.plan, Job.status):  # those write nothing
+        check_output_folders(cfg)
+    return int(JOBS[Job(cfg.job)](cfg) or 0)

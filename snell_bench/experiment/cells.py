@@ -4,8 +4,10 @@ A *cell* is one unit of work with its own folder (a grid cell: scene x variation
 method; a sweep setting: scene x setting). :func:`run_cells` runs a list of them:
 
 - a cell is identified by its folder (a grid cell by scene, variation, object and method); it is
-  done, and skipped, when its record file (``metrics.json`` or ``result.json``) says ``ok`` or
-  ``skipped``, every file the record lists (``files``: size and SHA-256) is there unchanged, and
+  done, and skipped, when its record file (``metrics.json`` or ``result.json``) is a record
+  (:func:`~snell_bench.experiment.reports.records.load_record`: a UTF-8 JSON object matching the
+  sweep's ``schema``; any other file is warned about, naming it and the problem, and the cell
+  computed again), says ``ok`` or ``skipped``, every file the record lists (``files``: size and SHA-256) is there unchanged, and
   the record's ``settings_hash`` (of :func:`~snell_bench.experiment.plan.result_settings`: every
   resolved key that can change the result) equals the hash of the cell's config now; a missing or
   changed file makes it unfinished again; other settings stop the run before any work with an
@@ -26,14 +28,15 @@ method; a sweep setting: scene x setting). :func:`run_cells` runs a list of them
 - each cell's ``config.yaml`` and then its record are written atomically, the record last, so a
   cell with a record is complete and an interrupted sweep loses no finished cell; a cell whose
   folder cannot be written fails alone;
-- ``summary.json`` of the run and a progress bar (tqdm) report the counts and the failures.
+- ``summary.json`` of the run and a progress bar (tqdm) report the counts and the failures;
+  :func:`failures_verdict` turns the count of failed cells into the run's exit status
+  (:data:`CELLS_FAILED_EXIT` unless the sweep allows failures; skipped cells never count).
 """
 
 from __future__ import annotations
 
 import functools
 import hashlib
-import json
 import logging
 import traceback
 from collections import Counter
@@ -49,6 +52,7 @@ from snell_bench.config import Config, OnChange
 from snell_bench.config.recipes import BEFORE_SWITCHES
 from snell_bench.experiment.locks import CLAIM_NAMES, DEFAULT_TTL_S, LOCK_NAME, check_ttl, choose_lock, claim
 from snell_bench.experiment.plan import ABSENT, flatten, result_settings, settings_diff, settings_hash
+from snell_bench.experiment.reports.records import load_record
 from snell_bench.pipeline import Skip
 from snell_bench.utils.io import write_json, write_text
 
@@ -66,9 +70,43 @@ __all__ = [
     "cell_files",
     "files_problem",
     "SettingsChanged",
+    "CELLS_FAILED_EXIT",
+    "failures_verdict",
 ]
 
 DONE = ("ok", "skipped")
+
+#: The exit status of ``python -m snell_bench`` when cells of its sweep failed (and the sweep does
+#: not allow failures): distinct from 1 (an error stopped the run) and 2 (a command line that
+#: cannot be parsed); see :mod:`snell_bench.__main__`.
+CELLS_FAILED_EXIT = 3
+
+
+def failures_verdict(failed: int, allow: bool, key: str) -> tuple[int, str]:
+    """The exit status of a sweep with ``failed`` failed cells, and what it means for its summary line.
+
+    Args:
+        failed: the cells this run computed that failed (skipped cells are not failures).
+        allow: the sweep's ``<key>`` setting (exit 0 anyway).
+        key: the config key that allows failures (``grid.allow_failures``).
+
+    Returns:
+        ``(status, text)``: ``(0, "")`` without failures; else :data:`CELLS_FAILED_EXIT` (0 when
+        ``allow``) and the words to append to the count of failed cells.
+
+    Examples:
+        >>> failures_verdict(0, False, "grid.allow_failures")
+        (0, '')
+        >>> failures_verdict(2, False, "grid.allow_failures")
+        (3, ' (exit status 3: cells failed; grid.allow_failures=true exits 0)')
+        >>> failures_verdict(2, True, "grid.allow_failures")
+        (0, ' (exit status 0: grid.allow_failures=true)')
+    """
+    if failed <= 0:
+        return 0, ""
+    if allow:
+        return 0, f" (exit status 0: {key}=true)"
+    return CELLS_FAILED_EXIT, f" (exit status {CELLS_FAILED_EXIT}: cells failed; {key}=true exits 0)"
 
 
 @dataclass
@@ -121,13 +159,12 @@ def record_done(path: Path) -> bool:
     return (read_record(path) or {}).get("status") in DONE
 
 
-def read_record(path: Path) -> dict | None:
-    """A record file as a dict, or ``None`` when it is missing, unreadable or not an object."""
-    try:
-        record = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    return record if isinstance(record, dict) else None
+def read_record(path: Path, schema: dict | None = None) -> dict | None:
+    """A record file as a dict, or ``None`` when it is missing or not a record (unreadable, not
+    UTF-8 JSON, not an object, or against ``schema``, e.g.
+    :data:`~snell_bench.experiment.reports.records.GRID_RECORD`:
+    :func:`~snell_bench.experiment.reports.records.load_record`)."""
+    return load_record(path, schema)[0]
 
 
 # ---------------------------------------------------------------------------- files of a cell
@@ -264,6 +301,7 @@ def run_cells(
     *,
     root: Path,
     record_name: str = "metrics.json",
+    schema: dict | None = None,
     recompute: bool = False,
     on_change: OnChange | str = OnChange.error,
     on_change_key: str = "grid.on_change",
@@ -283,6 +321,8 @@ def run_cells(
         fn: computes one cell: returns the record's fields (merged over ``cell.record``).
         root: the run folder (``summary.json`` goes there).
         record_name: the record file of a cell, written last.
+        schema: the JSON Schema a finished cell's record matches (a record that does not is
+            warned about and its cell computed again); ``None``: any JSON object.
         recompute: redo cells that are done.
         on_change: a finished cell whose recorded settings differ from its config's: ``error``
             (raise :class:`SettingsChanged` before any work) or ``recompute`` (redo it).
@@ -313,14 +353,23 @@ def run_cells(
     settings = {id(c): result_settings(c.config) for c in cells}
     hashes = {k: settings_hash(v) for k, v in settings.items()}
 
-    def status(cell: Cell) -> str | ChangedCell:
-        """``todo``, ``done``, or the :class:`ChangedCell` of a cell finished with other settings."""
-        record = read_record(cell.folder / record_name)
-        if recompute or record is None or record.get("status") not in DONE:
+    def status(cell: Cell, warn: bool = True) -> str | ChangedCell:
+        """``todo``, ``done``, or the :class:`ChangedCell` of a cell finished with other settings
+        (``warn``: say why a recorded cell is computed again)."""
+        path = cell.folder / record_name
+        if recompute or not path.exists():
+            return "todo"
+        record, problem = load_record(path, schema)
+        if problem is not None:
+            if warn:
+                log.warning("cell %s: %s is not a cell record (%s); computing it again", cell.name, path, problem)
+            return "todo"
+        if record.get("status") not in DONE:
             return "todo"
         problem = files_problem(cell.folder, record)
         if problem is not None:
-            log.warning("cell %s: %s; computing it again", cell.name, problem)
+            if warn:
+                log.warning("cell %s: %s; computing it again", cell.name, problem)
             return "todo"
         return changed_settings(cell, record, settings[id(cell)], hashes[id(cell)]) or "done"
 
@@ -347,7 +396,7 @@ def run_cells(
                 if not mine:
                     counts["busy"] += 1
                     log.info("cell %s is being computed by another process; left to it", cell.name)
-                elif states[id(cell)] == "todo" and status(cell) == "done" and not recompute:
+                elif states[id(cell)] == "todo" and status(cell, warn=False) == "done" and not recompute:
                     counts["cached"] += 1  # another process finished it meanwhile
                 else:
                     _remove_leftovers(cell.folder)

@@ -67,6 +67,7 @@ from snell_bench.experiment.plan import (
     result_settings,
     settings_hash,
 )
+from snell_bench.experiment.reports.records import GRID_RECORD
 from snell_bench.pipeline import apply_method
 from snell_bench.pipeline.cell import node_key
 
@@ -406,7 +407,7 @@ def cell_states(cfg: DictConfig, parts: GridParts) -> list[CellState]:
 
 
 def _state(ident: tuple, folder: Path, parts: GridParts, recompute: bool) -> CellState:
-    record = read_record(folder / RECORD)
+    record = read_record(folder / RECORD, GRID_RECORD)  # what the runner counts as a record
     if recompute:
         return CellState(*ident, folder, "recompute")
     if record is None:

@@ -55,8 +55,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from snell_bench import pipeline
 from snell_bench.config import ConfigError, check_grid_entries, compose
-from snell_bench.experiment.cells import Cell, SharedCache, run_cells
+from snell_bench.experiment.cells import Cell, SharedCache, failures_verdict, run_cells
 from snell_bench.experiment.files import save_inputs
+from snell_bench.experiment.memory import check_memory
 from snell_bench.experiment.order import ModelMajor
 from snell_bench.experiment.plan import (
     ABSENT,
@@ -68,6 +69,7 @@ from snell_bench.experiment.plan import (
 )
 from snell_bench.experiment.prefetch import Prefetcher, settings_of
 from snell_bench.experiment.reports.collect import recipe_and_protocol
+from snell_bench.experiment.reports.records import GRID_RECORD
 from snell_bench.experiment.tracking import log_cell, make_tracker
 from snell_bench.pipeline import ModelPool, apply_method, scorers_of
 from snell_bench.utils.io import link_or_copy, save_png, write_json, write_text
@@ -325,6 +327,10 @@ def _count_start(folder: Path) -> int:
 def run_grid(cfg: DictConfig) -> dict:
     """Run the grid of ``cfg`` (see the module docs), then build its report (``grid.report``).
 
+    The summary (also ``summary.json``) holds ``exit_status``: 3 when cells this run computed
+    failed, unless ``grid.allow_failures=true`` (:func:`~snell_bench.experiment.cells.failures_verdict`);
+    the printed summary line says it.
+
     With ``grid.shard`` set, this job runs its shard's groups (:func:`shard_cells`), writes its
     summary to ``runs/<experiment>/jobs/<job id>/summary.json`` (:func:`job_id`) instead of the
     experiment's, and builds the report only when every cell of the grid has its record (the
@@ -332,6 +338,7 @@ def run_grid(cfg: DictConfig) -> dict:
     exp = str(cfg.experiment_name)
     root = Path(cfg.runs_dir) / exp
     every = plan_grid(cfg)
+    check_memory(every)  # each distinct cell's peak host memory, and its photo, before any work
     g = cfg.grid
     sharded = g.get("shard") is not None
     cells = shard_cells(every, int(g.shards), int(g.shard)) if sharded else every
@@ -357,6 +364,7 @@ def run_grid(cfg: DictConfig) -> dict:
             cells if order is None else order.order(cells),
             lambda c, s: run_cell(c, s, scorers, pool, order, prefetch),
             root=summary_root,
+            schema=GRID_RECORD,
             recompute=bool(g.recompute),
             on_change=g.on_change,
             on_change_key="grid.on_change",
@@ -385,6 +393,8 @@ def run_grid(cfg: DictConfig) -> dict:
     summary["models"] = pool.summary()
     if tracker is not None:
         summary["tracker"] = tracker.summary()
+    exit_status, meaning = failures_verdict(summary["failed"], bool(g.allow_failures), "grid.allow_failures")
+    summary["exit_status"] = exit_status
     if sharded:
         summary["job"] = {
             "id": job_id(),
@@ -396,7 +406,8 @@ def run_grid(cfg: DictConfig) -> dict:
     write_json(summary_root / "summary.json", summary)
     print(
         f"{exp}: {summary['ok']} ok, {summary['cached']} already done, {summary['skipped']} skipped, "
-        f"{summary['failed']} failed" + (f", {summary['busy']} left to another process" if summary["busy"] else "")
+        f"{summary['failed']} failed{meaning}"
+        + (f", {summary['busy']} left to another process" if summary["busy"] else "")
     )
     for cdir, reason in summary["failures"]:
         print(f"  FAILED {cdir}: {reason}")
@@ -409,11 +420,11 @@ def run_grid(cfg: DictConfig) -> dict:
     if g.report and sharded and not all((c.folder / "metrics.json").is_file() for c in every):
         print(f"report: left to the last job of the grid (or run job=report experiment_name={exp})")
     elif g.report:
-        from snell_bench.experiment.reports import build_reports
+        from snell_bench.experiment.reports import build_reports, summary_line
 
         check_same_settings(root)
         out = Path(cfg.reports_dir) / exp
         paths = build_reports(root, out, exp)
-        print(f"reports: {out} ({len(paths)} files); open {out / 'index.html'}")
+        print(summary_line(out, paths))
         summary["reports"] = [str(p) for p in paths]
     return summary

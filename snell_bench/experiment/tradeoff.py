@@ -84,8 +84,9 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from snell_bench import pipeline
 from snell_bench.config import ConfigError, check_tradeoff_entries
-from snell_bench.experiment.cells import Cell, SharedCache, run_cells
+from snell_bench.experiment.cells import Cell, SharedCache, failures_verdict, run_cells
 from snell_bench.experiment.files import save_inputs
+from snell_bench.experiment.memory import check_memory
 from snell_bench.experiment.plan import (
     check_names,
     check_reproducible,
@@ -100,11 +101,13 @@ from snell_bench.experiment.reports import (  # noqa: F401  (re-exported)
     STAGES,
     TOTAL_NOTE,
     TOTAL_STAGES,
+    TRADEOFF_RECORD,
     build_tradeoff_report,
     collect_tradeoff,
     pareto_front,
     reference_psnr_vs_max_spp,
     stdout_table,
+    summary_line,
     tradeoff_table,
     update_spp_records,
 )
@@ -186,7 +189,7 @@ def _plain(v: Any) -> Any:
 
 def _axis_settings(name: str, spec: Any) -> list[Setting]:
     """The settings of one axis (format: the module docs)."""
-    from hydra.errors import OverrideParseException
+    from hydra.errors import HydraException
 
     where = f"tradeoff.axes.{name}"
     spec = _plain(spec)
@@ -195,7 +198,7 @@ def _axis_settings(name: str, spec: Any) -> list[Setting]:
     if isinstance(spec, str):
         try:
             ov = OverridesParser.create().parse_override(spec)
-        except OverrideParseException as e:
+        except HydraException as e:  # the parser's and the lexer's errors
             raise ValueError(
                 f"{where}: {spec!r} is not a Hydra override ({e}); write e.g. sampler.steps=4,8,12"
             ) from None
@@ -450,11 +453,14 @@ def _warm_up(cfg: DictConfig, cell: Cell) -> None:
 
 
 def run_tradeoff(cfg: DictConfig) -> dict:
-    """Run the sweep of ``cfg.tradeoff`` and build its report; returns a summary."""
+    """Run the sweep of ``cfg.tradeoff`` and build its report; returns a summary, whose
+    ``exit_status`` is 3 when settings failed, unless ``tradeoff.allow_failures=true``
+    (:func:`~snell_bench.experiment.cells.failures_verdict`)."""
     t = cfg.tradeoff
     exp = str(cfg.experiment_name)
     root = Path(cfg.runs_dir) / exp
     cells = plan_tradeoff(cfg)  # everything that can be checked is checked before any folder is written
+    check_memory(cells)  # each setting's peak host memory (scene.width, warps.pano_height, ...)
     n_settings = len(cells) // len(t.scenes)
     print(f"tradeoff {exp}: {len(t.scenes)} scene(s) x {n_settings} settings = {len(cells)} runs -> {root}")
     if t.recompute or any(not (c.folder / "result.json").is_file() for c in cells):
@@ -473,6 +479,7 @@ def run_tradeoff(cfg: DictConfig) -> dict:
         lambda c, s: _run_setting(c, s, sweep),
         root=root,
         record_name="result.json",
+        schema=TRADEOFF_RECORD,
         recompute=bool(t.recompute),
         on_change=t.on_change,
         on_change_key="tradeoff.on_change",
@@ -482,17 +489,25 @@ def run_tradeoff(cfg: DictConfig) -> dict:
     )
     for scene in last_of_scene:  # scenes whose last settings were already done
         update_spp_records(root / f"{scene}-{int(t.variation)}")
-    summary = {"experiment": exp, "runs": summary.pop("cells"), **summary, "models": pool.summary()}
+    allow = bool(OmegaConf.select(cfg, "tradeoff.allow_failures", default=False))
+    exit_status, meaning = failures_verdict(summary["failed"], allow, "tradeoff.allow_failures")
+    summary = {
+        "experiment": exp,
+        "runs": summary.pop("cells"),
+        **summary,
+        "models": pool.summary(),
+        "exit_status": exit_status,
+    }
     write_json(root / "summary.json", summary)
     print(
         f"{exp}: {summary['ok']} ok, {summary['cached']} already done, {summary['skipped']} skipped, "
-        f"{summary['failed']} failed"
+        f"{summary['failed']} failed{meaning}"
     )
     for where, reason in summary["failures"]:
         print(f"  FAILED {where}: {reason}")
     out = Path(cfg.reports_dir) / exp
     paths = build_tradeoff_report(root, out)
     summary["reports"] = [str(p) for p in paths]
-    print(f"reports: {out} ({len(paths)} files); open {out / 'index.html'}")
+    print(summary_line(out, paths))
     print(stdout_table(tradeoff_table(collect_tradeoff(root))))
     return summary

@@ -273,3 +273,44 @@ def test_temporaries_of_a_killed_run_are_removed_when_the_cell_is_computed(tmp_p
         (tmp_path / "a" / name).write_bytes(b"partial")
     assert run_cells(cells_in(tmp_path, ["a"]), lambda c, s: {}, root=tmp_path)["ok"] == 1
     assert not [p for p in (tmp_path / "a").iterdir() if p.name.startswith(".")]
+
+
+def test_a_record_that_is_not_a_cell_record_is_computed_again_with_a_warning(tmp_path, caplog):
+    """A finished cell whose record file was replaced (by hand, by another tool, cut short, in another
+    encoding) is not done: it is computed again, and the warning names the file and the problem."""
+    from snell_bench.experiment.reports.records import GRID_RECORD
+
+    broken = {
+        "array": b"[1, 2]",
+        "handmade": b'{"status": "ok"}',
+        "types": json.dumps(
+            {"scene": "k", "variation": 0, "object": "o", "method": "types", "status": "ok", "metrics": {"psnr": "x"}}
+        ).encode(),
+        "truncated": b'{"status": "ok", "sce',
+        "latin1": '{"scene": "caf\xe9"}'.encode("latin-1"),
+    }
+    names = ["fine", *broken]
+    cfg = OmegaConf.create({"x": 1, "output_dir": ""})
+    cells = [
+        Cell(name=n, folder=tmp_path / n, config=cfg, record={"scene": "k", "variation": 0, "object": "o", "method": n})
+        for n in names
+    ]
+    calls = []
+
+    def fn(cell, shared):
+        calls.append(cell.name)
+        return {"metrics": {"psnr": 20.0}}
+
+    assert run_cells(cells, fn, root=tmp_path, schema=GRID_RECORD)["ok"] == len(names)
+    for name, raw in broken.items():
+        (tmp_path / name / "metrics.json").write_bytes(raw)
+    calls.clear()
+    summary = run_cells(cells, fn, root=tmp_path, schema=GRID_RECORD)
+    assert (summary["cached"], summary["ok"]) == (1, len(broken)) and calls == list(broken)
+    for name in broken:
+        path = tmp_path / name / "metrics.json"
+        assert f"cell {name}: {path} is not a cell record (" in caplog.text
+        assert record_done(path)  # written again, whole
+    assert "a JSON array, not an object" in caplog.text and "not UTF-8 text (byte 0xe9" in caplog.text
+    assert "missing the keys scene, variation, object, method, metrics" in caplog.text
+    assert caplog.text.count("is not a cell record") == len(broken)  # warned once each

@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 
 import numpy as np
 import pandas as pd
@@ -14,8 +15,11 @@ from snell_bench.experiment.reports import (
     build_reports,
     collect,
     method_table,
+    provenance_line,
     qualitative_figure,
     scene_table,
+    skipped_files,
+    summary_line,
     to_csv,
     to_latex,
     to_markdown,
@@ -188,10 +192,11 @@ def test_collect_one_row_per_cell_with_flat_columns(df):
     assert set(df.loc[df.method == "flux", "missing.lpips"]) == {LPIPS_REASON}
 
 
-def test_collect_keeps_broken_cells_as_failed(runs):
+def test_collect_skips_broken_records_and_keeps_unfinished_cells_as_failed(runs, caplog):
     bad = runs / "office-3" / "cylinder" / "snellcaster"
     bad.mkdir(parents=True)
     (bad / "metrics.json").write_text("{not json")
+    (bad / "config.yaml").write_text("x: 1\n")  # a folder whose record is broken is not "incomplete" too
     unfinished = runs / "office-3" / "cylinder" / "flux"
     unfinished.mkdir(parents=True)
     (unfinished / "config.yaml").write_text("x: 1\n")
@@ -199,11 +204,16 @@ def test_collect_keeps_broken_cells_as_failed(runs):
     shared.mkdir(parents=True)
     (shared / "config.yaml").write_text("x: 1\n")
     df = collect(runs)
-    assert len(df) == len(CELLS) + 2
+    assert len(df) == len(CELLS) + 1
     office = df[df.scene == "office"].set_index("method")
-    assert (office.status == "failed").all() and (office.variation == 3).all()
-    assert office.loc["snellcaster", "reason"].startswith("metrics.json unreadable")
+    assert list(office.index) == ["flux"] and (office.variation == 3).all()
+    assert office.loc["flux", "status"] == "failed"
     assert office.loc["flux", "reason"] == "incomplete cell: config.yaml but no metrics.json"
+    assert skipped_files(df) == [
+        ("office-3/cylinder/snellcaster/metrics.json", skipped_files(df)[0][1]),
+    ]
+    assert skipped_files(df)[0][1].startswith("not valid JSON: Expecting property name")
+    assert str(bad / "metrics.json") in caplog.text and "not valid JSON" in caplog.text
 
 
 def test_method_table_means_and_counts(df):
@@ -448,3 +458,224 @@ def test_cells_with_random_weights_are_in_no_table(runs, tmp_path):
     paths = build_reports(runs, tmp_path / "reports", "ablation")
     readme = next(p for p in paths if p.name == "README.md").read_text()
     assert "1 random_weights" in readme and "model.random_init" in readme
+
+
+# ---------------------------------------------------------------------------- record files that are not cells
+GOOD = {
+    "experiment": "ablation",
+    "scene": "office",
+    "variation": 2,
+    "object": "sphere",
+    "method": "flux",
+    "status": "ok",
+    "reason": None,
+    "metrics": {"psnr": 10.0},
+}
+#: name -> (the bytes of its metrics.json, what the report says is wrong with it)
+NOT_CELLS = {
+    "array": (b"[1, 2]", "a JSON array, not an object"),
+    "handmade": (b'{"status": "ok"}', "missing the keys scene, variation, object, method, metrics"),
+    "types": (
+        json.dumps({**GOOD, "variation": "2", "metrics": {"psnr": "high"}}).encode(),
+        "metrics.psnr: 'high' is not of type 'number', 'null'; variation: '2' is not of type 'integer'",
+    ),
+    "no_reason": (json.dumps({**GOOD, "status": "failed"}).encode(), "reason: None is not of type 'string'"),
+    "status": (
+        json.dumps({**GOOD, "status": "done"}).encode(),
+        "status: 'done' is not one of ['ok', 'failed', 'skipped']",
+    ),
+    "truncated": (b'{"status": "ok", "scene"', "not valid JSON: Expecting ':' delimiter: line 1 column 25 (char 24)"),
+    "latin1": ('{"scene": "caf\xe9"}'.encode("latin-1"), "not UTF-8 text (byte 0xe9 at position 14)"),
+}
+
+
+def _add_not_cells(runs):
+    for name, (raw, _) in NOT_CELLS.items():
+        d = runs / "office-2" / "sphere" / name
+        d.mkdir(parents=True)
+        (d / "metrics.json").write_bytes(raw)
+        (d / "config.yaml").write_text("x: 1\n")
+    return {f"office-2/sphere/{name}/metrics.json": why for name, (_, why) in NOT_CELLS.items()}
+
+
+def test_record_files_that_are_not_cells_are_skipped_named_and_counted(runs, tmp_path, caplog):
+    expected = _add_not_cells(runs)
+    df = collect(runs)
+    assert len(df) == len(CELLS) and "office" not in set(df["scene"])  # not a cell, not an incomplete one
+    assert dict(skipped_files(df)) == expected
+    for rel, why in expected.items():
+        assert f"{runs / rel} is not a cell record, left out of the report: {why}" in caplog.text
+    assert provenance_line(df) == PROVENANCE + " · 7 files skipped (not cell records)"
+
+    out = tmp_path / "reports"
+    paths = build_reports(runs, out, "ablation")
+    assert summary_line(out, paths) == (
+        f"reports: {out} ({len(paths)} files); open {out / 'index.html'}; 7 record files skipped "
+        f"(not cell records): see {out / 'README.md'}"
+    )
+    readme = (out / "README.md").read_text()
+    section = readme.split("## Files skipped\n", 1)[1].split("\n## ", 1)[0]
+    items = [line for line in section.splitlines() if line.startswith("- ")]
+    assert len(items) == len(expected)
+    for rel in expected:
+        assert any(item.startswith(f"- `{rel}`: ") for item in items), rel
+    assert "7 files skipped (not cell records)" in (out / "method_table.md").read_text()  # every table's provenance
+    html = (out / "index.html").read_text()
+    skipped = html.split('<section id="skipped">', 1)[1].split("</section>", 1)[0]
+    assert skipped.count("<li>") == len(expected) and 'href="#skipped"' in html
+    assert "metrics.psnr: &#39;high&#39; is not of type" in skipped  # the page escapes the problem too
+
+
+def test_a_report_without_a_single_cell_record_names_the_files(tmp_path):
+    from snell_bench.experiment.reports import NoCells
+
+    runs = tmp_path / "runs" / "x"
+    _add_not_cells(runs)
+    with pytest.raises(NoCells, match=r"no metrics.json below .* that is a cell record: 7 skipped, e.g. office-2/"):
+        build_reports(runs, tmp_path / "r", "x")
+    with pytest.raises(NoCells, match=r"nothing/x does not exist"):
+        build_reports(tmp_path / "nothing" / "x", tmp_path / "r", "x")
+    assert not (tmp_path / "r").exists()
+
+
+def test_non_finite_metrics_are_missing_with_their_reason(runs, tmp_path, caplog):
+    d = runs / "kitchen-0" / "sphere" / "flux"
+    rec = json.loads((d / "metrics.json").read_text())
+    rec["metrics"] = {**rec["metrics"], "psnr": float("inf"), "mae": float("nan")}
+    (d / "metrics.json").write_text(json.dumps(rec))  # JSON's Infinity and NaN, as Python writes them
+    assert "Infinity" in (d / "metrics.json").read_text()
+    df = collect(runs)
+    row = df[df["cell_dir"] == "kitchen-0/sphere/flux"].iloc[0]
+    assert math.isnan(row["psnr"]) and math.isnan(row["mae"])
+    assert row["missing.psnr"] == "not finite in the record (inf)"
+    assert row["missing.mae"] == "not finite in the record (nan)"
+    for metric, value in (("psnr", "inf"), ("mae", "nan")):
+        assert f"cell kitchen-0/sphere/flux: metric {metric} is {value} in {d / 'metrics.json'}" in caplog.text
+    t = method_table(df, ["psnr", "mae"])
+    assert t.loc["FLUX-dev", "psnr"] == 12.0 and t.loc["FLUX-dev", "mae"] == 0.2  # the living room's cell alone
+    note = "PSNR: no value in 1 of 7 ok cells (flux ×1) — not finite in the record (inf)"
+    assert note in t.attrs["notes"]
+    out = tmp_path / "reports"
+    build_reports(runs, out, "ablation")
+    missing = (out / "index.html").read_text().split('<section id="missing">', 1)[1].split("</section>", 1)[0]
+    assert note in missing and "not finite in the record (nan)" in missing
+
+
+# ---------------------------------------------------------------------------- escaping
+HOSTILE_MD = "a|b `c` <i>x</i> *y* [z](u) _w_ &amp; ~~v~~ \\*\nnext"
+
+
+def _md_inline(md: str) -> dict[str, list]:
+    """{"cells": [[inline tokens] per table cell], "items": [inline tokens per list item]} of the
+    Markdown as a CommonMark + GFM-tables renderer reads it (HTML allowed)."""
+    markdown_it = pytest.importorskip("markdown_it")
+    tokens = markdown_it.MarkdownIt("commonmark", {"html": True}).enable(["table", "strikethrough"]).parse(md)
+    out: dict[str, list] = {"cells": [], "items": []}
+    where = None
+    for t in tokens:
+        if t.type in ("td_open", "th_open"):
+            where = "cells"
+        elif t.type == "list_item_open":
+            where = "items"
+        elif t.type == "inline" and where:
+            out[where].append(t.children)
+            where = None
+    return out
+
+
+def _plain_text(children) -> str | None:
+    """The text of inline tokens, or None where any is markup (emphasis, code, link, HTML...)."""
+    if any(c.type != "text" for c in children):
+        return None
+    return "".join(c.content for c in children)
+
+
+def test_strings_from_cells_are_literal_in_markdown(runs):
+    for d in (runs / "kitchen-0" / "sphere" / "flux", runs / "living_room-0" / "sphere" / "flux"):
+        rec = json.loads((d / "metrics.json").read_text())
+        (d / "metrics.json").write_text(json.dumps({**rec, "method_label": HOSTILE_MD}))
+    d = runs / "kitchen-0" / "sphere" / "inpaint"
+    rec = json.loads((d / "metrics.json").read_text())
+    (d / "metrics.json").write_text(json.dumps({**rec, "reason": HOSTILE_MD}))
+    one_line = " ".join(HOSTILE_MD.split())
+    t = method_table(collect(runs), ["psnr", "lpips"])
+    md = to_markdown(t, "Table 1")
+    parsed = _md_inline(md)
+    n_cols = 1 + len(t.columns)
+    assert len(parsed["cells"]) == n_cols * (1 + len(t))  # every row kept its cells
+    labels = [_plain_text(parsed["cells"][n_cols * (1 + i)]) for i in range(len(t))]
+    assert labels == [" ".join(str(k).split()) for k in t.index] and one_line in labels  # as written, no markup
+    items = [_plain_text(c) for c in parsed["items"]]
+    assert f"failed: kitchen-0 / sphere / inpaint — {one_line}" in items
+
+
+HOSTILE_TEX = "R&D 50% $x$ #1 a_b {c} ~d ^e \\f <g> |h|\n\ni"
+#: LaTeX's text for each character that needs one (the independent reading of tex_escape's output).
+TEX_TEXT = {
+    r"\&": "&",
+    r"\%": "%",
+    r"\$": "$",
+    r"\#": "#",
+    r"\_": "_",
+    r"\{": "{",
+    r"\}": "}",
+    r"\textasciitilde{}": "~",
+    r"\textasciicircum{}": "^",
+    r"\textbackslash{}": "\\",
+    r"\textless{}": "<",
+    r"\textgreater{}": ">",
+    r"\textbar{}": "|",
+}
+
+
+def _tex_text(tex: str) -> str:
+    out, i = [], 0
+    while i < len(tex):
+        for k, v in TEX_TEXT.items():
+            if tex.startswith(k, i):
+                out.append(v)
+                i += len(k)
+                break
+        else:
+            assert tex[i] not in "&%$#_{}~^\\<>|", (tex, i)  # an unescaped special character
+            out.append(tex[i])
+            i += 1
+    return "".join(out)
+
+
+def test_strings_from_cells_are_literal_in_latex(runs):
+    for d in (runs / "kitchen-0" / "sphere" / "flux", runs / "living_room-0" / "sphere" / "flux"):
+        rec = json.loads((d / "metrics.json").read_text())
+        (d / "metrics.json").write_text(json.dumps({**rec, "method_label": HOSTILE_TEX, "model": HOSTILE_TEX}))
+    t = method_table(collect(runs), ["psnr", "lpips"])
+    tex = to_latex(t, "Table 1")
+    one_line = " ".join(HOSTILE_TEX.split())
+    body = tex.split(r"\midrule")[1].split(r"\bottomrule")[0].strip().splitlines()
+    rows = [re.split(r"(?<!\\)&", line.rstrip().removesuffix(r"\\")) for line in body]
+    assert all(len(r) == 1 + len(t.columns) for r in rows)  # no cell split by an & from a label
+    assert one_line in [_tex_text(r[0].strip()) for r in rows]
+    caption = tex.split(r"\caption{", 1)[1].split("}\n", 1)[0]
+    assert "\n" not in caption and f"models: {one_line} ×2" in _tex_text(
+        caption.replace(r"$\times$", "×").replace(r"$\cdot$", "·")
+    )
+    notes = tex.split(r"{\footnotesize", 1)[1]
+    assert "\n\n" not in notes
+
+
+def test_plots_of_cell_labels_stay_inside_their_script(tmp_path):
+    from tests.experiment.test_paper_reports import _cell
+
+    evil = '</script><script>alert("x")</script> & <b>'
+    root = tmp_path / "runs"
+    for ior in ("1.5", "2"):
+        for method in ("snellcaster", "t2i"):
+            _cell(root, "kitchen", 0, f"sphere-ior{ior}", method, {"psnr": 20.0 + float(ior)}, {}, label=evil)
+    out = tmp_path / "r"
+    build_reports(root, out, "evil")
+    html = (out / "index.html").read_text()
+    assert "<script>alert" not in html and html.count("</script>") == html.count("<script")
+    specs = re.findall(r'<script type="application/json" id="([^"]+)">(.*?)</script>', html, flags=re.S)
+    assert specs and all("<" not in s and ">" not in s for _, s in specs)
+    fig = json.loads(specs[0][1])
+    shown = '&lt;/script&gt;&lt;script&gt;alert("x")&lt;/script&gt; &amp; &lt;b&gt;'  # Plotly's text is HTML
+    assert {t["name"] for t in fig["data"]} == {f"{shown} (snellcaster)", f"{shown} (t2i)"}

@@ -52,7 +52,7 @@ def smoke(tmp_path_factory):
 
 def test_smoke_runs_and_snellcaster_beats_t2i(smoke):
     tmp, summary = smoke
-    assert summary["ok"] == 4 and summary["failed"] == 0, summary
+    assert summary["ok"] == 4 and summary["failed"] == 0 and summary["exit_status"] == 0, summary
     m = metrics_of(tmp / "runs" / "smoke")
     for scene in ("living_room-0", "kitchen-0"):
         snell, t2i = m[f"{scene}/sphere/snellcaster"], m[f"{scene}/sphere/t2i"]
@@ -150,6 +150,7 @@ def test_failures_and_skips_are_recorded_and_the_sweep_goes_on(tmp_path):
     assert fox["status"] == "failed" and "not watertight" in fox["reason"] and "object.repair=true" in fox["reason"]
     assert "object.allow_open=true" in fox["reason"] and str(open_mesh) in fox["reason"]
     assert summary["failed"] == 2 and any("fox" in c for c, _ in summary["failures"])
+    assert summary["exit_status"] == 3  # skipped cells do not count; failed ones do (grid.allow_failures)
 
 
 def test_a_missing_mesh_file_fails_before_any_work_naming_the_cell(tmp_path):

@@ -386,6 +386,7 @@ def test_a_failing_setting_does_not_stop_the_sweep(tmp_path):
     summary = run_tradeoff(cfg)
     res = results(tmp_path / "runs" / "tradeoff")
     assert summary["ok"] == 1 and summary["failed"] == 1
+    assert summary["exit_status"] == 3  # python -m snell_bench exits 3 after the report (tradeoff.allow_failures)
     (label,) = [k for k, r in res.items() if r["status"] == "failed"]
     assert "object.size" in res[label]["reason"] and "too few to trace" in res[label]["reason"]
     ok = res["living_room-0/baseline"]
@@ -441,3 +442,36 @@ def test_figure_keeps_the_bulk_and_points_at_isolated_outliers():
     before = ax2.get_ylim()
     clip_outliers(ax2, [f"s{i}" for i in range(5)], x[:5], y[:5])  # a spread, no isolated cluster
     assert ax2.get_ylim() == before and not ax2.texts
+
+
+def test_report_skips_files_that_are_not_records_and_shows_non_finite_metrics_as_missing(tmp_path, caplog):
+    from snell_bench.experiment.reports import build_tradeoff_report, collect_tradeoff, skipped_files
+    from tests.experiment.test_html_report import make_tradeoff_runs
+
+    root = make_tradeoff_runs(tmp_path / "runs" / "tradeoff")
+    d = root / "office-0" / "baseline"
+    rec = json.loads((d / "result.json").read_text())
+    (d / "result.json").write_text(json.dumps({**rec, "metrics": {**rec["metrics"], "psnr": float("-inf")}}))
+    bad = {
+        "office-0/steps=4/result.json": (
+            b'{"status": "ok"}',
+            "missing the keys scene, variation, setting, metrics, timings_s",
+        ),
+        "kitchen-0/res=large/result.json": (b"\xff\xfe", "not UTF-8 text (byte 0xff at position 0)"),
+    }
+    for rel, (raw, _) in bad.items():
+        (root / rel).write_bytes(raw)
+    df = collect_tradeoff(root)
+    assert dict(skipped_files(df)) == {rel: why for rel, (_, why) in bad.items()}
+    assert all(f"{root / rel} is not a setting's record" in caplog.text for rel in bad)
+    row = df[df["dir"] == "office-0/baseline"].iloc[0]
+    assert math.isnan(row["psnr"]) and row["missing.psnr"] == "not finite in the record (-inf)"
+    assert f"metric psnr is -inf in {d / 'result.json'}" in caplog.text
+    out = tmp_path / "r"
+    build_tradeoff_report(root, out)
+    md = (out / "tradeoff.md").read_text()
+    assert "; 2 files skipped (not cell records)" in md and "## Files skipped" in md
+    assert "- `office-0/steps=4/result.json`: missing the keys scene, variation, setting, metrics, timings_s" in md
+    assert "psnr: missing in 1 of" in md and "not finite in the record (-inf)" in md
+    html = (out / "index.html").read_text()
+    assert html.split('<section id="skipped">', 1)[1].split("</section>", 1)[0].count("<li>") == 2

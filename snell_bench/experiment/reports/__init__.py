@@ -5,6 +5,10 @@ A grid experiment's run directory holds one folder per cell,
 ``metrics.json``; a speed/accuracy sweep's holds ``<scene>-<variation>/<setting>/result.json``.
 The reports read those files and nothing else:
 
+- :mod:`.records`: what a record file must hold to be a cell (the JSON Schemas
+  :data:`GRID_RECORD` and :data:`TRADEOFF_RECORD`) and :func:`load_record`, which reads one and
+  says what is wrong with it; a file that is not a cell record is left out of every report, with a
+  warning naming it, and listed in the report's "Files skipped" section.
 - :mod:`.collect`: :func:`collect` gathers every cell into a DataFrame, one row per cell.
 - :mod:`.tables`: :func:`method_table` (Table 1: methods x metrics), :func:`block_table` (Table 3:
   a block of method rows per scene, or per object for the IOR sweep), :func:`scene_table` (scenes x
@@ -14,7 +18,9 @@ The reports read those files and nothing else:
   :func:`provenance_line` and :func:`cell_notes` say where the numbers come from and which cells
   or values are missing; :func:`rank_marks` ranks best and second best.
 - :mod:`.writers`: :func:`to_markdown`, :func:`to_latex` and :func:`to_csv` write a table;
-  :func:`tradeoff_markdown` and :func:`stdout_table` a sweep's per-setting table.
+  :func:`tradeoff_markdown` and :func:`stdout_table` a sweep's per-setting table; every string from
+  the cells is escaped for its format (:func:`md_escape`, :func:`tex_escape`; the HTML page's
+  templates escape every string themselves).
 - :mod:`.figures`: :func:`qualitative_figure` (reference | Snellcaster | baselines, each tile with
   an inset zoom on the object; :func:`qualitative_pages` draws every row, ``max_rows`` a page),
   :func:`panorama_figure` (main image beside its panorama), :func:`time_travel_figure` (PSNR and
@@ -25,7 +31,8 @@ The reports read those files and nothing else:
   missing values) from the Jinja2 templates of ``templates/``; :mod:`.gallery` its images (copies,
   thumbnails, the |error| maps of the metrics protocol, :func:`error_map`); :mod:`.plots` its
   Plotly figures (each metric against every swept axis, a sweep's settings and Pareto front).
-- :mod:`.build`: :func:`build_reports` and :func:`build_tradeoff_report` write everything.
+- :mod:`.build`: :func:`build_reports` and :func:`build_tradeoff_report` write everything
+  (:class:`NoCells` where there is nothing to report; :func:`summary_line` says where it went).
 
 Conventions:
     - A table is a DataFrame whose index holds the row labels (``index.name`` is the row header)
@@ -47,8 +54,8 @@ Conventions:
       two or more IORs): where it varies within a row's cells, it is the table's outer index level.
 """
 
-from .build import build_reports, build_tradeoff_report
-from .collect import collect, recipe_and_protocol
+from .build import NoCells, Written, build_reports, build_tradeoff_report, summary_line
+from .collect import collect, recipe_and_protocol, skipped_files
 from .figures import (
     clip_outliers,
     figure_rows,
@@ -63,6 +70,7 @@ from .figures import (
 from .gallery import error_map, gallery
 from .html import table_view, write_grid_page, write_tradeoff_page
 from .plots import axis_plots, pareto_plot, tradeoff_axis_plot
+from .records import GRID_RECORD, TRADEOFF_RECORD, load_record
 from .spec import (
     ABLATION_METRICS,
     ABLATION_ROWS,
@@ -112,7 +120,18 @@ from .tradeoff import (
     tradeoff_table,
     update_spp_records,
 )
-from .writers import pipe_table, plain_markdown, stdout_table, to_csv, to_latex, to_markdown, tradeoff_markdown
+from .writers import (
+    md_code,
+    md_escape,
+    pipe_table,
+    plain_markdown,
+    stdout_table,
+    tex_escape,
+    to_csv,
+    to_latex,
+    to_markdown,
+    tradeoff_markdown,
+)
 
 __all__ = [
     "clip_outliers",
@@ -134,6 +153,10 @@ __all__ = [
     "SAVING_METHODS",
     "metric_spec",
     "collect",
+    "skipped_files",
+    "GRID_RECORD",
+    "TRADEOFF_RECORD",
+    "load_record",
     "recipe_and_protocol",
     "provenance_line",
     "cell_notes",
@@ -155,6 +178,9 @@ __all__ = [
     "plain_markdown",
     "to_latex",
     "to_csv",
+    "md_escape",
+    "md_code",
+    "tex_escape",
     "figure_rows",
     "pages",
     "qualitative_figure",
@@ -163,6 +189,9 @@ __all__ = [
     "panorama_pages",
     "time_travel_figure",
     "build_reports",
+    "NoCells",
+    "Written",
+    "summary_line",
     # the HTML page
     "table_view",
     "write_grid_page",

@@ -1,11 +1,17 @@
 """Every report of a run folder at once: a grid experiment's tables, figures, HTML page and README,
 or a speed/accuracy sweep's CSV, Markdown, Pareto plot and HTML page. Every file is written
-atomically."""
+atomically.
+
+A build returns the paths it wrote as :class:`Written`, which also lists the record files it left
+out (not cell records: their "files skipped" section, :func:`~.collect.skipped_files`);
+:func:`summary_line` says both in one line. A run folder without any cell record raises
+:class:`NoCells`."""
 
 from __future__ import annotations
 
 import os
 import re
+from collections.abc import Sequence
 from pathlib import Path
 
 import pandas as pd
@@ -13,7 +19,7 @@ import pandas as pd
 from snell_bench.experiment.locks import hold
 from snell_bench.utils.io import atomic_write_bytes, write_text
 
-from .collect import collect
+from .collect import collect, skipped_files
 from .figures import (
     figure_rows,
     panorama_pages,
@@ -41,7 +47,10 @@ from .tables import (
 )
 from .tradeoff import collect_tradeoff, tradeoff_table
 from .writers import (
+    md_code,
+    md_escape,
     plain_markdown,
+    skipped_markdown,
     to_csv,
     to_latex,
     to_markdown,
@@ -50,7 +59,54 @@ from .writers import (
     tradeoff_summary,
 )
 
-__all__ = ["build_reports", "build_tradeoff_report"]
+__all__ = ["build_reports", "build_tradeoff_report", "NoCells", "Written", "summary_line"]
+
+
+class NoCells(FileNotFoundError):
+    """A run folder holds no cell record to report (or does not exist)."""
+
+
+class Written(list):
+    """The paths a build wrote, in order (a ``list``), and ``skipped``: the record files it left
+    out, as ``(path relative to the run folder, problem)`` (:func:`~.collect.skipped_files`)."""
+
+    def __init__(self, paths=(), skipped=()) -> None:
+        super().__init__(paths)
+        self.skipped = [tuple(x) for x in skipped]
+
+
+def summary_line(out_dir: str | os.PathLike, written: Sequence[Path]) -> str:
+    """The line printed after a build: where the report is, how many files, and the record files
+    left out.
+
+    Args:
+        out_dir: the report folder.
+        written: what the build returned (:class:`Written`; a plain list has nothing skipped).
+
+    Returns:
+        E.g. ``"reports: reports/x (12 files); open reports/x/index.html; 2 record files skipped
+        (not cell records): see reports/x/README.md"``.
+    """
+    out_dir = Path(out_dir)
+    line = f"reports: {out_dir} ({len(written)} files); open {out_dir / PAGE}"
+    n = len(getattr(written, "skipped", ()))
+    if n:
+        where = "README.md" if (out_dir / "README.md").is_file() else "tradeoff.md"
+        line += f"; {n} record file{'s' if n != 1 else ''} skipped (not cell records): see {out_dir / where}"
+    return line
+
+
+def _no_cells(run_dir: Path, record: str, skipped: list) -> NoCells:
+    """The error of a run folder with nothing to report."""
+    if not run_dir.is_dir():
+        return NoCells(f"{run_dir} does not exist")
+    why = f"no {record} below {run_dir}"
+    if skipped:
+        path, problem = skipped[0]
+        more = f" (and {len(skipped) - 1} more)" if len(skipped) > 1 else ""
+        why += f" that is a cell record: {len(skipped)} skipped, e.g. {path}: {problem}{more}"
+    return NoCells(why)
+
 
 _SAVINGS_NOTE = (
     "Time = warps + sampling per cell, against Snellcaster on the same scene and object; "
@@ -117,16 +173,19 @@ def build_reports(
     Returns:
         The written paths (``index.html`` and the images included).
 
+    Record files that are not cell records are left out and listed (with what is wrong) in the
+    README's and the page's "Files skipped" sections, and counted in the provenance line.
+
     Raises:
-        FileNotFoundError: there is no cell below ``run_dir``.
+        NoCells: there is no cell below ``run_dir`` (or no ``run_dir``); a ``FileNotFoundError``.
     """
     run_dir, out_dir = Path(run_dir), Path(out_dir)
     df = collect(run_dir)
     if df.empty:
-        raise FileNotFoundError(f"no cells (metrics.json) below {run_dir}")
+        raise _no_cells(run_dir, "metrics.json", skipped_files(df))
     out_dir.mkdir(parents=True, exist_ok=True)
     with hold(out_dir):  # the shards of a grid that finish together write one report in turn
-        return _write_reports(df, run_dir, out_dir, experiment_name, max_rows)
+        return Written(_write_reports(df, run_dir, out_dir, experiment_name, max_rows), skipped_files(df))
 
 
 def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -> list[Path]:
@@ -200,15 +259,17 @@ def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -
     written += _write_page(df, run_dir, out_dir, name, src, tables, savings, qualitative + panoramas, figures, ior)
 
     lines = [
-        f"# Reports: {name}",
+        f"# Reports: {md_escape(name)}",
         "",
-        f"Built from the cells under `{src}` alone; {provenance_line(df)}.",
+        f"Built from the cells under {md_code(src)} alone; {md_escape(provenance_line(df))}.",
         "",
         f"- The report as one page, to open in a browser (sortable tables, every image with its |error| map, "
         f"plots of the swept axes): [{PAGE}]({PAGE})",
     ]
     for stem, title, _ in tables:
-        lines.append(f"- {title}: [{stem}.md]({stem}.md) · [{stem}.tex]({stem}.tex) · [{stem}.csv]({stem}.csv)")
+        lines.append(
+            f"- {md_escape(title)}: [{stem}.md]({stem}.md) · [{stem}.tex]({stem}.tex) · [{stem}.csv]({stem}.csv)"
+        )
     if savings is not None:
         lines.append(
             "- Time saved against fidelity lost: [savings.md](savings.md) · [savings.csv](savings.csv) · "
@@ -225,6 +286,7 @@ def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -
         lines.append(f"- {title}: [{path.name}]({path.name})")
     lines += ["", to_markdown(tables[0][2], tables[0][1])]
     lines += [f"![qualitative comparison]({qualitative[0].name})", ""] if qualitative else []
+    lines += skipped_markdown(skipped_files(df), "##")
     written.append(write_text(out_dir / "README.md", "\n".join(lines)))
     return written
 
@@ -273,6 +335,7 @@ def _write_page(
         gallery=shown,
         df=df,
         files=files,
+        skipped=skipped_files(df),
     )
     return shown.files + page
 
@@ -299,15 +362,16 @@ def build_tradeoff_report(runs_root: str | os.PathLike, out_dir: str | os.PathLi
         Plotly) and ``plotly.min.js``.
 
     Raises:
-        FileNotFoundError: there is no ``result.json`` below ``runs_root``.
+        NoCells: there is no setting's record below ``runs_root`` (or no ``runs_root``); a
+            ``FileNotFoundError``.
     """
     runs_root, out_dir = Path(runs_root), Path(out_dir)
     df = collect_tradeoff(runs_root)
     if df.empty:
-        raise FileNotFoundError(f"no settings (result.json) below {runs_root}")
+        raise _no_cells(runs_root, "result.json", skipped_files(df))
     out_dir.mkdir(parents=True, exist_ok=True)
     with hold(out_dir):
-        return _write_tradeoff_report(df, runs_root, out_dir)
+        return Written(_write_tradeoff_report(df, runs_root, out_dir), skipped_files(df))
 
 
 def _write_tradeoff_report(df, runs_root: Path, out_dir: Path) -> list[Path]:
@@ -327,6 +391,7 @@ def _write_tradeoff_report(df, runs_root: Path, out_dir: Path) -> list[Path]:
         table=tradeoff_view(table, ["tradeoff.md", "tradeoff.csv"]),
         plots=plots,
         notes=tradeoff_notes(df),
+        skipped=skipped_files(df),
         files=[
             ("Per scene and setting", "tradeoff.csv"),
             ("Per setting", "tradeoff.md"),

@@ -2,12 +2,15 @@
 cells are (the provenance line) and what is missing in them (the notes).
 
 A run directory holds one folder per cell, ``<scene>-<variation>/<object>/<method>/``; folders whose
-name starts with "." or "_" (e.g. the shared ``_inputs``) are not cells.
+name starts with "." or "_" (e.g. the shared ``_inputs``) are not cells. A ``metrics.json`` that is
+not a cell record (:func:`~.records.load_record`: not UTF-8, not JSON, not an object, or against
+:data:`~.records.GRID_RECORD`) is no cell: it is left out with a warning naming it and the problem,
+and listed in ``DataFrame.attrs["skipped_files"]`` (the reports' "files skipped" section).
 """
 
 from __future__ import annotations
 
-import json
+import logging
 import math
 import os
 import re
@@ -18,10 +21,16 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
+from .records import GRID_RECORD, load_record, non_finite
 from .spec import METRICS, MODEL_DESCRIPTIONS, metric_spec
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "collect",
+    "SKIPPED_FILES",
+    "skipped_files",
+    "not_finite_reason",
     "BASE_COLUMNS",
     "recipe_and_protocol",
     "provenance_line",
@@ -44,6 +53,10 @@ BASE_COLUMNS = (
     "protocol",
 )
 """The identity columns of :func:`collect`, first and in this order."""
+
+SKIPPED_FILES = "skipped_files"
+"""The key of ``DataFrame.attrs`` listing the record files left out: ``[(path relative to the run
+directory, problem), ...]``."""
 
 _CELL_DIR_RE = re.compile(r"^(?P<scene>.+)-(?P<variation>\d+)$")
 _FLAT_GROUPS = ("decisions", "warps", "reference", "model_calls")  # nested records flattened to dotted columns
@@ -163,23 +176,54 @@ def _flat_groups(records: list[dict]) -> pd.DataFrame:
     return flat.drop(columns=has_list)
 
 
-def _read_record(path: Path) -> dict:
-    try:
-        rec = json.loads(path.read_text())
-        if not isinstance(rec, dict):
-            raise ValueError("not a JSON object")
-    except (OSError, ValueError) as e:
-        rec = {"status": "failed", "reason": f"metrics.json unreadable: {e}"}
-    return rec
+def skipped_files(df: pd.DataFrame) -> list[tuple[str, str]]:
+    """The record files left out of ``df`` (:func:`collect`, :func:`~.tradeoff.collect_tradeoff`).
+
+    Args:
+        df: the rows.
+
+    Returns:
+        ``[(path relative to the run directory, problem), ...]``; empty when none was.
+    """
+    return [tuple(x) for x in df.attrs.get(SKIPPED_FILES, [])]
+
+
+def not_finite_reason(value: float) -> str:
+    """Why a metric recorded as ``value`` (NaN or ±inf) has no value in the reports.
+
+    Examples:
+        >>> not_finite_reason(float("inf"))
+        'not finite in the record (inf)'
+    """
+    return f"not finite in the record ({value})"
+
+
+def without_non_finite(rec: dict, where: str, path: Path) -> dict:
+    """``rec`` with every non-finite metric (NaN, ±inf) set to null and its reason in ``missing``
+    (:func:`not_finite_reason`), each warned about, naming the cell ``where`` and the file."""
+    bad = non_finite(rec.get("metrics"))
+    if not bad:
+        return rec
+    for name, value in bad.items():
+        log.warning("cell %s: metric %s is %s in %s: not finite, shown as missing", where, name, value, path)
+    return {
+        **rec,
+        "metrics": {**rec["metrics"], **dict.fromkeys(bad)},
+        "missing": {**(rec.get("missing") or {}), **{k: not_finite_reason(v) for k, v in bad.items()}},
+    }
 
 
 def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
     """One row per cell below ``run_dir``.
 
-    Every ``metrics.json`` below ``run_dir`` gives a row; a cell built with random weights has the
-    status :data:`RANDOM_WEIGHTS` (never ``ok``, so no table takes it). A ``metrics.json`` that cannot be read,
-    and a cell folder with a ``config.yaml`` but no ``metrics.json``, give a row with status
-    ``"failed"`` and the reason, with scene, variation, object and method taken from the path.
+    Every ``metrics.json`` below ``run_dir`` that is a cell record (:data:`~.records.GRID_RECORD`)
+    gives a row; a cell built with random weights has the status :data:`RANDOM_WEIGHTS` (never
+    ``ok``, so no table takes it). A ``metrics.json`` that is not a cell record gives no row: it is
+    warned about (its path and what is wrong) and listed in ``attrs["skipped_files"]``
+    (:func:`skipped_files`). A cell folder with a ``config.yaml`` and no ``metrics.json`` gives a
+    row with status ``"failed"`` and the reason, with scene, variation, object and method taken
+    from the path. A metric recorded as NaN or ±inf is warned about (the cell and the metric) and
+    has no value, with the reason ``missing.<metric>`` = "not finite in the record (inf)".
 
     Args:
         run_dir: the experiment's run directory.
@@ -194,16 +238,22 @@ def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
         the reference's settings and self-noise as ``reference.<...>`` (``reference.self_noise_db``);
         other scalar fields of the record under their own name; and ``cell_dir``, the cell's
         folder relative to ``run_dir``. Rows are sorted by scene, variation, object, method and
-        folder. Empty (with the identity columns) when there is no cell.
+        folder. Empty (with the identity columns) when there is no cell. ``attrs["skipped_files"]``
+        lists the files left out as ``(path relative to run_dir, problem)``.
     """
     run_dir = Path(run_dir)
-    records, rels, seen = [], [], set()
+    records, rels, seen, skipped = [], [], set(), []
     for path in sorted(run_dir.rglob("metrics.json")):
         rel = path.parent.relative_to(run_dir)
         if any(p.startswith((".", "_")) for p in rel.parts):
             continue
         seen.add(path.parent)
-        rec = _read_record(path)
+        rec, problem = load_record(path, GRID_RECORD)
+        if problem is not None:
+            log.warning("%s is not a cell record, left out of the report: %s", path, problem)
+            skipped.append((path.relative_to(run_dir).as_posix(), problem))
+            continue
+        rec = without_non_finite(rec, rel.as_posix(), path)
         if "recipe" not in rec or "protocol" not in rec:  # a cell recorded before the record held them
             rec = {**_recorded_config(path.parent), **rec}
         if rec.get("random_weights") and rec.get("status") == "ok":
@@ -223,7 +273,9 @@ def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
         )
         rels.append(rel)
     if not records:
-        return pd.DataFrame({c: pd.Series(dtype=object) for c in BASE_COLUMNS + ("cell_dir",)})
+        empty = pd.DataFrame({c: pd.Series(dtype=object) for c in BASE_COLUMNS + ("cell_dir",)})
+        empty.attrs[SKIPPED_FILES] = skipped
+        return empty
     df = pd.DataFrame([_row_from_record(rec, rel) for rec, rel in zip(records, rels)])
     flat = _flat_groups(records)
     df = pd.concat([df.drop(columns=[c for c in flat.columns if c in df.columns]), flat], axis=1)
@@ -235,7 +287,9 @@ def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
     fixed = [c for c in BASE_COLUMNS if c in df.columns]
     metric_cols = [m for m in METRICS if m in df.columns]
     other = sorted(c for c in df.columns if c not in fixed and c not in metric_cols and c != "cell_dir")
-    return df[fixed + metric_cols + other + ["cell_dir"]]
+    df = df[fixed + metric_cols + other + ["cell_dir"]]
+    df.attrs[SKIPPED_FILES] = skipped
+    return df
 
 
 # --------------------------------------------------------------------------------------------
@@ -262,6 +316,8 @@ def provenance_line(df: pd.DataFrame) -> str:
         metrics protocol: paper · 12 cells (10 ok, 1 failed, 1 skipped)"``; with several models,
         sources, recipes or protocols each is listed with its cell count. The recipe and the
         protocol are left out where no cell records them (cells without a ``config.yaml``).
+        Record files left out (:func:`skipped_files`) are counted last: ``" · 2 files skipped
+        (not cell records)"``.
     """
 
     def describe(counts: Counter, described: bool) -> str:
@@ -288,6 +344,9 @@ def provenance_line(df: pd.DataFrame) -> str:
     breakdown = ", ".join(f"{status[k]} {k}" for k in order if status.get(k) or k == "ok")
     n = len(df)
     parts.append(f"{n} cell{'s' if n != 1 else ''} ({breakdown})")
+    bad = len(skipped_files(df))
+    if bad:
+        parts.append(f"{bad} file{'s' if bad != 1 else ''} skipped (not cell records)")
     return " · ".join(parts)
 
 

@@ -15,10 +15,11 @@ A grid experiment's page (:func:`write_grid_page`) holds, in order:
    reference, the mask, and per method the image, its |error| map and its panorama, each tile
    captioned with its cell's metrics;
 5. every failed or skipped cell and every metric without a value, with the recorded reasons;
+6. the record files left out (not cell records, with what is wrong with each: "Files skipped");
    links to the other files of the folder.
 
 A speed/accuracy sweep's page (:func:`write_tradeoff_page`) holds its per-setting table (sortable),
-the fidelity against each setting, the time-fidelity Pareto plot and its notes.
+the fidelity against each setting, the time-fidelity Pareto plot, its notes and the files skipped.
 
 Conventions:
     - Templates: Jinja2, shipped in ``snell_bench/experiment/reports/templates/`` (``grid.html.j2``,
@@ -387,6 +388,7 @@ def write_grid_page(
     gallery: Gallery,
     df: pd.DataFrame,
     files: Sequence[tuple[str, str]],
+    skipped: Sequence[tuple[str, str]] = (),
 ) -> list[Path]:
     """Write a grid experiment's ``index.html`` (and ``plotly.min.js`` when it has a plot).
 
@@ -400,6 +402,7 @@ def write_grid_page(
         gallery: the gallery, its images already written.
         df: the cells (``collect``), for the filters and the notes.
         files: ``(title, relative path)`` of the other files of the report folder.
+        skipped: the record files left out, ``(path relative to the run folder, problem)``.
 
     Returns:
         The paths written: ``index.html``, then ``plotly.min.js`` if written.
@@ -424,6 +427,7 @@ def write_grid_page(
             methods=gallery.methods,
             notes=cell_notes(df, shown),
             files=files,
+            skipped=list(skipped),
             gradient=_gradient(),
         )
     )
@@ -440,6 +444,7 @@ def write_tradeoff_page(
     plots: Sequence[Plot],
     notes: Sequence[str],
     files: Sequence[tuple[str, str]],
+    skipped: Sequence[tuple[str, str]] = (),
 ) -> list[Path]:
     """Write a speed/accuracy sweep's ``index.html`` and ``plotly.min.js``.
 
@@ -451,6 +456,7 @@ def write_tradeoff_page(
         plots: the fidelity against each setting, the Pareto plot.
         notes: failed settings and missing metrics with their reasons.
         files: ``(title, relative path)`` of the other files of the report folder.
+        skipped: the record files left out, ``(path relative to the run folder, problem)``.
 
     Returns:
         The paths written: ``index.html``, then ``plotly.min.js``.
@@ -469,6 +475,7 @@ def write_tradeoff_page(
             plotly_js=PLOTLY_JS if has_plotly else None,
             notes=notes,
             files=files,
+            skipped=list(skipped),
         )
     )
     written.insert(0, write_text(out_dir / PAGE, html))

@@ -5,12 +5,16 @@ setting, the per-setting means, the Pareto front and the reference convergence (
 A sweep's run folder holds ``<scene>-<variation>/<setting slug>/result.json`` per setting and the
 shared inputs under ``<scene>-<variation>/_shared/``; :mod:`snell_bench.experiment.tradeoff`
 describes the layout and the meaning of every field. Folders whose name starts with "." or "_"
-are not settings.
+are not settings. A ``result.json`` that is not a setting's record (:func:`~.records.load_record`
+against :data:`~.records.TRADEOFF_RECORD`) is left out with a warning naming it and the problem,
+and listed in ``DataFrame.attrs["skipped_files"]``; a metric recorded as NaN or ±inf is warned
+about and has no value ("not finite in the record").
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import re
@@ -21,6 +25,10 @@ import numpy as np
 import pandas as pd
 
 from snell_bench.utils.io import write_json
+
+from .records import TRADEOFF_RECORD, load_record, non_finite
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "STAGES",
@@ -58,27 +66,21 @@ _SCENE_DIR_RE = re.compile(r"^(?P<scene>.+)-(?P<variation>\d+)$")
 
 
 # ---------------------------------------------------------------------------- reference convergence
-def _load_records(root: Path) -> list[dict]:
-    """Every ``result.json`` below ``root`` (``<scene>-<variation>/<slug>/result.json``), each with
-    ``_dir`` (its folder relative to ``root``); unreadable ones as failed records."""
+def _load_records(root: Path, skipped: list | None = None) -> list[dict]:
+    """Every setting's record below ``root`` (``<scene>-<variation>/<slug>/result.json``), each with
+    ``_dir`` (its folder relative to ``root``). A file that is not a setting's record is left out
+    with a warning, and appended to ``skipped`` as ``(path relative to root, problem)``."""
     out = []
     for p in sorted(Path(root).glob("*/*/result.json")):
         rel = p.parent.relative_to(root)
         if any(part.startswith((".", "_")) for part in rel.parts):
             continue
-        try:
-            rec = json.loads(p.read_text())
-            if not isinstance(rec, dict):
-                raise ValueError("not a JSON object")
-        except (OSError, ValueError) as e:
-            m = _SCENE_DIR_RE.match(rel.parts[0])
-            rec = {
-                "status": "failed",
-                "reason": f"result.json unreadable: {e}",
-                "setting": rel.parts[1],
-                "scene": m["scene"] if m else rel.parts[0],
-                "variation": int(m["variation"]) if m else None,
-            }
+        rec, problem = load_record(p, TRADEOFF_RECORD)
+        if problem is not None:
+            if skipped is not None:  # warned once, by the reader that reports it
+                log.warning("%s is not a setting's record, left out of the report: %s", p, problem)
+                skipped.append((p.relative_to(root).as_posix(), problem))
+            continue
         rec["_dir"] = rel.as_posix()
         out.append(rec)
     return out
@@ -248,13 +250,20 @@ def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
         reasons, ``reference_psnr_vs_max_spp`` (recomputed from the saved references),
         ``converged_spp``, ``reference_self_noise_db`` (the setting's reference against its own
         noise-free limit, from its two halves; NaN without halves) and ``dir``; sorted by scene, then the setting's order in the sweep.
-        Empty when there is no ``result.json``.
+        Empty when there is no ``result.json``. ``attrs["skipped_files"]`` lists the files left out
+        (not a setting's record) as ``(path relative to root, problem)``; a metric recorded as NaN or
+        ±inf is NaN with ``missing.<metric>`` = "not finite in the record (inf)".
     """
     root = Path(root)
-    records = _load_records(root)
+    skipped: list[tuple[str, str]] = []
+    records = _load_records(root, skipped)
     conv = reference_psnr_vs_max_spp(root, records)
     rows = []
     for r in records:
+        bad = non_finite(r.get("metrics"))
+        for name, value in bad.items():
+            path = root / r["_dir"] / "result.json"
+            log.warning("setting %s: metric %s is %s in %s: not finite, shown as missing", r["_dir"], name, value, path)
         row = {
             "scene": r.get("scene"),
             "variation": r.get("variation"),
@@ -279,18 +288,21 @@ def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
         for k, v in (r.get("model_calls") or {}).items():
             row[f"model_calls.{k}"] = v
         for k in RECORD_METRICS:
-            row[k] = _float((r.get("metrics") or {}).get(k))
-            row[f"missing.{k}"] = (r.get("missing") or {}).get(k)
+            row[k] = float("nan") if k in bad else _float((r.get("metrics") or {}).get(k))
+            row[f"missing.{k}"] = (
+                f"not finite in the record ({bad[k]})" if k in bad else (r.get("missing") or {}).get(k)
+            )
         row["reference_psnr_vs_max_spp"] = _float(conv.get(r["_dir"], r.get("reference_psnr_vs_max_spp")))
         row["converged_spp"] = (r.get("converged_reference") or {}).get("spp")
         row["reference_self_noise_db"] = _float((r.get("reference") or {}).get("self_noise_db"))
         row["dir"] = r["_dir"]
         rows.append(row)
     df = pd.DataFrame(rows)
-    if df.empty:
-        return df
-    df["order"] = pd.to_numeric(df["order"], errors="coerce")
-    return df.sort_values(["scene", "order", "setting"], na_position="last", kind="mergesort").reset_index(drop=True)
+    if not df.empty:
+        df["order"] = pd.to_numeric(df["order"], errors="coerce")
+        df = df.sort_values(["scene", "order", "setting"], na_position="last", kind="mergesort").reset_index(drop=True)
+    df.attrs["skipped_files"] = skipped
+    return df
 
 
 def tradeoff_table(df: pd.DataFrame) -> pd.DataFrame:

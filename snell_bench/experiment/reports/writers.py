@@ -6,6 +6,11 @@ and scene source produced the numbers, how many cells) and notes listing every f
 cell with its reason and every metric without a value in some averaged cells. The best value is
 **bold** (``\\textbf``), the second best _italic_ (``\\underline``), as ranked by
 :func:`~snell_bench.experiment.reports.tables.rank_marks`; a missing value is "—".
+
+Every string that comes from the cells (names, labels, reasons, the experiment's name) is escaped
+for the format it goes into: :func:`md_escape` for Markdown (one line; ``|``, backticks, ``*``,
+``[``, ``<``, ``&``... backslash-escaped, so that it reads back as written and never becomes a
+table cell, a link, emphasis or HTML) and :func:`tex_escape` for LaTeX.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from collections import Counter
 from collections.abc import Iterable, Sequence
 
@@ -21,6 +27,7 @@ import pandas as pd
 
 from snell_bench.utils.io import write_text
 
+from .collect import skipped_files
 from .spec import MEASURES, MISSING, metric_spec
 from .tables import column_metric, rank_marks
 from .tradeoff import PRESET_AXIS, RECORD_METRICS, SPP_KEY, TOTAL_NOTE, fidelity_column
@@ -32,6 +39,8 @@ __all__ = [
     "to_latex",
     "to_csv",
     "tex_escape",
+    "md_escape",
+    "md_code",
     "rank_scope",
     "tradeoff_markdown",
     "tradeoff_summary",
@@ -40,6 +49,46 @@ __all__ = [
 ]
 
 _ALIGN = {None: "---", "left": ":---", "right": "---:", "center": ":---:"}
+
+# Markdown's active characters in running text and table cells: backslash, code, emphasis, links
+# and images, HTML and autolinks, entities, GFM strikethrough and cell separators. An underscore
+# inside a word (``living_room``) is never emphasis (CommonMark), so it is left as it is.
+_MD_ACTIVE = re.compile(r"[\\`*\[\]<>&|~]|(?<![0-9A-Za-z])_|_(?![0-9A-Za-z])")
+
+
+def md_escape(text) -> str:
+    r"""``str(text)`` as literal Markdown text on one line (a table cell, a list item, a heading).
+
+    Whitespace runs (newlines included) become one space; the characters Markdown would read as
+    markup are backslash-escaped (CommonMark: any ASCII punctuation may be), so the text renders as
+    written.
+
+    Args:
+        text: any value; its ``str``.
+
+    Returns:
+        The escaped text.
+
+    Examples:
+        >>> md_escape("a|b <i>x</i> *y* `z`")
+        'a\\|b \\<i\\>x\\</i\\> \\*y\\* \\`z\\`'
+        >>> md_escape("living_room\n _x_")
+        'living_room \\_x\\_'
+    """
+    return _MD_ACTIVE.sub(lambda m: "\\" + m.group(0), " ".join(str(text).split()))
+
+
+def md_code(text) -> str:
+    """``str(text)`` as a Markdown code span on one line, fenced with more backticks than it holds.
+
+    Examples:
+        >>> md_code("runs/a`b")
+        '``runs/a`b``'
+    """
+    text = " ".join(str(text).split())
+    fence = "`" * (max((len(r) for r in re.findall(r"`+", text)), default=0) + 1)
+    pad = " " if text.startswith("`") or text.endswith("`") else ""
+    return f"{fence}{pad}{text}{pad}{fence}"
 
 
 def pipe_table(
@@ -75,6 +124,7 @@ def _cell_text(table: pd.DataFrame, i: int, j: int) -> str:
 
 
 def _header(table: pd.DataFrame, col) -> str:
+    """A value column's header as text (not escaped: the writers escape it for their format)."""
     if col == "n":
         return "n"
     if col in MEASURES:
@@ -154,27 +204,33 @@ def to_markdown(
     Returns:
         A ``##`` heading, the provenance line, a pipe table (best value **bold**, second best
         _italic_, missing "—"), the caption with the legend, and a "Notes" section listing the
-        failed and skipped cells with their reasons and the metrics missing in averaged cells.
+        failed and skipped cells with their reasons and the metrics missing in averaged cells;
+        every text from the table (title, labels, provenance, notes) escaped (:func:`md_escape`).
     """
     provenance, notes = _resolve(table, provenance, notes)
     cols = list(table.columns)
     index_head = _index_header(table)
-    head = index_head + [_header(table, c) for c in cols]
+    head = [md_escape(h) for h in index_head + [_header(table, c) for c in cols]]
     cells = _marked_cells(table, lambda t, r: f"**{t}**" if r == 1 else f"_{t}_" if r == 2 else t)
-    lines = [f"## {title}", "", f"_{provenance}_" if provenance else "", ""]
+    lines = [f"## {md_escape(title)}", "", f"_{md_escape(provenance)}_" if provenance else "", ""]
     lines += pipe_table(
         head,
-        (idx + row for idx, row in zip(_index_cells(table), cells)),
+        ([md_escape(k) for k in idx] + row for idx, row in zip(_index_cells(table), cells)),
         ["left"] * len(index_head) + ["right"] * len(cols),
     )
     lines.append("")
     caption = table.attrs.get("caption")
     where = rank_scope(table)
     lines.append(
-        (caption + " " if caption else "") + f"**Bold**: best per {where}; _italic_: second best; {MISSING}: no value."
+        (md_escape(caption) + " " if caption else "")
+        + f"**Bold**: best per {md_escape(where)}; _italic_: second best; {MISSING}: no value."
     )
     lines += ["", "### Notes", ""]
-    lines += [f"- {n}" for n in notes] if notes else ["- All cells ok; every metric shown has a value in every cell."]
+    lines += (
+        [f"- {md_escape(n)}" for n in notes]
+        if notes
+        else ["- All cells ok; every metric shown has a value in every cell."]
+    )
     return "\n".join(lines) + "\n"
 
 
@@ -188,23 +244,26 @@ def plain_markdown(table: pd.DataFrame, title: str, note: str = "") -> str:
 
     Returns:
         The heading, the note and a pipe table: floats with 3 decimals ("—" if not finite),
-        everything else as ``str``.
+        everything else as ``str``, escaped (:func:`md_escape`), as are the title and the note.
     """
 
     def fmt(v):
         if isinstance(v, (float, np.floating)):
             return MISSING if not np.isfinite(v) else f"{v:.3f}"
-        return str(v)
+        return md_escape(v)
 
-    lines = [f"## {title}", ""] + ([note, ""] if note else [])
+    lines = [f"## {md_escape(title)}", ""] + ([md_escape(note), ""] if note else [])
     lines += pipe_table(
-        [str(c) for c in table.columns], ([fmt(v) for v in row] for row in table.itertuples(index=False))
+        [md_escape(c) for c in table.columns], ([fmt(v) for v in row] for row in table.itertuples(index=False))
     )
     return "\n".join(lines) + "\n"
 
 
 _LATEX_ESCAPES = {
     "\\": r"\textbackslash{}",
+    "<": r"\textless{}",
+    ">": r"\textgreater{}",
+    "|": r"\textbar{}",
     "&": r"\&",
     "%": r"\%",
     "$": r"\$",
@@ -223,9 +282,16 @@ _LATEX_MARKS = {1: "textbf: --rwrap;", 2: "underline: --rwrap;"}
 
 
 def tex_escape(s) -> str:
-    """``str(s)`` with LaTeX's special characters escaped and ↑ ↓ · × as math symbols (Styler's
-    ``escape="latex"`` leaves those four as they are)."""
-    return "".join(_LATEX_ESCAPES.get(ch, ch) for ch in str(s))
+    r"""``str(s)`` as LaTeX text on one line: whitespace runs (newlines included: a blank line would
+    end a paragraph inside a caption) become one space, LaTeX's special characters
+    (``\ & % $ # _ { } ~ ^``) and ``< > |`` (other glyphs in LaTeX's default font encoding) are
+    escaped, and ↑ ↓ · × become math symbols (Styler's ``escape="latex"`` leaves those four as they are).
+
+    Examples:
+        >>> tex_escape("50% of a_b & {c}\n#1 <x>")
+        '50\\% of a\\_b \\& \\{c\\} \\#1 \\textless{}x\\textgreater{}'
+    """
+    return "".join(_LATEX_ESCAPES.get(ch, ch) for ch in " ".join(str(s).split()))
 
 
 def to_latex(
@@ -335,9 +401,11 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
     Returns:
         The heading, what the numbers are, the per-setting pipe table (presets in bold, the Pareto
         front starred, "missing" for LPIPS without a value), the reference convergence of the spp
-        axes, and notes listing failed settings and missing metrics with their reasons.
+        axes, notes listing failed settings and missing metrics with their reasons, and the record
+        files left out (:func:`~.collect.skipped_files`); every text from the records escaped
+        (:func:`md_escape`).
     """
-    lines = [f"# {title}", "", tradeoff_summary(table, df, bold="**"), ""]
+    lines = [f"# {md_escape(title)}", "", tradeoff_summary(table, df, bold="**", quote=md_escape), ""]
     head = [
         "setting",
         "scene",
@@ -358,7 +426,7 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
     ]
     rows = []
     for setting, r in table.iterrows():
-        label = f"**{setting}**" if r["axis"] == PRESET_AXIS else str(setting)
+        label = f"**{md_escape(setting)}**" if r["axis"] == PRESET_AXIS else md_escape(setting)
         lp = _fmt(r["lpips"], "{:.3f}") if not math.isnan(r["lpips"]) else "missing"
         cells = [label] + [
             _fmt(r[f"timings_s.{k}"])
@@ -396,7 +464,7 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
             own = table.loc[setting, "reference_self_noise_db"] if setting in table.index else float("nan")
             rows.append(
                 [
-                    str(setting),
+                    md_escape(setting),
                     str(n) if n is not None else "—",
                     "(highest spp: the comparison reference)" if top else _fmt(v),
                     _fmt(own),
@@ -407,11 +475,36 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
         )
     notes = tradeoff_notes(df)
     if notes:
-        lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
+        lines += ["", "## Notes", ""] + [f"- {md_escape(n)}" for n in notes]
+    lines += skipped_markdown(skipped_files(df), "##")
     return "\n".join(lines) + "\n"
 
 
-def tradeoff_summary(table: pd.DataFrame, df: pd.DataFrame, bold: str = "") -> str:
+def skipped_markdown(skipped: Sequence[tuple[str, str]], level: str = "##") -> list[str]:
+    """The "Files skipped" section of a report's Markdown: every record file left out (not a cell
+    record, :func:`~.records.load_record`) with what is wrong with it.
+
+    Args:
+        skipped: ``(path relative to the run folder, problem)`` pairs (:func:`~.collect.skipped_files`).
+        level: the heading's ``#`` marks.
+
+    Returns:
+        The section's lines (a blank line first), none when nothing was skipped.
+    """
+    if not skipped:
+        return []
+    n = len(skipped)
+    lines = [
+        "",
+        f"{level} Files skipped",
+        "",
+        f"{n} record file{'s are' if n != 1 else ' is'} not a cell record and left out of every table and figure:",
+        "",
+    ]
+    return lines + [f"- {md_code(path)}: {md_escape(problem)}" for path, problem in skipped]
+
+
+def tradeoff_summary(table: pd.DataFrame, df: pd.DataFrame, bold: str = "", quote=str) -> str:
     """What a sweep's per-setting numbers are: scenes, model, runs, times, every PSNR column and
     the Pareto flag (the paragraph under the heading of :func:`tradeoff_markdown`).
 
@@ -419,18 +512,22 @@ def tradeoff_summary(table: pd.DataFrame, df: pd.DataFrame, bold: str = "") -> s
         table: from :func:`tradeoff_table`.
         df: the rows it was built from (:func:`collect_tradeoff`).
         bold: the mark around the word "pareto" (``"**"`` in Markdown).
+        quote: applied to the names from the records (scenes, models): :func:`md_escape` in
+            Markdown; ``str`` where the page escapes them itself.
 
     Returns:
-        One paragraph.
+        One paragraph; the record files left out (:func:`~.collect.skipped_files`) are counted in it.
     """
-    models = sorted({str(m) for m in df["model"].dropna()}) if "model" in df else []
+    models = sorted({quote(m) for m in df["model"].dropna()}) if "model" in df else []
     status = Counter(str(s) for s in df["status"])
-    counts = ", ".join(f"{v} {k}" for k, v in sorted(status.items()))
+    counts = ", ".join(f"{v} {quote(k)}" for k, v in sorted(status.items()))
+    bad = len(skipped_files(df))
+    counts += f"; {bad} file{'s' if bad != 1 else ''} skipped (not cell records)" if bad else ""
     spps = sorted({int(v) for v in df.get("converged_spp", pd.Series(dtype=float)).dropna()})
     conv_text = f"{'/'.join(map(str, spps))} spp" if spps else "none in this sweep"
     fid_text = "PSNR (conv.)" if fidelity_column(table) == "psnr_converged" else "PSNR"
     return (
-        f"Means over the scenes where a setting succeeded ({', '.join(sorted(df['scene'].dropna().unique()))}); "
+        f"Means over the scenes where a setting succeeded ({', '.join(quote(x) for x in sorted(df['scene'].dropna().unique()))}); "
         f"model: {', '.join(models) or 'unknown'}; {len(df)} runs ({counts}). "
         f"Times in seconds; {TOTAL_NOTE}. PSNR: masked, vs the setting's own reference render (so it also "
         "moves with reference.spp, see the reference convergence below); PSNR (conv.): vs a converged reference "

@@ -1,0 +1,236 @@
+"""What a cell's record file must hold to count as a cell: the JSON Schemas of a grid cell's
+``metrics.json`` (:data:`GRID_RECORD`) and of a speed/accuracy setting's ``result.json``
+(:data:`TRADEOFF_RECORD`), and :func:`load_record`, which reads one and says what is wrong with it.
+
+The reports and the cell loop read a record only through :func:`load_record`: a file that is not
+UTF-8, not JSON, not an object, or that breaks its schema is *not a cell*. The reports leave it out
+with a warning naming its path and the problem, and count it (their "files skipped" section); the
+cell loop computes that cell again. A record is data only: nothing in it is ever run.
+
+Conventions (both schemas):
+    - ``status`` is ``"ok"``, ``"failed"`` or ``"skipped"``; ``reason`` is a string (why) or null,
+      and a string for ``failed`` and ``skipped``.
+    - The identity keys are required: ``scene`` (string) and ``variation`` (integer >= 0), then
+      ``object`` and ``method`` (grid) or ``setting`` (sweep), strings.
+    - An ``ok`` record holds ``metrics``, a mapping of metric name to a number or null (a JSON
+      ``NaN`` or ``Infinity`` is a number here; the reports show it as missing, "not finite in the
+      record"); a sweep's ``ok`` record also holds ``timings_s``.
+    - Every other key the reports read has its type (``missing``: strings or null; ``timings_s``:
+      numbers or null; ``model_calls``: integers or null; nested groups: objects). Keys the
+      schemas do not name are allowed (records of newer versions).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+__all__ = ["GRID_RECORD", "TRADEOFF_RECORD", "load_record", "record_problem", "non_finite"]
+
+_STR = {"type": "string"}
+_OPT_STR = {"type": ["string", "null"]}
+_NUMBERS = {"type": "object", "additionalProperties": {"type": ["number", "null"]}}
+_REASONS = {"type": "object", "additionalProperties": {"type": ["string", "null"]}}
+_COUNTS = {"type": "object", "additionalProperties": {"type": ["integer", "null"]}}
+_OBJECT = {"type": "object"}
+_OPT_OBJECT = {"type": ["object", "null"]}
+
+_COMMON_PROPERTIES = {
+    "status": {"enum": ["ok", "failed", "skipped"]},
+    "reason": _OPT_STR,
+    "experiment": _STR,
+    "scene": _STR,
+    "variation": {"type": "integer", "minimum": 0},
+    "object": _STR,
+    "method": _STR,
+    "model": _STR,
+    "scene_source": _STR,
+    "protocol": _OPT_STR,
+    "metrics": _NUMBERS,
+    "missing": _REASONS,
+    "timings_s": _NUMBERS,
+    "sampler_timings_s": _NUMBERS,
+    "model_calls": _COUNTS,
+    "reference": _OPT_OBJECT,
+    "decisions": _OBJECT,
+    "settings_hash": _STR,
+    "traceback": _STR,
+    "files": {
+        "type": "object",
+        "additionalProperties": {
+            "type": "object",
+            "properties": {"bytes": {"type": "integer", "minimum": 0}, "sha256": _STR},
+        },
+    },
+}
+
+#: A reason is a string where the cell did not finish ok.
+_REASON_WHEN_NOT_OK = {
+    "if": {"properties": {"status": {"enum": ["failed", "skipped"]}}, "required": ["status"]},
+    "then": {"required": ["reason"], "properties": {"reason": _STR}},
+}
+
+
+def _ok_requires(*keys: str) -> dict:
+    return {"if": {"properties": {"status": {"const": "ok"}}, "required": ["status"]}, "then": {"required": list(keys)}}
+
+
+#: JSON Schema (draft 2020-12) of a grid cell's ``metrics.json``.
+GRID_RECORD: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "metrics.json of a grid cell",
+    "type": "object",
+    "required": ["status", "scene", "variation", "object", "method"],
+    "properties": {
+        **_COMMON_PROPERTIES,
+        "object_spec": _STR,
+        "method_label": _STR,
+        "recipe": _OPT_STR,
+        "random_weights": {"type": "boolean"},
+        "warps": _OBJECT,
+        "scene_info": _OBJECT,
+    },
+    "allOf": [_REASON_WHEN_NOT_OK, _ok_requires("metrics")],
+}
+
+#: JSON Schema (draft 2020-12) of a speed/accuracy setting's ``result.json``.
+TRADEOFF_RECORD: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "result.json of a speed/accuracy setting",
+    "type": "object",
+    "required": ["status", "scene", "variation", "setting"],
+    "properties": {
+        **_COMMON_PROPERTIES,
+        "setting": _STR,
+        "slug": _STR,
+        "order": {"type": "integer"},
+        "axis": _OPT_STR,
+        "overrides": _OBJECT,
+        "knobs": _OBJECT,
+        "inputs_key": _STR,
+        "inputs_dir": _STR,
+        "inputs_reused_from": _OPT_STR,
+        "converged_reference": _OPT_OBJECT,
+        "reference_psnr_vs_max_spp": {"type": ["number", "null"]},
+    },
+    "allOf": [_REASON_WHEN_NOT_OK, _ok_requires("metrics", "timings_s")],
+}
+
+_VALIDATORS: dict[int, Any] = {}
+
+
+def _validator(schema: dict):
+    """The compiled validator of ``schema`` (compiled once)."""
+    key = id(schema)
+    if key not in _VALIDATORS:
+        from jsonschema import Draft202012Validator
+
+        Draft202012Validator.check_schema(schema)
+        _VALIDATORS[key] = Draft202012Validator(schema)
+    return _VALIDATORS[key]
+
+
+def _where(error) -> str:
+    path = ".".join(str(p) for p in error.absolute_path)
+    return f"{path}: " if path else ""
+
+
+def record_problem(record: Any, schema: dict | None) -> str | None:
+    """What is wrong with a parsed record, or ``None``.
+
+    Args:
+        record: the parsed JSON value.
+        schema: :data:`GRID_RECORD`, :data:`TRADEOFF_RECORD`, or ``None`` (only "an object" is
+            checked).
+
+    Returns:
+        ``None`` for a valid record; else one line: the JSON type where an object is needed
+        (``"a JSON array, not an object"``), or the schema's errors, each with the key it concerns
+        (``"missing the keys scene, variation"``, ``"metrics.psnr: 'high' is not of type 'number',
+        'null'"``; at most three, then how many more).
+
+    Examples:
+        >>> record_problem([1, 2], GRID_RECORD)
+        'a JSON array, not an object'
+        >>> record_problem({"status": "ok"}, GRID_RECORD)
+        'missing the keys scene, variation, object, method, metrics'
+        >>> record_problem({"status": "ok", "scene": "k", "variation": 0, "object": "sphere", "method": "t2i",
+        ...                 "metrics": {"psnr": "high"}}, GRID_RECORD)
+        "metrics.psnr: 'high' is not of type 'number', 'null'"
+    """
+    if not isinstance(record, dict):
+        kinds = {list: "array", str: "string", bool: "boolean", int: "number", float: "number", type(None): "null"}
+        return f"a JSON {kinds.get(type(record), type(record).__name__)}, not an object"
+    if schema is None:
+        return None
+    missing: dict[str, list[str]] = {}
+    other: list[str] = []
+    for e in sorted(
+        _validator(schema).iter_errors(record),
+        key=lambda e: (list(map(str, e.absolute_path)), len(e.schema_path), e.message),
+    ):
+        if e.validator == "required":  # one error per absent key: said once, in the schema's order
+            keys = missing.setdefault(_where(e), [])
+            keys += [k for k in e.validator_value if k not in e.instance and k not in keys]
+        else:
+            other.append(f"{_where(e)}{e.message}")
+    lines = [f"{where}missing the key{'s' if len(k) > 1 else ''} {', '.join(k)}" for where, k in missing.items()]
+    lines += other
+    if not lines:
+        return None
+    more = f"; and {len(lines) - 3} more" if len(lines) > 3 else ""
+    return "; ".join(lines[:3]) + more
+
+
+def load_record(path: str | Path, schema: dict | None = None) -> tuple[dict | None, str | None]:
+    """Read a record file and check it against its schema.
+
+    Args:
+        path: the file (``metrics.json`` or ``result.json``).
+        schema: its schema (:data:`GRID_RECORD`, :data:`TRADEOFF_RECORD`); ``None``: any JSON
+            object is a record.
+
+    Returns:
+        ``(record, None)`` for a valid record; ``(None, problem)`` otherwise, the problem in one
+        line: ``"cannot be read: ..."``, ``"not UTF-8 text: ..."``, ``"not valid JSON: ..."``, or
+        :func:`record_problem`'s. A missing file is ``(None, "cannot be read: ...")`` too.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as e:
+        return None, f"cannot be read: {e.strerror or e}"
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        return None, f"not UTF-8 text (byte 0x{raw[e.start]:02x} at position {e.start})"
+    try:
+        record = json.loads(text)
+    except ValueError as e:
+        return None, f"not valid JSON: {e}"
+    problem = record_problem(record, schema)
+    return (None, problem) if problem else (record, None)
+
+
+def non_finite(values: Any) -> dict[str, float]:
+    """The entries of a mapping of numbers that are numbers but not finite (NaN, ±inf).
+
+    Args:
+        values: a record's ``metrics`` (or any mapping); anything else has none.
+
+    Returns:
+        ``{name: value}`` of the non-finite ones, in the mapping's order.
+
+    Examples:
+        >>> non_finite({"psnr": float("inf"), "mae": 0.1, "lpips": None})
+        {'psnr': inf}
+    """
+    if not isinstance(values, dict):
+        return {}
+    return {
+        k: v
+        for k, v in values.items()
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isfinite(v)
+    }
