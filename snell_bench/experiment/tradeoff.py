@@ -84,6 +84,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from snell_bench import pipeline
 from snell_bench.config import ConfigError, check_tradeoff_entries
+from snell_bench.config.grid import axis_settings
 from snell_bench.experiment.cells import Cell, SharedCache, failures_verdict, run_cells
 from snell_bench.experiment.files import save_inputs
 from snell_bench.experiment.memory import check_memory
@@ -188,38 +189,16 @@ def _plain(v: Any) -> Any:
 
 
 def _axis_settings(name: str, spec: Any) -> list[Setting]:
-    """The settings of one axis (format: the module docs)."""
-    from hydra.errors import HydraException
-
-    where = f"tradeoff.axes.{name}"
+    """The settings of one axis (format: the module docs; parsed by
+    :func:`snell_bench.config.grid.axis_settings`, which the config checks use too)."""
     spec = _plain(spec)
     if name in (BASELINE, PRESET_AXIS):
-        raise ValueError(f"{where}: {name!r} is reserved; rename the axis")
-    if isinstance(spec, str):
-        try:
-            ov = OverridesParser.create().parse_override(spec)
-        except HydraException as e:  # the parser's and the lexer's errors
-            raise ValueError(
-                f"{where}: {spec!r} is not a Hydra override ({e}); write e.g. sampler.steps=4,8,12"
-            ) from None
-        values = list(ov.sweep_string_iterator()) if ov.is_sweep_override() else [ov.get_value_element_as_str()]
-        if not values:
-            raise ValueError(f"{where}: {spec!r} has no values; write e.g. sampler.steps=4,8,12 (non-empty)")
-        return [
-            Setting(
-                f"{name}={v}",
-                name,
-                ov.value() if not ov.is_sweep_override() else _typed(v),
-                (f"{ov.get_key_element()}={v}",),
-            )
-            for v in values
-        ]
-    if isinstance(spec, dict) and spec and all(isinstance(v, list) for v in spec.values()):
-        return [Setting(f"{name}={label}", name, str(label), tuple(str(o) for o in ovs)) for label, ovs in spec.items()]
-    raise ValueError(
-        f"{where}: expected a Hydra sweep override (sampler.steps=4,8) or a mapping label -> [override, ...] "
-        f"(non-empty), got {spec!r}"
-    )
+        raise ValueError(f"tradeoff.axes.{name}: {name!r} is reserved; rename the axis")
+    out = []
+    for label, overrides in axis_settings(name, spec):
+        value = label.split("=", 1)[1]  # "steps=8" -> 8 (typed as Hydra types it); a mapping's label as is
+        out.append(Setting(label, name, _typed(value) if isinstance(spec, str) else value, tuple(overrides)))
+    return out
 
 
 def _typed(text: str) -> Any:
