@@ -239,13 +239,13 @@ def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -
             written += [out_dir / "savings.md", out_dir / "savings.csv", out_dir / "savings_per_cell.csv"]
             savings = summary
     _remove_stale_pages(out_dir, ("qualitative", "panorama"))
-    qualitative = qualitative_pages(run_dir, out_dir, "qualitative", max_rows=max_rows)
-    panoramas = panorama_pages(run_dir, out_dir, "panorama", max_rows=max_rows)
+    qualitative = qualitative_pages(run_dir, out_dir, "qualitative", max_rows=max_rows, df=df)
+    panoramas = panorama_pages(run_dir, out_dir, "panorama", max_rows=max_rows, df=df)
     written += qualitative + panoramas
     figures = []
     if ior:
         rows = figure_rows(df, by_ior=True)
-        figures.append(("Every IOR", qualitative_figure(run_dir, out_dir / "ior.png", cells=rows)))
+        figures.append(("Every IOR", qualitative_figure(run_dir, out_dir / "ior.png", cells=rows, df=df)))
     if len(tt):
         figures.append(
             (

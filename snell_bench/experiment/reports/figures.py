@@ -140,6 +140,16 @@ def pages(rows: Sequence, max_rows: int) -> list[list]:
     return [rows[i : i + int(max_rows)] for i in range(0, len(rows), int(max_rows))]
 
 
+def _cells_of(run_dir: Path, df: pd.DataFrame | None) -> pd.DataFrame:
+    """``df`` (the cells a caller already collected), else :func:`collect` of ``run_dir``; raises
+    ``FileNotFoundError`` when there is no cell."""
+    if df is None:
+        df = collect(run_dir)
+    if df.empty:
+        raise FileNotFoundError(f"no cells (metrics.json) below {run_dir}")
+    return df
+
+
 def qualitative_pages(
     run_dir: str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -148,6 +158,7 @@ def qualitative_pages(
     max_rows: int = 4,
     cells: Sequence[tuple[str, int, str]] | None = None,
     methods: Sequence[str] | None = None,
+    df: pd.DataFrame | None = None,
     **kwargs,
 ) -> list[Path]:
     """The qualitative comparison of every row, one PNG per ``max_rows`` rows.
@@ -159,6 +170,7 @@ def qualitative_pages(
         max_rows: rows per page.
         cells: the rows; default every ``(scene, variation, object)`` (:func:`figure_rows`).
         methods: the columns after the reference, as in :func:`qualitative_figure`.
+        df: the cells of ``run_dir`` when the caller has them (:func:`collect`); else collected here.
         **kwargs: passed to :func:`qualitative_figure` (``inset``, ``tile_width_in``, ``dpi``).
 
     Returns:
@@ -168,13 +180,11 @@ def qualitative_pages(
         FileNotFoundError: there is no cell below ``run_dir``.
     """
     run_dir, out_dir = Path(run_dir), Path(out_dir)
+    df = _cells_of(run_dir, df)
     if cells is None:
-        df = collect(run_dir)
-        if df.empty:
-            raise FileNotFoundError(f"no cells (metrics.json) below {run_dir}")
         cells = figure_rows(df)
     return [
-        qualitative_figure(run_dir, out_dir / f"{stem}_{k}.png", cells=page, methods=methods, **kwargs)
+        qualitative_figure(run_dir, out_dir / f"{stem}_{k}.png", cells=page, methods=methods, df=df, **kwargs)
         for k, page in enumerate(pages(cells, max_rows), start=1)
     ]
 
@@ -189,6 +199,7 @@ def qualitative_figure(
     max_rows: int | None = 4,
     tile_width_in: float = 2.4,
     dpi: int = 100,
+    df: pd.DataFrame | None = None,
 ) -> Path:
     """A grid PNG: one row per cell ``(scene, variation, object)``, columns reference |
     Snellcaster | the other methods, each tile with an inset zoom on the object.
@@ -211,6 +222,7 @@ def qualitative_figure(
         max_rows: the most rows when ``cells`` is not given (None: every row).
         tile_width_in: the width of a tile in inches.
         dpi: pixels per inch; the figure is ``dpi * (0.3 + tile_width_in * n_columns)`` pixels wide.
+        df: the cells of ``run_dir`` when the caller has them (:func:`collect`); else collected here.
 
     Returns:
         ``out_png`` as a :class:`~pathlib.Path`.
@@ -223,10 +235,7 @@ def qualitative_figure(
     from matplotlib.patches import Rectangle
 
     run_dir = Path(run_dir)
-    df = collect(run_dir)
-    if df.empty:
-        raise FileNotFoundError(f"no cells (metrics.json) below {run_dir}")
-    df = df.dropna(subset=["scene", "variation", "object", "method"])
+    df = _cells_of(run_dir, df).dropna(subset=["scene", "variation", "object", "method"])
     if cells is None:
         cells = figure_rows(df)
         cells = cells if max_rows is None else cells[:max_rows]
@@ -415,7 +424,13 @@ def panorama_figure(
 
 
 def panorama_pages(
-    run_dir: str | os.PathLike, out_dir: str | os.PathLike, stem: str = "panorama", *, max_rows: int = 4, **kwargs
+    run_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    stem: str = "panorama",
+    *,
+    max_rows: int = 4,
+    df: pd.DataFrame | None = None,
+    **kwargs,
 ) -> list[Path]:
     """:func:`panorama_figure` of every cell with a panorama, one PNG per ``max_rows`` rows
     (``<stem>_1.png``, ...); none when no cell has one.
@@ -424,9 +439,7 @@ def panorama_pages(
         FileNotFoundError: there is no cell below ``run_dir``.
     """
     run_dir, out_dir = Path(run_dir), Path(out_dir)
-    df = collect(run_dir)
-    if df.empty:
-        raise FileNotFoundError(f"no cells (metrics.json) below {run_dir}")
+    df = _cells_of(run_dir, df)
     return [
         panorama_figure(run_dir, out_dir / f"{stem}_{k}.png", page, **kwargs)
         for k, page in enumerate(pages(panorama_rows(df, run_dir), max_rows), start=1)
