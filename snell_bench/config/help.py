@@ -44,8 +44,8 @@ JOB_LINES = {
 WIDTH = 100
 
 #: Config groups listed apart (experiments) or not chosen on the command line (Hydra's own, except
-#: the launchers that ``-m`` uses).
-_SKIP = ("experiment", "hydra")
+#: the launchers that ``-m`` uses; ``scene_source``, which a model's config selects).
+_SKIP = ("experiment", "hydra", "scene_source")
 _LAUNCHER = "hydra/launcher"
 
 

@@ -71,7 +71,13 @@ from snell_bench.experiment.prefetch import Prefetcher, settings_of
 from snell_bench.experiment.reports.collect import recipe_and_protocol
 from snell_bench.experiment.reports.records import GRID_RECORD
 from snell_bench.experiment.tracking import log_cell, make_tracker
-from snell_bench.pipeline import ModelPool, apply_method, scorers_of
+from snell_bench.pipeline import (
+    ModelPool,
+    apply_method,
+    initial_noise_record,
+    scene_pipeline_record,
+    scorers_of,
+)
 from snell_bench.utils.io import link_or_copy, save_png, write_json, write_text
 from snell_bench.utils.tensors import bchw_to_hwc
 
@@ -115,6 +121,7 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
                 "method_label": str(c.method.label),
                 "model": str(c.model.name),
                 "scene_source": str(c.scene.source),
+                **scene_pipeline_record(c),
                 **({"random_weights": True} if bool(c.model.get("random_init", False)) else {}),
                 **recipe_and_protocol(c),
             }
@@ -180,6 +187,7 @@ def run_cell(
         save_png(cell.folder / PANORAMA_FILE, bchw_to_hwc(res.panorama))
     return {
         **({"scene_info": inputs.scene.info} if inputs.scene.info else {}),
+        **initial_noise_record(inputs.scene.info, res.stats.get("decisions")),
         **res.scores,
         # the reference's settings and self-noise: the ceiling of the cell's masked PSNR
         **({"reference": inputs.reference.summary()} if inputs.reference is not None else {}),

@@ -295,6 +295,7 @@ def plan_tradeoff(cfg: DictConfig) -> list[Cell]:
                 "method": str(t.method),
                 "model": str(c.model.name),
                 "scene_source": str(c.scene.source),
+                **pipeline.scene_pipeline_record(c),
                 "seed": int(c.seed),
                 "setting": st.label,
                 "slug": st.slug,

@@ -8,11 +8,13 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
 import torch
 
+from .depth_base import DepthEstimate
 from .transformers_depth import TransformersDepth
 
-__all__ = ["tiny_depth_anything", "tiny_depth_pro"]
+__all__ = ["TinyDepthWithFloor", "floor_depth", "tiny_depth_anything", "tiny_depth_pro"]
 
 
 def _calibrate_affine(layer: torch.nn.Module, stats: torch.Tensor, *, mean: float, std: float | None) -> None:
@@ -44,7 +46,47 @@ def _tiny_dinov2(num_layers: int, patch_size: int, **kwargs: Any) -> dict:
     )
 
 
-def tiny_depth_pro(seed: int = 0, *, device: str | torch.device | None = "cpu") -> TransformersDepth:
+def floor_depth(height: int, width: int, intrinsics, floor_m: float) -> np.ndarray:
+    """The z-depth of a level floor ``floor_m`` metres below the camera (the plane ``y = floor_m`` of
+    the OpenCV camera frame, y down), ``(height, width)`` float32 at integer pixel centres: the ray
+    through row ``v`` meets it at ``z = floor_m fy / (v - cy)``; ``inf`` on and above the horizon
+    (``v <= cy``)."""
+    fx, fy, cx, cy = (float(v) for v in intrinsics)
+    dv = np.arange(height, dtype=np.float64) - cy
+    z = np.full(height, np.inf)
+    below = dv > 0
+    z[below] = float(floor_m) * fy / dv[below]
+    return np.repeat(z[:, None], width, axis=1).astype(np.float32)
+
+
+class TinyDepthWithFloor(TransformersDepth):
+    """A tiny random depth network in front of which a level floor stands (CPU stand-in).
+
+    A random network's depth has no supporting surface, so nothing could be placed on it: this
+    stand-in keeps the network's code path and output and puts a level floor ``floor_m`` below the
+    camera (:func:`floor_depth` with the network's own intrinsics), the nearer of the two per
+    pixel. Its depth means nothing beyond that floor; the object stands on it (a level camera:
+    ``scene.up`` ``[0, -1, 0]``).
+    """
+
+    def __init__(self, *args: Any, floor_m: float, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if not (math.isfinite(float(floor_m)) and float(floor_m) > 0):
+            raise ValueError(f"floor_m={floor_m!r}: the floor's distance below the camera in metres must be > 0")
+        self.floor_m = float(floor_m)
+
+    def __call__(self, image: np.ndarray) -> DepthEstimate:
+        est = super().__call__(image)
+        if est.intrinsics is None:
+            return est
+        H, W = est.depth.shape
+        floor = floor_depth(H, W, est.intrinsics, self.floor_m)
+        return DepthEstimate(depth=np.fmin(est.depth, floor), intrinsics=est.intrinsics)
+
+
+def tiny_depth_pro(
+    seed: int = 0, *, device: str | torch.device | None = "cpu", floor_m: float | None = None
+) -> TransformersDepth:
     """Depth Pro's architecture at toy size with random weights (CPU tests; its depth means nothing).
 
     Convention:
@@ -63,6 +105,9 @@ def tiny_depth_pro(seed: int = 0, *, device: str | torch.device | None = "cpu") 
     Args:
         seed: seeds the random weights.
         device: see :func:`resolve_depth_device`.
+        floor_m: a level floor this many metres below the camera in front of the network's depth
+            (:class:`TinyDepthWithFloor`: a surface to place the object on); ``None``: the
+            network's depth alone.
 
     Returns:
         A :class:`TransformersDepth` named ``tiny_depth_pro``.
@@ -100,6 +145,8 @@ def tiny_depth_pro(seed: int = 0, *, device: str | torch.device | None = "cpu") 
         h.remove()
     _calibrate_affine(depth_layer, seen["depth"], mean=0.3, std=0.06)
     _calibrate_affine(fov_layer, seen["fov"], mean=60.0, std=None)
+    if floor_m is not None:
+        return TinyDepthWithFloor(model, processor, device=device, name="tiny_depth_pro", floor_m=floor_m)
     return TransformersDepth(model, processor, device=device, name="tiny_depth_pro")
 
 

@@ -33,8 +33,11 @@ from snell_bench.pipeline.cell import (
     apply_method,
     cell_seed,
     full_prompt,
+    generator_on_procedural,
+    initial_noise_record,
     object_phrase,
     prompt_of,
+    scene_pipeline_record,
 )
 from snell_bench.pipeline.inputs import (
     build_object,
@@ -69,6 +72,9 @@ __all__ = [
     "object_phrase",
     "prompt_of",
     "cell_seed",
+    "generator_on_procedural",
+    "initial_noise_record",
+    "scene_pipeline_record",
     "load_scene",
     "build_object",
     "surface_region",

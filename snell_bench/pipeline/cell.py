@@ -31,6 +31,9 @@ __all__ = [
     "Skip",
     "apply_method",
     "cell_seed",
+    "generator_on_procedural",
+    "initial_noise_record",
+    "scene_pipeline_record",
     "full_prompt",
     "object_phrase",
     "prompt_of",
@@ -90,6 +93,32 @@ def cell_seed(cfg: DictConfig) -> int:
     """The seed of a cell's sampling: ``seed + scene.variation`` (a generated I⁻ uses the same one,
     so every method of the cell, the baselines included, starts from the seed of its scene)."""
     return int(cfg.seed) + int(cfg.scene.variation)
+
+
+def generator_on_procedural(cfg: DictConfig) -> bool:
+    """Whether a text-to-image generator (``model.from_scene: false``: FLUX, the tiny random FLUX)
+    is synchronised with a procedural scene: a named choice (``scene.source=procedural``), never the
+    paper's scene pipeline, in which such a model generates I⁻ from p⁻ (``scene.source=generated``,
+    which ``conf/model/flux_dev.yaml`` and ``tiny_flux.yaml`` select)."""
+    return str(cfg.scene.source) == "procedural" and not bool(cfg.model.from_scene)
+
+
+def scene_pipeline_record(cfg: DictConfig) -> dict:
+    """What a cell's record says of its scene pipeline beyond ``scene_source``:
+    ``{"generator_on_procedural": true}`` where :func:`generator_on_procedural` holds, else ``{}``."""
+    return {"generator_on_procedural": True} if generator_on_procedural(cfg) else {}
+
+
+def initial_noise_record(scene_info: dict | None, decisions: dict | None) -> dict:
+    """``{"initial_noise": {"i_minus", "main", "same"}}``: the digests of the initial noise a
+    generated I⁻ and the cell's main branch were drawn from (same seed, same first draw: the paper's
+    main branch starts from I⁻'s noise), and whether they are bit-identical; ``{}`` where either
+    is unknown (a procedural scene or a photo; a method that does not sample)."""
+    a = (scene_info or {}).get("initial_noise")
+    b = (decisions or {}).get("initial_noise")
+    if not (isinstance(a, str) and isinstance(b, str)):
+        return {}
+    return {"initial_noise": {"i_minus": a, "main": b, "same": a == b}}
 
 
 def full_prompt(cfg: DictConfig) -> str:

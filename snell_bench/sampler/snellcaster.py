@@ -79,7 +79,7 @@ from snell_bench.sampler.steps import (
     sync_step,
 )
 from snell_bench.sampler.views import Views
-from snell_bench.utils.tensors import is_meta, to_host
+from snell_bench.utils.tensors import digest, is_meta, to_host
 
 log = logging.getLogger(__name__)
 
@@ -478,7 +478,9 @@ def sample(
     rng = seeded_generator(dev, seed)
     keep = latent_rounding(gen, s.latent_dtype)
     model_dtype = rounding_dtype(gen, s.latent_dtype)
-    z_main = keep(torch.randn((1,) + shape_main, generator=rng, device=dev))
+    noise = torch.randn((1,) + shape_main, generator=rng, device=dev)
+    decisions["initial_noise"] = digest(noise)  # a generated I⁻ of the same seed drew the same
+    z_main = keep(noise)
     z_pano = keep(torch.randn((1,) + shape_pano, generator=rng, device=dev)) if use_pano else None
 
     # 4. prepare warps: maps on the device, I⁻'s warped pyramids

@@ -19,7 +19,7 @@ from snell_bench.sampler.steps import (
     seeded_generator,
     sync_step,
 )
-from snell_bench.utils.tensors import to_host
+from snell_bench.utils.tensors import digest, to_host
 
 __all__ = ["text_to_image"]
 
@@ -35,6 +35,7 @@ def text_to_image(
     seed: int = 0,
     schedule: str = "flux",
     latent_dtype: str = "float32",
+    record: dict | None = None,
 ) -> torch.Tensor:
     """Generate one image from ``prompt``.
 
@@ -47,6 +48,8 @@ def text_to_image(
         seed: seeds the initial noise (the only randomness).
         schedule: ``flux`` or ``linear`` (:meth:`Generator.sigmas`).
         latent_dtype: ``float32`` or ``model`` (:func:`~snell_bench.sampler.steps.latent_rounding`).
+        record: a dict that receives ``initial_noise``, the :func:`~snell_bench.utils.tensors.digest`
+            of the initial noise (the synchronised sampler records its own draw likewise).
 
     Returns:
         The image ``(1, 3, H, W)`` in [0, 1], deterministic for the seed.
@@ -57,7 +60,10 @@ def text_to_image(
     g = seeded_generator(dev, seed)
     shape = gen.geometry.latent_shape(int(height), int(width))
     sig = gen.sigmas(int(steps), int(height), int(width), kind=schedule)
-    z = keep(torch.randn((1,) + shape, generator=g, device=dev))
+    noise = torch.randn((1,) + shape, generator=g, device=dev)
+    if record is not None:
+        record["initial_noise"] = digest(noise)
+    z = keep(noise)
     cond = gen.condition([prompt], ["main"])
     for i in range(int(steps)):
         sigma, sigma_next = float(sig[i]), float(sig[i + 1])

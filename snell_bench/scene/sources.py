@@ -12,6 +12,7 @@ metres, NaN where unknown (unobserved space); the camera in the OpenCV frame wit
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -124,7 +125,9 @@ def generated_image(
 
     Returns:
         ``(image (H, W, 3) float32 sRGB, info)`` with ``seed``, ``prompt``, ``cache`` (the file or
-        ``None``) and ``cached`` (whether it was read from the cache).
+        ``None``), ``cached`` (whether it was read from the cache) and ``initial_noise`` (the digest
+        of the initial noise it was generated from: the synchronised sampler of the same seed draws
+        the same, which its own record shows).
     """
     meta = {
         "prompt": prompt,
@@ -145,21 +148,33 @@ def generated_image(
             try:
                 image = np.load(path)
                 if image.shape == (int(height), int(width), 3):
-                    return image.astype(np.float32), dict(info, cached=True)
+                    noise = _cached_noise(path.with_name("meta.json"))
+                    return image.astype(np.float32), dict(info, cached=True, **noise)
             except (OSError, ValueError) as e:
                 log.warning("generated scene cache %s unreadable (%s): generating again", path, e)
     from snell_bench.sampler.text_to_image import text_to_image
 
     model = build()
+    drawn: dict = {}
     image = bchw_to_hwc(
-        text_to_image(model, prompt, int(height), int(width), steps=steps, seed=seed, schedule=schedule)
+        text_to_image(model, prompt, int(height), int(width), steps=steps, seed=seed, schedule=schedule, record=drawn)
     ).astype(np.float32)
+    info.update(drawn)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         save_npy(path, image)
         save_png(path.with_suffix(".png"), image)
-        write_json(path.with_name("meta.json"), meta)
+        write_json(path.with_name("meta.json"), {**meta, **drawn})
     return image, info
+
+
+def _cached_noise(meta_path: Path) -> dict:
+    """``initial_noise`` of a cached I⁻ as its generation recorded it (``{}`` for an older cache)."""
+    try:
+        value = json.loads(meta_path.read_text()).get("initial_noise")
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return {"initial_noise": value} if isinstance(value, str) else {}
 
 
 def scene_panorama(scene: SceneInputs, pano, supersample: int = 1) -> np.ndarray:

@@ -24,6 +24,7 @@ Examples:
 from __future__ import annotations
 
 import functools
+import hashlib
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 
@@ -32,6 +33,7 @@ import torch
 
 __all__ = [
     "as_tensor",
+    "digest",
     "as_mask",
     "hwc_to_bchw",
     "bchw_to_hwc",
@@ -49,6 +51,16 @@ def as_tensor(x, *, dtype: torch.dtype | None = None, device: torch.device | str
     if dtype is not None or device is not None:
         t = t.to(dtype=dtype or t.dtype, device=device or t.device)
     return t
+
+
+def digest(x: torch.Tensor) -> str | None:
+    """``"sha256:<hex>"`` of a tensor's values as contiguous float32 bytes on the host (``None`` on
+    the ``meta`` device): two draws compare equal exactly when every value is bit-identical, so a
+    record can show that two samplers started from the same noise."""
+    if is_meta(x):
+        return None
+    data = x.detach().to("cpu", torch.float32).contiguous().numpy().tobytes()
+    return "sha256:" + hashlib.sha256(data).hexdigest()
 
 
 def is_meta(x: torch.Tensor | torch.device | str) -> bool:

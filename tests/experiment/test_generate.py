@@ -25,7 +25,10 @@ TINY = [
 def test_generate_job_writes_images(tmp_path, model):
     from snell_bench.experiment.generate import run_generate
 
-    summary = run_generate(compose([*TINY, f"model={model}", "sampler.dump_every=2", f"output_dir={tmp_path}"]))
+    source = ["scene.source=procedural"] if model == "tiny_flux" else []  # a generator on a procedural scene
+    summary = run_generate(
+        compose([*TINY, f"model={model}", *source, "sampler.dump_every=2", f"output_dir={tmp_path}"])
+    )
     for name in ("image.png", "panorama.png", "I_minus.png", "mask.png", "summary.json", "step000_main_sync.png"):
         assert (tmp_path / name).is_file(), name
     assert summary["model"] == model and summary["model_calls"]["pano"] == 4

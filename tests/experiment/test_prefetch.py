@@ -150,7 +150,14 @@ def test_every_method_of_a_group_keeps_one_inputs_file(tmp_path):
 def test_cells_with_random_weights_say_so(tmp_path):
     from snell_bench.experiment.runner import plan_grid
 
-    base = [*TINY, "grid.scenes=[kitchen]", "grid.methods=[t2i]", "model=tiny_flux", f"runs_dir={tmp_path}"]
+    base = [
+        *TINY,
+        "grid.scenes=[kitchen]",
+        "grid.methods=[t2i]",
+        "model=tiny_flux",
+        "scene.source=procedural",
+        f"runs_dir={tmp_path}",
+    ]
     assert "random_weights" not in plan_grid(compose(base))[0].record
     assert plan_grid(compose([*base, "model.random_init=true"]))[0].record["random_weights"] is True
 
@@ -230,7 +237,14 @@ def test_a_dying_worker_leaves_its_groups_to_this_process(tmp_path):
 
 
 # ---------------------------------------------------------------------------- other orders and sources
-TINY_FLUX = ["model=tiny_flux", "model.device=cpu", "relight.candidates=2", "relight.steps=2"]
+# a text-to-image model on the smoke grid's procedural scenes (named: its default is a generated I⁻)
+TINY_FLUX = [
+    "model=tiny_flux",
+    "scene.source=procedural",
+    "model.device=cpu",
+    "relight.candidates=2",
+    "relight.steps=2",
+]
 
 
 @pytest.mark.slow

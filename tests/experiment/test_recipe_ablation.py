@@ -43,6 +43,8 @@ def test_the_ablation_runs_under_each_recipe(tmp_path, recipe, model):
         "+experiment=ablation",
         f"recipe={recipe}",
         f"model={model}",
+        # a text-to-image model runs the paper's scene pipeline: the tiny depth and segmentation models
+        *(["depth=tiny_depth_pro", "segment=tiny_sam3"] if model == "tiny_flux" else []),
         *SMALL,
         f"runs_dir={tmp_path / 'runs'}",
         f"reports_dir={tmp_path / 'reports'}",

@@ -89,6 +89,7 @@ def test_a_budget_must_be_positive():
 GRID = [
     "+experiment=smoke",
     "model=tiny_flux",
+    "scene.source=procedural",  # the generator on a procedural scene: a named choice
     "scene.width=64",
     "scene.height=48",
     "scene.supersample=1",

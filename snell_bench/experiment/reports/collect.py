@@ -337,6 +337,13 @@ def provenance_line(df: pd.DataFrame) -> str:
         parts.append(("model: " if len(models) == 1 else "models: ") + describe(models, True))
     if sources:
         parts.append("scenes: " + describe(sources, False))
+    flags = df["generator_on_procedural"] if "generator_on_procedural" in df.columns else pd.Series(dtype=object)
+    on_procedural = int(flags.map(lambda v: v is True).sum())
+    if on_procedural:
+        parts.append(
+            f"{on_procedural} cell{'s' if on_procedural != 1 else ''} with a text-to-image generator on procedural "
+            "scenes (scene.source=procedural), not the paper's scene pipeline (I⁻ generated from p⁻)"
+        )
     for col, label in (("recipe", "recipe"), ("protocol", "metrics protocol")):
         if col in df.columns and len(df) and df[col].map(lambda v: not _is_missing(v)).any():
             parts.append(f"{label}: " + describe(_str_values(df[col]), False))
