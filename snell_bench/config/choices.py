@@ -24,6 +24,8 @@ __all__ = [
     "InpaintMask",
     "Protocol",
     "RefSampler",
+    "RefRenderer",
+    "RefMask",
     "OnChange",
     "DTYPE_NAMES",
     "dtype_name",
@@ -146,6 +148,20 @@ class RefSampler(Choice):
     multijitter = "multijitter"
     orthogonal = "orthogonal"
     ldsampler = "ldsampler"
+
+
+class RefRenderer(Choice):
+    """The reference renderer (``reference.renderer``)."""
+
+    mitsuba = "mitsuba"
+    cycles = "cycles"
+
+
+class RefMask(Choice):
+    """The metric mask of the reference (``reference.mask``)."""
+
+    unobserved = "unobserved"
+    authors = "authors"
 
 
 class OnChange(Choice):

@@ -82,7 +82,75 @@ SWITCHES: tuple[Switch, ...] = (
         "object",
         "pixels of the main view that blend the panorama: the whole frame, or the object only",
     ),
+    Switch(
+        "sampler.latent_dtype",
+        "float32",
+        "float16",
+        None,
+        "latents between steps: float32, or rounded to float16 (the authors' float16 pipeline)",
+    ),
+    Switch("model.dtype", None, "float16", None, "the generator's weights: the device's default (CUDA: bf16), or fp16"),
+    Switch("model.vae_tiling", True, False, None, "the VAE decodes and encodes in overlapping tiles, or whole"),
+    Switch("depth.edge_rtol", None, 0.1, None, "MoGe-2 depth edges: kept, or cut where the 3 x 3 spread > 0.1 x depth"),
+    Switch(
+        "segment.instance", "union", "first", None, "SAM 3 instances above the threshold: their union, or the first"
+    ),
+    Switch(
+        "object.anchor",
+        "plane",
+        "centre_ray",
+        None,
+        "where the object stands: a plane fitted to the surface, or the ray through its box centre (+5 mm up)",
+    ),
+    Switch(
+        "warps.back_faces",
+        False,
+        True,
+        None,
+        "π^R: a refracted ray ending on the back of the depth mesh is unobserved, or takes the pixel there",
+    ),
+    Switch("warps.normals", "interpolated", "face", None, "the object's shading normals: interpolated, or flat faces"),
+    Switch(
+        "warps.recipe_max_bounces", None, 12, None, "interactions per refracted path: the preset's max_bounces, or 12"
+    ),
+    Switch(
+        "warps.half_pixel_shift",
+        False,
+        True,
+        None,
+        "perspective maps (π^R, π) shifted +0.5 px: pixel-edge coordinates read by grid_sample(align_corners=True)",
+    ),
+    Switch(
+        "warps.reflection_parallax",
+        True,
+        False,
+        None,
+        "π^-R: the mirror ray's end seen from the panorama centre (occlusion-tested), or its direction alone",
+    ),
+    Switch(
+        "warps.pano_center",
+        "bbox",
+        "centroid",
+        None,
+        "panorama centre: the object's box centre, or its surface centroid",
+    ),
+    Switch("warps.pano_axes", "level", "camera", None, "panorama axes: gravity-level, or the camera's own"),
     Switch("reference.reflection", False, False, True, "the reference includes the first-surface reflection"),
+    Switch(
+        "reference.renderer",
+        "mitsuba",
+        "cycles",
+        None,
+        "reference renderer: Mitsuba, unlit (I⁻ emitted), or Cycles lit as render_gt (light, world, exposure, AgX, JPEG)",
+    ),
+    Switch("reference.ior", None, 1.5, None, "the reference glass's IOR: the object's, or 1.5 whatever the object"),
+    Switch(
+        "reference.mask",
+        "unobserved",
+        "authors",
+        None,
+        "metric mask: light from observed surfaces, or one refracted ray reaching the background (render_gt)",
+    ),
     Switch(
         "metrics.protocol",
         "paper",
@@ -90,6 +158,27 @@ SWITCHES: tuple[Switch, ...] = (
         None,
         "evaluation: the paper's text, or eval/masked_metrics.py (adds lpips_box)",
     ),
+    Switch(
+        "metrics.files",
+        "png",
+        "jpeg",
+        None,
+        "files scored: lossless, or the JPEGs eval/eval.py reads (q75, q95, mask q75)",
+    ),
+    Switch(
+        "baselines.object_phrase",
+        None,
+        "a solid transparent glass {object}",
+        None,
+        "the object phrase of the baselines' prompts: the scene's p_obj, or the authors' (eval/compare*.py)",
+    ),
+    Switch("baselines.flux_steps", None, 28, None, "FLUX text-to-image steps: sampler.steps, or FluxPipeline's 28"),
+    Switch("baselines.fill_steps", None, 30, None, "FLUX Fill steps: the pipeline's 50, or 30"),
+    Switch("baselines.fill_guidance", None, 30.0, None, "FLUX Fill guidance: the pipeline's default (30), or 30"),
+    Switch(
+        "baselines.qwen_model_id", "Qwen/Qwen-Image", "Qwen/Qwen-Image-2512", None, "the Qwen-Image baseline's model"
+    ),
+    Switch("baselines.qwen_cfg", True, False, None, 'Qwen-Image\'s true CFG (negative prompt " "), or none'),
     Switch("relight.lora", None, "kontext-community/relighting-kontext-dev-lora-v3", None, "relighting LoRA"),
 )
 """Every recipe switch, in the order of the table in ``docs/paper.md``."""

@@ -29,7 +29,7 @@ __all__ = [
 #: Noise schedules of the generators (:meth:`~snell_bench.models.base.Generator.sigmas`).
 SCHEDULES = ("flux", "linear")
 SYNC_MODES = ("snellcaster", "none")
-LATENT_DTYPES = ("float32", "model")
+LATENT_DTYPES = ("float32", "model", "float16")
 #: Time travel: ``guided`` (the paper and the authors' code) or ``repaint`` (re-predict every level).
 TT_MODES = ("guided", "repaint")
 #: How time travel renoises: the exact forward kernel, or the authors' Euler-Maruyama step.
@@ -121,7 +121,9 @@ class SamplerSettings:
     sync_last_step: bool = True
     #: ``float32``: latents stay float32 between steps whatever the model's precision; ``model``:
     #: they are rounded to the model's dtype after every step, as ``FluxPipeline`` does (bfloat16
-    #: on a GPU: the pipeline's own numbers).
+    #: on a GPU: the pipeline's own numbers); ``float16``: rounded to float16 after every step
+    #: whatever the model (the authors' pipeline runs in float16; with ``model.dtype=float16`` this
+    #: is ``model``; on a float32 stand-in it rounds all the same).
     latent_dtype: str = "float32"
     #: Keep the decoded estimates every k steps (0: never).
     dump_every: int = 0

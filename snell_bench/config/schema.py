@@ -31,6 +31,8 @@ from snell_bench.config.choices import (
     PanoPrior,
     PromptKind,
     Protocol,
+    RefMask,
+    RefRenderer,
     RefSampler,
     Source,
 )
@@ -50,6 +52,7 @@ __all__ = [
     "DepthConfig",
     "SegmentConfig",
     "MetricsConfig",
+    "BaselinesConfig",
     "ReferenceConfig",
     "RelightConfig",
     "GridConfig",
@@ -208,9 +211,16 @@ class ObjectConfig:
     yaw_deg: float = 0.0
     #: A supporting plane counts as horizontal within this angle of the scene's up direction.
     max_tilt_deg: float = 30.0
+    #: Where it stands: ``plane`` (a plane fitted to the depth of the surface; bottom centre at the
+    #: median of its points, lifted 1e-3 x its size along the normal, facing the camera) or
+    #: ``centre_ray`` (the authors': where the ray through the centre of the surface's box meets
+    #: the depth mesh, tilted to that triangle's normal, 5 mm up; snell_bench.scene.placement).
+    anchor: str = "plane"
 
     def __post_init__(self) -> None:
         p = Problems("object")
+        if self.anchor not in ("plane", "centre_ray"):
+            p.append(f"object.anchor={self.anchor!r}: use plane (a fitted plane) or centre_ray (the authors' rule)")
         fix = "object.size is in scene units (metres); null uses object.relative_size x the distance"
         p.finite("size", self.size, positive=True, optional=True, fix=fix)
         p.finite("relative_size", self.relative_size, positive=True, fix="e.g. object.relative_size=0.25")
@@ -249,11 +259,36 @@ class WarpConfig:
     #: Treat background farther than the distance at which doing so moves any warp by less than this
     #: many pixels as an environment at infinity (rays reach it by direction); ``null``: exact geometry.
     infinity_tolerance_px: Optional[float] = None
+    #: A recipe's own limit on surface interactions per refracted path; it replaces ``max_bounces``
+    #: (the presets' cost setting) when set. ``null``: ``max_bounces``. The authors' code: 12.
+    recipe_max_bounces: Optional[int] = None
+    #: π^R: a refracted ray that ends on the back side of the depth mesh takes the colour of the pixel
+    #: there, and π⁻¹'s occlusion test accepts either side (the authors' code); ``false``: unobserved.
+    back_faces: bool = False
+    #: π^-R looks the panorama up towards the mirror ray's end point seen from the panorama centre
+    #: (parallax, occlusion-tested); ``false``: by the mirror ray's direction alone (the authors' code).
+    reflection_parallax: bool = True
+    #: Add 0.5 px to the source coordinates of every perspective map (π^R, the reflection warp, π) and
+    #: keep sources in [0, W - 1) x [0, H - 1): what the authors' pixel-edge coordinates read by
+    #: ``grid_sample(align_corners=True)`` sample.
+    half_pixel_shift: bool = False
+    #: The panorama's centre: ``bbox`` (the object's bounding-box centre) or ``centroid`` (the
+    #: area-weighted centroid of its surface, trimesh's ``centroid``: the authors' code).
+    pano_center: str = "bbox"
+    #: The panorama's axes: ``level`` (gravity-aligned with the scene's up, its centre column along
+    #: the camera's horizontal forward) or ``camera`` (the camera's own axes: the authors' code).
+    pano_axes: str = "level"
 
     def __post_init__(self) -> None:
         p = Problems("warps")
         p.int_at_least("pano_height", self.pano_height, 2, "", 1024)
         p.int_at_least("max_bounces", self.max_bounces, 1, "", 8)
+        if self.recipe_max_bounces is not None:
+            p.int_at_least("recipe_max_bounces", self.recipe_max_bounces, 1, " or null (max_bounces)", 12)
+        if self.pano_center not in ("bbox", "centroid"):
+            p.append(f"warps.pano_center={self.pano_center!r}: use bbox or centroid")
+        if self.pano_axes not in ("level", "camera"):
+            p.append(f"warps.pano_axes={self.pano_axes!r}: use level or camera")
         p.finite("edge_threshold", self.edge_threshold, positive=True, fix="e.g. warps.edge_threshold=0.05")
         p.finite("infinity_tolerance_px", self.infinity_tolerance_px, positive=True, optional=True, fix="e.g. 0.5")
         p.nonempty_or_null("cache_dir", self.cache_dir, "a folder, or null for no cache")
@@ -300,6 +335,10 @@ class ModelConfig:
     #: local weights, or the tiny random one); ``null``: the CPU stand-in (the generator's image
     #: pasted into the object region of I⁻, no optics).
     fill: Any = None
+    #: What builds the pipelines of the ``external`` baselines instead of loading ``method.model_id``:
+    #: a ``_target_`` node called with ``kind=method.architecture`` (``model=tiny_flux``: tiny
+    #: random versions of FLUX.2, Qwen-Image and SD3.5, CPU); ``null``: the real weights.
+    pipelines: Any = None
     #: What builds the relighter of a method with ``method.relight: true`` (a ``_target_`` node:
     #: FLUX Kontext from local weights, the tiny random one, or the traced-shadow stand-in).
     relighter: Any = None
@@ -363,14 +402,21 @@ class MethodConfig:
     sampler: dict = field(default_factory=dict)
     #: For ``external`` methods: the diffusers model id (in the Hugging Face cache) or a local folder.
     model_id: Optional[str] = None
+    #: For ``external`` methods: the model's architecture (``flux2``, ``qwen_image``, ``sd3``), what
+    #: a model's ``pipelines`` builder (the tiny random stand-ins) is asked for.
+    architecture: Optional[str] = None
     #: Overrides of the ``warps`` node for this method (e.g. ``infinity_tolerance_px``).
     warps: dict = field(default_factory=dict)
     #: ``external`` and ``inpaint`` pipelines: inference steps and guidance; ``null``: the
     #: pipeline's own default (the ``__call__`` signature's).
     steps: Optional[int] = None
     guidance: Optional[float] = None
-    #: The text a pipeline baseline sees: ``full`` (p) or ``object`` (p_obj, the object phrase).
+    #: The text a pipeline baseline sees: ``full`` (p) or ``object`` (p_obj, the object phrase),
+    #: with ``baselines.object_phrase`` in place of p_obj where it is set.
     prompt: PromptKind = PromptKind.full
+    #: ``external`` pipelines whose guidance is true classifier-free guidance (``true_cfg_scale``:
+    #: Qwen-Image): pass the empty negative prompt that turns it on; false: none (no guidance).
+    cfg: bool = True
     #: ``inpaint``: the region repainted: ``object`` (the object's silhouette) or ``box`` (its
     #: bounding box), grown by ``mask_dilate_px`` pixels.
     mask: InpaintMask = InpaintMask.object
@@ -400,6 +446,9 @@ class DepthConfig:
     device: Optional[str] = "cpu"
     #: What builds it: a ``_target_`` node (``null``: no estimator).
     estimator: Any = None
+    #: moge2: cut depth edges, NaN where a pixel's 3 x 3 depth spread exceeds this fraction of its
+    #: depth (MoGe's rule; the authors: 0.1); ``null``: keep every pixel the model's mask keeps.
+    edge_rtol: Optional[float] = None
 
 
 @dataclass
@@ -415,12 +464,17 @@ class SegmentConfig:
     device: Optional[str] = None
     #: sam3: the score an instance needs; the region is the union of the instances above it.
     threshold: float = 0.5
+    #: sam3: which instances above ``threshold`` make the region: ``union`` (all), ``best`` (the
+    #: highest score) or ``first`` (the first in SAM 3's query order, the authors').
+    instance: str = "union"
     #: What builds it: a ``_target_`` node (``null``: RANSAC only).
     segmenter: Any = None
 
     def __post_init__(self) -> None:
         p = Problems("segment")
         p.finite("threshold", self.threshold, lo=0.0, hi=1.0, fix="a score, e.g. segment.threshold=0.5")
+        if self.instance not in ("union", "best", "first"):
+            p.append(f"segment.instance={self.instance!r}: use union, best or first")
         p.raise_if_any()
 
 
@@ -430,13 +484,25 @@ class MetricsConfig:
     downloaded)."""
 
     #: ``paper`` (as the paper's text says: grayscale, the generated image's histogram matched onto
-    #: the reference's values inside the mask, masked PSNR / MAE / LPIPS on the matched grayscale) or
-    #: ``authors`` (as the authors' released evaluation does: the histogram matched in shape but
-    #: rescaled to the generated image's own range, LPIPS on RGB with both inputs multiplied by the
-    #: mask).
+    #: the reference's values inside the mask, masked PSNR / MAE on the matched grayscale; LPIPS
+    #: (VGG) of the RGB images as they are, its spatial map averaged over the mask) or ``authors``
+    #: (as the authors' released evaluation does: the histogram matched in shape but rescaled to the
+    #: generated image's own range, LPIPS on RGB with both inputs multiplied by the mask, and
+    #: ``lpips_box``).
     protocol: Protocol = Protocol.paper
+    #: The files scored: ``png`` (the images as generated and rendered, lossless) or ``jpeg`` (the
+    #: authors' eval/eval.py: the generated image as a PIL JPEG of quality 75, the reference of
+    #: quality 95, the mask of quality 75 read back ``>= 0.5``; every metric sees them).
+    files: str = "png"
+    #: ``lpips_box`` (``protocol=authors``): its crop in ``signed`` [-1, 1], the range lpips reads
+    #: (eval/eval.py), or ``unit`` [0, 1] read as [-1, 1] (eval/masked_metrics.py).
+    lpips_box_range: str = "signed"
     #: The text CLIP and ImageReward score against: ``full`` (p) or ``object`` (p_obj).
     clip_text: PromptKind = PromptKind.full
+    #: A YAML or JSON file ``{scene name: text}`` (``{object}``: the object's noun): CLIP and
+    #: ImageReward score each scene it lists against its text instead (e.g. the per-scene prompts of
+    #: the authors' eval/eval.py); ``null``: ``clip_text``.
+    clip_prompts: Optional[str] = None
 
     #: torchvision VGG16 state dict for LPIPS (e.g. vgg16-397923af.pth).
     lpips_weights: Optional[str] = None
@@ -445,10 +511,53 @@ class MetricsConfig:
     #: A python executable of a separate environment with image-reward installed.
     image_reward_python: Optional[str] = None
 
+    def __post_init__(self) -> None:
+        p = Problems("metrics")
+        if self.files not in ("png", "jpeg"):
+            p.append(f"metrics.files={self.files!r} is unknown: use png (lossless) or jpeg (the authors' files)")
+        if self.lpips_box_range not in ("signed", "unit"):
+            p.append(
+                f"metrics.lpips_box_range={self.lpips_box_range!r} is unknown: use signed ([-1, 1], eval/eval.py) "
+                "or unit ([0, 1], eval/masked_metrics.py)"
+            )
+        p.nonempty_or_null("clip_prompts", self.clip_prompts, "a YAML or JSON file {scene name: text}")
+        p.raise_if_any()
+
+
+@dataclass
+class BaselinesConfig:
+    """Settings of the baselines that the method files interpolate (``${baselines.<key>}``), so
+    that a recipe, which cannot address one method's node, sets them."""
+
+    #: The object phrase the baselines' prompts name: ``null``: the scene's own p_obj ("a big glass
+    #: {object}"); a text (``{object}``: the object's noun) replaces it in p (text-to-image) and is
+    #: the inpainting prompt (the authors: "a solid transparent glass {object}").
+    object_phrase: Optional[str] = None
+    #: ``method=t2i`` (FLUX alone): denoising steps; ``null``: ``sampler.steps`` (the paper's T).
+    flux_steps: Optional[int] = None
+    #: ``method=inpaint`` (FLUX Fill): steps and guidance; ``null``: the pipeline's defaults (50, 30).
+    fill_steps: Optional[int] = None
+    fill_guidance: Optional[float] = None
+    #: ``method=qwen_image``: the model (the paper names Qwen-Image; the authors run Qwen-Image-2512).
+    qwen_model_id: str = "Qwen/Qwen-Image"
+    #: ``method=qwen_image``: classifier-free guidance on (the empty negative prompt " " passed) or
+    #: off (no negative prompt: the pipeline skips its ``true_cfg_scale``, as the authors call it).
+    qwen_cfg: bool = True
+
+    def __post_init__(self) -> None:
+        p = Problems("baselines")
+        for name, example in (("flux_steps", 28), ("fill_steps", 30)):
+            if getattr(self, name) is not None:
+                p.int_at_least(name, getattr(self, name), 1, " (null: the default)", example)
+        p.finite("fill_guidance", self.fill_guidance, lo=0.0, optional=True, fix="null: the pipeline's default")
+        p.nonempty_or_null("object_phrase", self.object_phrase, "a phrase, e.g. 'a solid transparent glass {object}'")
+        p.nonempty_or_null("qwen_model_id", self.qwen_model_id, "a model id or folder")
+        p.raise_if_any()
+
 
 @dataclass
 class ReferenceConfig:
-    """The independent reference render (Mitsuba 3)."""
+    """The independent reference render (Mitsuba 3, or Blender Cycles as the authors' ``render_gt``)."""
 
     enabled: bool = True
     #: Samples per pixel of the image pass (both halves together with ``self_noise``); rounded up,
@@ -479,9 +588,26 @@ class ReferenceConfig:
     #: as the paper's Blender reference and the authors' ``render_gt`` (recipes ``paper`` and
     #: ``authors``); ``true``: the physically complete dielectric (snell_bench's own option).
     reflection: bool = True
+    #: The renderer: ``mitsuba`` (Mitsuba 3, the background emitting I⁻, unlit) or ``cycles`` (Blender
+    #: Cycles with the authors' ``render_gt`` scene: lit Principled mesh, point light, world colour,
+    #: exposure, AgX, JPEG q95; needs ``make setup-cycles``; recipe ``authors``).
+    renderer: RefRenderer = RefRenderer.mitsuba
+    #: The Python with Blender's ``bpy`` that runs the Cycles render; ``null``: ``.venv-cycles``'s.
+    blender_python: Optional[str] = None
+    #: Cycles' samples per pixel (adaptive sampling may stop earlier; the authors': 1024).
+    cycles_spp: int = 1024
+    #: The glass's IOR in the reference and its mask; ``null``: the object's (the authors: 1.5 always).
+    ior: Optional[float] = None
+    #: The metric mask: ``unobserved`` (object pixels whose light comes from surfaces I⁻ shows, the
+    #: paper's definition) or ``authors`` (``render_gt``'s: one refracted ray per pixel centre reaches
+    #: the background within 16 hits, small holes filled).
+    mask: RefMask = RefMask.unobserved
 
     def __post_init__(self) -> None:
         p = Problems("reference")
+        p.nonempty_or_null("blender_python", self.blender_python, "a Python with bpy")
+        p.int_at_least("cycles_spp", self.cycles_spp, 1, "", 1024)
+        p.finite("ior", self.ior, lo=1.0, hi=4.0, optional=True, fix="e.g. reference.ior=1.5 (null: the object's)")
         p.int_at_least("spp", self.spp, 1, "", 242)
         if self.unobserved_spp is not None:
             p.int_at_least("unobserved_spp", self.unobserved_spp, 1, "", 25)
@@ -708,6 +834,7 @@ class Config:
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
     method: MethodConfig = field(default_factory=MethodConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
+    baselines: BaselinesConfig = field(default_factory=BaselinesConfig)
     depth: DepthConfig = field(default_factory=DepthConfig)
     segment: SegmentConfig = field(default_factory=SegmentConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
@@ -741,6 +868,8 @@ CHECKED_NODES = (
     "model",
     "models",
     "method",
+    "metrics",
+    "baselines",
     "reference",
     "relight",
     "segment",

@@ -25,8 +25,31 @@ PAPER = {
     "sampler.lpw_pano": True,
     "sampler.dpa_domain": "image",
     "sampler.pano_to_main": "frame",
+    "sampler.latent_dtype": "float32",
+    "model.dtype": None,
+    "model.vae_tiling": True,
+    "depth.edge_rtol": None,
+    "segment.instance": "union",
+    "object.anchor": "plane",
+    "warps.back_faces": False,
+    "warps.normals": "interpolated",
+    "warps.recipe_max_bounces": None,
+    "warps.half_pixel_shift": False,
+    "warps.reflection_parallax": True,
+    "warps.pano_center": "bbox",
+    "warps.pano_axes": "level",
     "reference.reflection": False,
+    "reference.renderer": "mitsuba",
+    "reference.ior": None,
+    "reference.mask": "unobserved",
     "metrics.protocol": "paper",
+    "metrics.files": "png",
+    "baselines.object_phrase": None,
+    "baselines.flux_steps": None,
+    "baselines.fill_steps": None,
+    "baselines.fill_guidance": None,
+    "baselines.qwen_model_id": "Qwen/Qwen-Image",
+    "baselines.qwen_cfg": True,
     "relight.lora": None,
 }
 
@@ -44,8 +67,31 @@ AUTHORS = {
     "sampler.lpw_pano": False,
     "sampler.dpa_domain": "image",
     "sampler.pano_to_main": "frame",
+    "sampler.latent_dtype": "float16",
+    "model.dtype": "float16",
+    "model.vae_tiling": False,
+    "depth.edge_rtol": 0.1,
+    "segment.instance": "first",
+    "object.anchor": "centre_ray",
+    "warps.back_faces": True,
+    "warps.normals": "face",
+    "warps.recipe_max_bounces": 12,
+    "warps.half_pixel_shift": True,
+    "warps.reflection_parallax": False,
+    "warps.pano_center": "centroid",
+    "warps.pano_axes": "camera",
     "reference.reflection": False,
+    "reference.renderer": "cycles",
+    "reference.ior": 1.5,
+    "reference.mask": "authors",
     "metrics.protocol": "authors",
+    "metrics.files": "jpeg",
+    "baselines.object_phrase": "a solid transparent glass {object}",
+    "baselines.flux_steps": 28,
+    "baselines.fill_steps": 30,
+    "baselines.fill_guidance": 30.0,
+    "baselines.qwen_model_id": "Qwen/Qwen-Image-2512",
+    "baselines.qwen_cfg": False,
     "relight.lora": "kontext-community/relighting-kontext-dev-lora-v3",
     "relight.candidates": 3,
 }
@@ -85,6 +131,16 @@ def test_the_recipe_wins_over_the_preset_and_the_command_line_wins_over_both():
     assert cfg.sampler.steps == 20 and cfg.scene.width == 1280  # the preset's cost settings stay
     cfg = compose(["recipe=authors", "sampler.sde=false", "output_dir=/tmp/x"])
     assert cfg.sampler.sde is False and cfg.sampler.encode == "sample"
+
+
+def test_the_authors_interaction_limit_leaves_the_presets_key_alone():
+    """The presets set warps.max_bounces (a cost setting); the authors' 12 is a key of its own that
+    replaces it in compute_warps, whatever the preset and the order of the defaults."""
+    for preset, bounces in (("fast", 4), ("paper", 8)):
+        cfg = compose([f"preset={preset}", "recipe=authors", "output_dir=/tmp/x"])
+        assert (cfg.warps.max_bounces, cfg.warps.recipe_max_bounces) == (bounces, 12)
+        cfg = compose([f"preset={preset}", "output_dir=/tmp/x"])
+        assert (cfg.warps.max_bounces, cfg.warps.recipe_max_bounces) == (bounces, None)
 
 
 def test_an_experiment_keeps_the_recipe():
