@@ -34,10 +34,13 @@ Warping through a pyramid:
 
     Each destination level ``k`` samples the source's Gaussian pyramid at the level whose pixel size
     matches the map's local footprint: ``log2 s`` with ``s`` the local stretch (level-0 source pixels per
-    destination level-``k`` pixel: the larger column norm of the map's finite-difference Jacobian),
-    clamped to ``[0, levels - 1]``, fractional levels blending the two nearest linearly. For the identity
-    map that is level ``k``; where the map compresses it is coarser (no aliasing), where it magnifies it is
-    finer (no blur). :func:`lod_warp` returns the finest such level, a per-pixel level-of-detail
+    destination level-``k`` pixel: the larger column norm of the map's finite-difference Jacobian,
+    from valid neighbours on the pixel's own branch of the map only, so a seam such as an object's
+    silhouette in π^R does not coarsen the pixels beside it:
+    :func:`~snell_bench.imaging.coord_maps.local_stretch`), clamped to ``[0, levels - 1]``, fractional
+    levels blending the two nearest linearly. For the identity map that is level ``k`` (and the warp is
+    the source itself, bit for bit, see :func:`~snell_bench.imaging.remap.remap`); where the map
+    compresses it is coarser (no aliasing), where it magnifies it is finer (no blur). :func:`lod_warp` returns the finest such level, a per-pixel level-of-detail
     (trilinear mip-map) warp. :func:`pyramid_warp` returns the destination's Laplacian pyramid
     ``D_k = A_k - up(A_{k+1})`` of the warped Gaussian levels ``A_k`` (masked upsampling), for blending
     band by band. For the identity map (sizes divisible by ``2**(levels - 1)``) ``D`` is the source's
@@ -58,8 +61,10 @@ import torch
 import torch.nn.functional as F
 from kornia.filters import filter2d
 
+from snell_bench.imaging.coord_maps import downsample_map, matching_level, prepare_map, to_level, valid_mask
 from snell_bench.imaging.remap import remap
-from snell_bench.utils.tensors import as_mask, as_tensor, is_meta, meta_shape_cache
+from snell_bench.imaging.windows import level_sizes, paste_window, roi_window
+from snell_bench.utils.tensors import as_mask, is_meta, meta_shape_cache
 
 __all__ = [
     "gaussian_pyramid",
@@ -67,6 +72,7 @@ __all__ = [
     "laplacian_from_gaussian",
     "collapse",
     "pyramid_warp",
+    "warped_bands",
     "lod_warp",
 ]
 
@@ -265,96 +271,6 @@ def _up_masked(img: torch.Tensor, mask: torch.Tensor, size: Size, wrap_x: bool) 
     return up / torch.where(w > 0, w, torch.ones_like(w))
 
 
-# ---------------------------------------------------------------------------- coordinate maps
-def _unwrap(d: torch.Tensor, period: float | None) -> torch.Tensor:
-    """x differences taken the short way around a panorama of width ``period``."""
-    return d if period is None else torch.remainder(d + period / 2, period) - period / 2
-
-
-def _prepare(coords, mask, src: torch.Tensor, wrap_x: bool) -> torch.Tensor:
-    """``(Bc, H', W', 2)`` coordinates on ``src``'s device/dtype, NaN wherever the warp is invalid:
-    non-finite, outside ``mask``, or outside the source (x only when not ``wrap_x``)."""
-    c = as_tensor(coords, dtype=src.dtype, device=src.device)
-    if c.ndim == 3:
-        c = c.unsqueeze(0)
-    if c.ndim != 4 or c.shape[-1] != 2:
-        raise ValueError(f"coords must be (H, W, 2) or (B, H, W, 2), got shape {tuple(c.shape)}")
-    H, W = src.shape[-2:]
-    x, y = c[..., 0], c[..., 1]
-    ok = torch.isfinite(c).all(-1) & (y >= -0.5) & (y <= H - 0.5)
-    if not wrap_x:
-        ok &= (x >= -0.5) & (x <= W - 0.5)
-    if mask is not None:
-        m = as_mask(mask, c)[:, 0]
-        ok = ok & m
-    if ok.shape[0] != c.shape[0]:
-        c = c.expand(ok.shape[0], -1, -1, -1)
-    return torch.where(ok[..., None], c, torch.full_like(c, float("nan")))
-
-
-def _downsample_coords(c: torch.Tensor, period: float | None) -> torch.Tensor:
-    """The next destination level of a coordinate map: NaN-aware mean of each 2 x 2 block. Sizes
-    follow ``pyrdown`` (``floor(n / 2)``), so the destination's bands line up with any image's own
-    :func:`laplacian_pyramid`; an odd last row / column is left to the finer level."""
-    for dim in (1, 2):
-        n = c.shape[dim]
-        if n % 2 and n > 1:
-            c = c.narrow(dim, 0, n - 1)
-    Bc, H, W, _ = c.shape
-    blk = c.view(Bc, H // 2, 2, W // 2, 2, 2).permute(0, 1, 3, 2, 4, 5).reshape(Bc, H // 2, W // 2, 4, 2)
-    ok = torch.isfinite(blk).all(-1)
-    if period is not None:  # unwrap x relative to the block's first valid pixel
-        first = ok.to(torch.uint8).argmax(-1, keepdim=True)
-        ref = blk[..., 0].gather(-1, first)
-        x = ref + _unwrap(blk[..., 0] - ref, period)
-        blk = torch.stack([x, blk[..., 1]], -1)
-    n = ok.sum(-1, keepdim=True)
-    total = torch.where(ok[..., None], blk, torch.zeros_like(blk)).sum(-2)
-    mean = total / n.clamp_min(1)
-    mean = torch.where(n > 0, mean, torch.full_like(mean, float("nan")))
-    if period is not None:
-        mean = torch.stack([torch.remainder(mean[..., 0] + 0.5, period) - 0.5, mean[..., 1]], -1)
-    return mean
-
-
-def _stretch(c: torch.Tensor, period: float | None, dest_wrap_x: bool) -> torch.Tensor:
-    """Local stretch ``(Bc, H', W')`` of a map: the larger norm of its two finite-difference columns
-    (central where both neighbours are valid, else one-sided; NaN where no neighbour is valid)."""
-
-    def derivative(dim: int, circular: bool) -> torch.Tensor:
-        if circular:
-            fwd = c.roll(-1, dim) - c
-            bwd = c - c.roll(1, dim)
-        else:
-            d = c.narrow(dim, 1, c.shape[dim] - 1) - c.narrow(dim, 0, c.shape[dim] - 1)
-            pad = torch.full_like(c.narrow(dim, 0, 1), float("nan"))
-            fwd, bwd = torch.cat([d, pad], dim), torch.cat([pad, d], dim)
-        fwd = torch.stack([_unwrap(fwd[..., 0], period), fwd[..., 1]], -1)
-        bwd = torch.stack([_unwrap(bwd[..., 0], period), bwd[..., 1]], -1)
-        return torch.nanmean(torch.stack([fwd, bwd]), 0).norm(dim=-1)
-
-    return torch.fmax(derivative(2, dest_wrap_x), derivative(1, False))
-
-
-def _match_level(c: torch.Tensor, k: int, period: float | None, dest_wrap_x: bool) -> torch.Tensor:
-    """The source level whose pixel size matches a destination level-``k`` pixel of map ``c``:
-    ``log2`` of the local stretch in level-0 source pixels (``k`` where the stretch is unknown)."""
-    level = torch.log2(_stretch(c, period, dest_wrap_x))
-    return torch.where(torch.isnan(level), torch.full_like(level, float(k)), level)
-
-
-def _to_level(c: torch.Tensor, size0: Size, size: Size, wrap_x: bool) -> torch.Tensor:
-    """Level-0 source coordinates scaled to a source level of ``size`` (see the module docstring)."""
-    if tuple(size) == tuple(size0):
-        return c
-    (H, W), (h, w) = size0, size
-    x = (c[..., 0] + 0.5) * (w / W) - 0.5
-    y = ((c[..., 1] + 0.5) * (h / H) - 0.5).clamp(-0.5, h - 0.5)
-    if not wrap_x:
-        x = x.clamp(-0.5, w - 0.5)
-    return torch.stack([x, y], -1)
-
-
 def _sample(
     images: Sequence[torch.Tensor], c: torch.Tensor, level: torch.Tensor, *, size0: Size, wrap_x: bool
 ) -> torch.Tensor:
@@ -372,7 +288,7 @@ def _sample(
         use = (wj > 0).any(0)
         if not dense and not bool(use.any()):
             continue
-        cj = _to_level(c, size0, im.shape[-2:], wrap_x)
+        cj = to_level(c, size0, im.shape[-2:], wrap_x)
         if im.shape[0] < B:
             im = im.expand(B, -1, -1, -1)
         if dense or bool(use.all()):
@@ -385,11 +301,6 @@ def _sample(
     return out.view(B, C, h, w)
 
 
-def _valid(c: torch.Tensor, B: int) -> torch.Tensor:
-    ok = torch.isfinite(c[..., 0])[:, None]
-    return ok.expand(B, -1, -1, -1) if ok.shape[0] < B else ok
-
-
 # ------------------------------------------------------------------------------------ warps
 def _source_levels(
     maps: Sequence[torch.Tensor], levels: int, *, match_scale: bool, period: float | None, dest_wrap_x: bool
@@ -397,7 +308,7 @@ def _source_levels(
     """The fractional source level sampled at each pixel of each destination level ``maps[k]``."""
     if not match_scale:
         return [torch.full_like(c[..., 0], float(k)) for k, c in enumerate(maps)]
-    return [_match_level(c, k, period, dest_wrap_x).clamp(0, levels - 1) for k, c in enumerate(maps)]
+    return [matching_level(c, k, period, dest_wrap_x).clamp(0, levels - 1) for k, c in enumerate(maps)]
 
 
 def _warp_levels(
@@ -429,56 +340,6 @@ def _warp_levels(
     return [_sample(gauss, c, lv, size0=size0, wrap_x=wrap_x) for c, lv in zip(maps, lvls)]
 
 
-def _level_sizes(size: Size, levels: int) -> list[Size]:
-    sizes = [tuple(size)]
-    for _ in range(levels - 1):
-        h, w = sizes[-1]
-        sizes.append((max(h // 2, 1) if h > 1 else 1, max(w // 2, 1) if w > 1 else 1))
-    return sizes
-
-
-def _roi_window(c: torch.Tensor, levels: int, dest_wrap_x: bool, margin: int) -> tuple[slice, slice, bool] | None:
-    """The destination window that holds every valid pixel of map ``c`` with ``margin`` invalid
-    pixels of the coarsest level around it, aligned to ``2**(levels - 1)`` so that every level of the
-    window is a sub-window of the full level. A dimension not divisible by ``2**(levels - 1)`` keeps
-    its full extent (its odd-sized levels are resampled as a whole, see :func:`_up`). ``None`` when the
-    window is (almost) the whole destination, or unknown (a map on ``meta``).
-    The bool says whether the window keeps the full (periodic) width of a panorama destination."""
-    if is_meta(c):
-        return None
-    ok = torch.isfinite(c[..., 0]).any(0)
-    Hd, Wd = ok.shape
-    if not bool(ok.any()):
-        return None
-    step = 2 ** (levels - 1)
-    pad = max(margin * step, 8)
-
-    def span(v: torch.Tensor, n: int) -> tuple[int, int]:
-        idx = v.nonzero().squeeze(1)
-        lo, hi = int(idx.min()) - pad, int(idx.max()) + 1 + pad
-        if n % step:  # an odd-sized level is upsampled with a resampling of its whole extent
-            return 0, n
-        return max(lo // step * step, 0), min(-(-hi // step) * step, n)
-
-    y0, y1 = span(ok.any(1), Hd)
-    xv = ok.any(0)
-    x0, x1 = span(xv, Wd)
-    full_width = False
-    if dest_wrap_x and (x0 == 0 or x1 == Wd):  # the valid region may cross the seam: keep the width
-        x0, x1, full_width = 0, Wd, True
-    if (y1 - y0) * (x1 - x0) > 0.8 * Hd * Wd:
-        return None
-    return slice(y0, y1), slice(x0, x1), full_width
-
-
-def _paste(part: torch.Tensor, size: Size, ys: slice, xs: slice, k: int, fill) -> torch.Tensor:
-    """``part`` (a level-``k`` window) placed into a full level of ``size`` filled with ``fill``."""
-    out = part.new_full(part.shape[:-2] + tuple(size), fill)
-    y0, x0 = ys.start >> k, xs.start >> k
-    out[..., y0 : y0 + part.shape[-2], x0 : x0 + part.shape[-1]] = part
-    return out
-
-
 @meta_shape_cache
 def pyramid_warp(
     src: torch.Tensor,
@@ -493,6 +354,7 @@ def pyramid_warp(
     roi: bool = False,
     roi_margin: int = 4,
     src_pyramid: Sequence[torch.Tensor] | None = None,
+    gaussian: bool = False,
 ):
     """Laplacian pyramid warp of ``src`` through the backward map ``coords`` (module docstring).
 
@@ -513,6 +375,8 @@ def pyramid_warp(
             a cost proportional to the window when the valid region is small (an object's pixels).
         src_pyramid: ``gaussian_pyramid(src, levels, wrap_x=wrap_x)`` if already built (several warps
             of one image, or its own :func:`laplacian_pyramid`, share it).
+        gaussian: with ``collapse=False``, return the warped Gaussian levels ``A_k`` instead of their
+            bands (to edit them before :func:`warped_bands`).
 
     Returns:
         ``(warped (B, C, H', W'), valid (B, 1, H', W') bool)`` with ``collapse=True``, else
@@ -545,9 +409,9 @@ def pyramid_warp(
         (0.0, False)
     """
     _check_levels(src, levels)
-    c = _prepare(coords, mask, src, wrap_x)
+    c = prepare_map(coords, mask, src, wrap_x)
     B = max(src.shape[0], c.shape[0])
-    win = _roi_window(c, levels, dest_wrap_x, roi_margin) if roi else None
+    win = roi_window(c, levels, dest_wrap_x, roi_margin) if roi else None
     if win is not None:
         ys, xs, full_width = win
         part = pyramid_warp(
@@ -559,27 +423,41 @@ def pyramid_warp(
             match_scale=match_scale,
             dest_wrap_x=dest_wrap_x and full_width,
             src_pyramid=src_pyramid,
+            gaussian=gaussian,
         )
-        sizes = _level_sizes(tuple(c.shape[1:3]), levels)
+        sizes = level_sizes(tuple(c.shape[1:3]), levels)
         if collapse:
-            return _paste(part[0], sizes[0], ys, xs, 0, 0.0), _paste(part[1], sizes[0], ys, xs, 0, False)
+            return paste_window(part[0], sizes[0], ys, xs, 0, 0.0), paste_window(part[1], sizes[0], ys, xs, 0, False)
         return (
-            [_paste(b, sizes[k], ys, xs, k, 0.0) for k, b in enumerate(part[0])],
-            [_paste(m, sizes[k], ys, xs, k, False) for k, m in enumerate(part[1])],
+            [paste_window(b, sizes[k], ys, xs, k, 0.0) for k, b in enumerate(part[0])],
+            [paste_window(m, sizes[k], ys, xs, k, False) for k, m in enumerate(part[1])],
         )
     opts = dict(wrap_x=wrap_x, match_scale=match_scale, dest_wrap_x=dest_wrap_x, src_pyramid=src_pyramid)
     if collapse:  # the destination pyramid collapses exactly to its finest level
-        return _warp_levels(src, [c], levels, **opts)[0], _valid(c, B)
+        return _warp_levels(src, [c], levels, **opts)[0], valid_mask(c, B)
     maps = [c]
     for _ in range(levels - 1):
-        maps.append(_downsample_coords(maps[-1], float(src.shape[-1]) if wrap_x else None))
+        maps.append(downsample_map(maps[-1], float(src.shape[-1]) if wrap_x else None))
     warped = _warp_levels(src, maps, levels, **opts)
-    masks = [_valid(ck, B) for ck in maps]
+    masks = [valid_mask(ck, B) for ck in maps]
+    return (warped if gaussian else warped_bands(warped, masks, wrap_x=dest_wrap_x)), masks
+
+
+def warped_bands(levels: Sequence[torch.Tensor], masks: Sequence, *, wrap_x: bool = False) -> list[torch.Tensor]:
+    """The Laplacian pyramid ``D_k = A_k - up(A_{k+1})`` (masked upsampling, 0 where invalid; the last
+    entry ``A_{L-1}``) of destination Gaussian levels ``A_k`` with their masks, as
+    :func:`pyramid_warp` returns it; its masked :func:`collapse` is ``A_0``.
+
+    Args:
+        levels: ``(B, C, H_k, W_k)``, finest first (``pyramid_warp(..., collapse=False, gaussian=True)``).
+        masks: one bool mask per level (``(B, 1, H_k, W_k)`` or ``(H_k, W_k)``).
+        wrap_x: the destination is a panorama (circular upsampling).
+    """
     bands = []
-    for k in range(levels - 1):
-        up = _up_masked(warped[k + 1], masks[k + 1], warped[k].shape[-2:], dest_wrap_x)
-        bands.append(torch.where(masks[k], warped[k] - up, torch.zeros_like(warped[k])))
-    return bands + [warped[-1]], masks
+    for k in range(len(levels) - 1):
+        up = _up_masked(levels[k + 1], as_mask(masks[k + 1], levels[k + 1]), levels[k].shape[-2:], wrap_x)
+        bands.append(torch.where(as_mask(masks[k], levels[k]), levels[k] - up, torch.zeros_like(levels[k])))
+    return bands + [levels[-1]]
 
 
 def lod_warp(
@@ -614,6 +492,6 @@ def lod_warp(
         ((1, 1, 8, 8), 0.0)
     """
     _check_levels(src, levels)
-    c = _prepare(coords, mask, src, wrap_x)
+    c = prepare_map(coords, mask, src, wrap_x)
     out = _warp_levels(src, [c], levels, wrap_x=wrap_x, match_scale=True, dest_wrap_x=dest_wrap_x)[0]
-    return out, _valid(c, out.shape[0])
+    return out, valid_mask(c, out.shape[0])

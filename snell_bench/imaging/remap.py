@@ -6,6 +6,8 @@ Convention:
       integer values at pixel centres, NaN where the warp is invalid (numpy or torch).
     - Returns ``(warped (B, C, H', W'), valid (B, H', W') bool)``; invalid pixels are 0.
     - ``wrap_x=True`` treats the source as a 360° panorama: x wraps around (no seam at the border).
+    - At a pixel centre (integer ``x`` and ``y``) the result is the source's value bit for bit, so an
+      identity map, or an integer shift, returns the source's values.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import torch
 from kornia.geometry.transform import remap as _kornia_remap
 
-from snell_bench.utils.tensors import as_tensor
+from snell_bench.utils.tensors import as_tensor, is_meta
 
 __all__ = ["remap"]
 
@@ -82,4 +84,20 @@ def remap(
     x = x.clamp(0.0, src.shape[-1] - 1.0)
     y = y.clamp(0.0, H - 1.0)
     out = _kornia_remap(src, x, y, mode=mode, padding_mode="border", align_corners=True)
+    out = _exact_at_centres(out, src, x, y)
     return out * valid[:, None].to(out.dtype), valid
+
+
+def _exact_at_centres(out: torch.Tensor, src: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """``out`` with the source's own values, bit for bit, wherever ``(x, y)`` ``(B, H', W')`` (clamped
+    into ``src``) is a pixel centre. kornia normalises coordinates to ``[-1, 1]`` and grid_sample maps
+    them back, which moves an integer coordinate by rounding: the bilinear weights become ``1 - e``
+    and ``e``, and an identity map changed about half of an image's values in the last bits."""
+    exact = (x == x.floor()) & (y == y.floor())
+    if not is_meta(exact) and not bool(exact.any()):
+        return out
+    B, C = out.shape[:2]
+    s = src if src.shape[0] == B else src.expand(B, -1, -1, -1)
+    idx = torch.where(exact, y.long() * src.shape[-1] + x.long(), torch.zeros_like(x, dtype=torch.long))
+    picked = s.flatten(2).gather(2, idx.flatten(1)[:, None].expand(-1, C, -1)).view_as(out)
+    return torch.where(exact[:, None], picked, out)

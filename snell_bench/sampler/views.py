@@ -19,13 +19,14 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from snell_bench.config.sampler import SamplerSettings
 from snell_bench.imaging.blend import blend_images, blend_pyramids, fresnel_combine
-from snell_bench.imaging.pyramid import gaussian_pyramid, laplacian_from_gaussian, pyramid_warp
+from snell_bench.imaging.pyramid import gaussian_pyramid, laplacian_from_gaussian, pyramid_warp, warped_bands
 from snell_bench.optics.warps import WarpSet
 
-__all__ = ["Views", "on_device", "pano_to_main_map"]
+__all__ = ["Views", "keep_outside", "on_device", "pano_to_main_map"]
 
 
 def _nan_where(coords: np.ndarray, invalid: np.ndarray) -> np.ndarray:
@@ -66,6 +67,36 @@ def pano_to_main_map(ws: WarpSet, mode: str) -> np.ndarray:
     raise ValueError(f"sampler.pano_to_main={mode!r} is unknown; use 'frame' or 'object'")
 
 
+def keep_outside(term, masks, own, object_mask: torch.Tensor):
+    """A term warped from the object's pixels only, with ``own`` values, bit for bit, wherever it
+    has none outside the object.
+
+    Args:
+        term: ``(B, C, H, W)`` image, or Gaussian levels (list, finest first, ``floor(n / 2)`` per
+            level), warped through a map that is NaN outside the object.
+        masks: its validity: ``(B, 1, H, W)`` bool, or one such mask per level (a coarse pixel is
+            valid where any of its level-0 pixels is).
+        own: what stands for the term outside the object: an image, or its Gaussian pyramid.
+        object_mask: ``(1, 1, H, W)`` bool, the object's pixels.
+
+    Returns:
+        ``(term, masks)`` in the layout given: ``term`` where it is valid; elsewhere ``own``, valid,
+        unless every level-0 pixel under the (coarse) pixel is the object's: the object's own invalid
+        pixels stay invalid, and 0.
+    """
+    levels = term if isinstance(term, list) else [term]
+    mask_levels = masks if isinstance(term, list) else [masks]
+    own_levels = own if isinstance(term, list) else [own]
+    outside = ~object_mask
+    out, out_m = [], []
+    for k, (t, m, o) in enumerate(zip(levels, mask_levels, own_levels)):
+        if k:  # some level-0 pixel of the block is outside the object
+            outside = F.max_pool2d(outside.to(t.dtype), 2) > 0
+        out.append(torch.where(m, t, torch.where(outside, o, torch.zeros_like(t))))
+        out_m.append(m | outside)
+    return (out, out_m) if isinstance(term, list) else (out[0], out_m[0])
+
+
 class Views:
     """The warps of one run on the generator's device, with the constant warps of I⁻, built once.
 
@@ -76,8 +107,8 @@ class Views:
           ``pano_from_main`` π ``(Hp, Wp, 2)`` (perspective pixels, NaN where the perspective pixel
           shows the object itself).
         - ``object_mask`` ``(1, 1, H, W)`` bool; ``fresnel`` ``(1, 1, H, W)`` reflectance in [0, 1].
-        - I⁻ warped once: by π^R into the main view (``imin_main``) and by π into the panorama
-          (``imin_pano``), as images with their masks (``dpa_domain: image``) or as Laplacian
+        - I⁻ warped once: by π^R into the main view (``imin_main``: warped from the object's pixels,
+          I⁻ itself outside the object, bit for bit) and by π into the panorama (``imin_pano``), as images with their masks (``dpa_domain: image``) or as Laplacian
           pyramids with per-level masks (``bands``); without the panorama branch, its mirror image
           by the self-reflection map (``refl_iminus``, collapsed, with its mask) when the reflection
           is modelled.
@@ -136,10 +167,26 @@ class Views:
         self.refl_iminus = None
         if s.reflection and not s.uses_panorama:
             self.refl_iminus = pyramid_warp(i_minus, on_device(refl_self, dev), levels=s.warp_levels, roi=self.roi)
-        self.imin_main, self.imin_main_m = self._warp(i_minus, on_device(ws.refraction, dev))
+        self.imin_main, self.imin_main_m = self._imin_main(i_minus, ws, dev)
         self.imin_pano, self.imin_pano_m = self._warp(
             i_minus, on_device(ws.pano_to_persp, dev), dest_wrap_x=True, roi=self.roi, lpw=self.lpw_pano
         )
+
+    def _imin_main(self, i_minus: torch.Tensor, ws: WarpSet, dev: torch.device):
+        """π^R(I⁻) as the blends read it: the refraction warped from the object's own pixels only (π^R
+        with NaN outside the object: no coordinate or difference across the silhouette reaches the
+        pyramid), and I⁻ itself outside the object, bit for bit (:func:`keep_outside`). With
+        ``bands``, the warped Gaussian levels are completed by I⁻'s own before they are split into
+        bands, so the term's pyramid collapses to the completed image, and away from the object
+        (beyond the upsampling's reach) its bands are I⁻'s own, bit for bit."""
+        inside = on_device(_nan_where(ws.refraction, ~ws.object_mask), dev)
+        if not self.bands:
+            warped, masks = self._warp(i_minus, inside, roi=self.roi)
+            return keep_outside(warped, masks, i_minus, self.object_mask)
+        levels, masks = self._warp(i_minus, inside, roi=self.roi, gaussian=True)
+        own = gaussian_pyramid(i_minus, self.warp_levels)
+        levels, masks = keep_outside(levels, masks, own, self.object_mask)
+        return warped_bands(levels, masks), masks
 
     def _warp(
         self,
@@ -151,10 +198,12 @@ class Views:
         roi: bool = False,
         src_pyramid: list[torch.Tensor] | None = None,
         lpw: bool = True,
+        gaussian: bool = False,
     ):
         """``src`` through ``coords`` as the blends read it: ``(image, mask)`` (``image`` domain) or
         ``(bands, masks)`` (``bands``); ``lpw=False`` makes this warp a single-level remap even when
-        the run warps through pyramids (``lpw_pano``)."""
+        the run warps through pyramids (``lpw_pano``); ``gaussian``: the warped Gaussian levels
+        instead of bands (``bands`` only)."""
         scale = self.match_scale and lpw
         return pyramid_warp(
             src,
@@ -166,6 +215,7 @@ class Views:
             dest_wrap_x=dest_wrap_x,
             roi=roi,
             src_pyramid=src_pyramid,
+            gaussian=gaussian,
         )
 
     def _own(self, img: torch.Tensor, gauss: list[torch.Tensor], wrap_x: bool = False):
