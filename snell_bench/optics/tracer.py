@@ -62,6 +62,7 @@ class BackgroundHit:
     kind: np.ndarray  # (N,) int8 HitKind: OBSERVED, UNOBSERVED or ESCAPED
     point: np.ndarray  # (N, 3) hit point, NaN where nothing is hit
     on_box: np.ndarray  # (N,) bool: the hit is on the box of unobserved space (not the depth mesh)
+    normal: np.ndarray | None = None  # (N, 3) unit face normal of the hit (depth mesh: towards the camera)
 
 
 @dataclass
@@ -192,7 +193,9 @@ class SceneTracer:
         """
         n = len(origins)
         if n == 0:
-            return BackgroundHit(np.zeros(0), np.zeros(0, np.int8), np.zeros((0, 3)), np.zeros(0, bool))
+            return BackgroundHit(
+                np.zeros(0), np.zeros(0, np.int8), np.zeros((0, 3)), np.zeros(0, bool), np.zeros((0, 3))
+            )
         r = self._bg.cast_rays(_o3d_rays(origins, directions), nthreads=self.nthreads)
         t = r["t_hit"].numpy().astype(np.float64)
         gid = r["geometry_ids"].numpy()
@@ -203,7 +206,7 @@ class SceneTracer:
         kind[hit & (gid == _BACKGROUND) & front] = HitKind.OBSERVED
         kind[hit & ((gid == _BOX) | ((gid == _BACKGROUND) & ~front))] = HitKind.UNOBSERVED
         point = np.where(hit[:, None], origins + np.where(hit, t, 0.0)[:, None] * directions, np.nan)
-        return BackgroundHit(np.where(hit, t, np.inf), kind, point, hit & (gid == _BOX))
+        return BackgroundHit(np.where(hit, t, np.inf), kind, point, hit & (gid == _BOX), fn)
 
     def cast_object(self, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
         """First hit on the object.

@@ -9,6 +9,7 @@ import numpy as np
 
 from snell_bench.imaging.equirect import PanoramaCamera
 from snell_bench.optics.far_field import POINT_AT_INFINITY, AtInfinity
+from snell_bench.optics.occlusion import ray_ends_seen
 from snell_bench.optics.tracer import BackgroundHit, HitKind, RefractionTrace, SceneTracer
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.depth_mesh import BackgroundMesh, valid_depth_mask
@@ -69,12 +70,19 @@ def trace_refraction(scene: RayScene, primary: PrimaryRays) -> RefractionTrace:
 
 
 def refraction_warps(
-    camera: Camera, tracer: SceneTracer, tr: RefractionTrace, primary: PrimaryRays, verify_visibility: bool
+    camera: Camera,
+    tracer: SceneTracer,
+    tr: RefractionTrace,
+    primary: PrimaryRays,
+    verify_visibility: bool,
+    back_faces: bool = False,
 ) -> dict[str, np.ndarray]:
     """π^R and the per-pixel data of the refracted paths, over the whole image.
 
     Args:
-        camera, verify_visibility: as :func:`compute_warps`.
+        camera, verify_visibility, back_faces: as :func:`compute_warps` (``back_faces``: a path that
+            ends on the back side of the depth mesh is valid at the pixel that shows the front side
+            of its end point; its ``refraction_kind`` stays UNOBSERVED).
         tracer: the scene's tracer.
         tr: the refracted paths of the object pixels.
         primary: the object pixels.
@@ -88,7 +96,9 @@ def refraction_warps(
     cand = primary.pixels
     refraction = camera.pixel_grid().reshape(-1, 2).astype(np.float32)
     refraction_valid = np.ones(H * W, bool)
-    src, ok = self_warp(camera, tracer, tr.point, tr.kind, verify_visibility)
+    back = (tr.kind == HitKind.UNOBSERVED) & ~tr.on_box
+    seen_kind = np.where(back_faces & back, np.int8(HitKind.OBSERVED), tr.kind)
+    src, ok = self_warp(camera, tracer, tr.point, seen_kind, verify_visibility)
     refraction[cand] = np.where(ok[:, None], src, np.nan)
     refraction_valid[cand] = ok
     kind = np.zeros(H * W, np.int8)
@@ -154,33 +164,67 @@ def reflection_warps(
 # stage 6: panorama coordinates of the refracted and mirror rays
 # ---------------------------------------------------------------------------------------------
 def panorama_warps(
-    pano: PanoramaCamera, tr: RefractionTrace, refl: BackgroundHit, primary: PrimaryRays
+    pano: PanoramaCamera,
+    scene: RayScene,
+    tr: RefractionTrace,
+    refl: BackgroundHit,
+    primary: PrimaryRays,
+    *,
+    back_faces: bool = False,
+    reflection_parallax: bool = True,
 ) -> dict[str, np.ndarray]:
     """π⁻¹ and π^-R: panorama pixels of the ends of the refracted and mirror rays.
 
+    π⁻¹ of a refracted ray that left the object is the panorama pixel of its end point seen from
+    the panorama centre (its direction where it ends nowhere), valid only where the centre sees
+    that point (:func:`~snell_bench.optics.occlusion.ray_ends_seen`): a surface between the centre
+    and the point would otherwise lend its colour to the glass. π^-R likewise for the mirror ray's
+    end (parallax, occlusion-tested); with ``reflection_parallax=False`` it is the panorama pixel of
+    the mirror direction alone, as an environment map at infinity is read (nothing to occlude).
+
     Args:
         pano: the panorama centred at the object.
+        scene: the ray-casting scene (the re-casts from the centre ignore the object).
         tr: the refracted paths of the object pixels.
         refl: where their mirror rays end.
         primary: the object pixels.
+        back_faces: the occlusion test accepts a re-cast that reaches either side of the depth mesh
+            at the point (the authors' re-cast); ``False``: the side the traced ray arrived on.
+        reflection_parallax: as :func:`compute_warps`.
 
     Returns:
-        Flat ``(H * W, ...)`` arrays ``pano_refraction`` (NaN outside the object and where the
-        refracted ray did not leave the object), ``pano_refraction_valid``, ``pano_reflection``
-        and ``pano_reflection_valid``.
+        Flat ``(H * W, ...)`` arrays ``pano_refraction`` (NaN outside the object, where the refracted
+        ray did not leave the object and where the centre does not see its end),
+        ``pano_refraction_valid``, ``pano_reflection`` and ``pano_reflection_valid`` (likewise).
     """
     n, cand = len(primary.mask), primary.pixels
+    c, sides = pano.center, not back_faces
     exited = np.isin(tr.kind, (HitKind.OBSERVED, HitKind.UNOBSERVED, HitKind.ESCAPED))
     pr = pano_coords(pano, tr.point, tr.direction)
+    ok = exited & np.isfinite(pr).all(axis=1)
+    idx = np.flatnonzero(ok)
+    ok[idx] = ray_ends_seen(
+        scene.tracer, scene.at_inf, c, tr.point[idx], tr.origin[idx], tr.kind[idx], tr.on_box[idx], sides=sides
+    )
     pano_refraction = np.full((n, 2), np.nan, np.float32)
-    pano_refraction[cand] = np.where(exited[:, None], pr, np.nan)
+    pano_refraction[cand] = np.where(ok[:, None], pr, np.nan)
     pano_refraction_valid = np.zeros(n, bool)
-    pano_refraction_valid[cand] = exited & np.isfinite(pr).all(axis=1)
-    rr = pano_coords(pano, refl.point, tr.reflected)
+    pano_refraction_valid[cand] = ok
+    if reflection_parallax:
+        rr = pano_coords(pano, refl.point, tr.reflected)
+    else:
+        rr = pano_coords(pano, np.full_like(tr.reflected, np.nan), tr.reflected)
+    ok_r = np.isfinite(rr).all(axis=1)
+    if reflection_parallax:
+        idx = np.flatnonzero(ok_r)
+        pts = refl.point[idx]
+        ok_r[idx] = ray_ends_seen(
+            scene.tracer, scene.at_inf, c, pts, tr.first_point[idx], refl.kind[idx], refl.on_box[idx], sides=sides
+        )
     pano_reflection = np.full((n, 2), np.nan, np.float32)
-    pano_reflection[cand] = rr
+    pano_reflection[cand] = np.where(ok_r[:, None], rr, np.nan)
     pano_reflection_valid = np.zeros(n, bool)
-    pano_reflection_valid[cand] = np.isfinite(rr).all(axis=1)
+    pano_reflection_valid[cand] = ok_r
     return {
         "pano_refraction": pano_refraction,
         "pano_refraction_valid": pano_refraction_valid,

@@ -5,8 +5,10 @@ Convention:
     coordinate ``(x, y)`` (float32, integer values at pixel centres), NaN where invalid, plus a
     bool mask. Perspective arrays are ``(H, W, ...)``, panorama arrays ``(Hp, 2 Hp, ...)``. The
     panorama is an equirectangular image centred at the object
-    (:class:`~snell_bench.imaging.PanoramaCamera`, gravity-aligned with the scene's up direction,
-    its centre column looking along the camera's horizontal forward direction).
+    (:class:`~snell_bench.imaging.PanoramaCamera`; by default at the centre of its bounding box,
+    gravity-aligned with the scene's up direction, its centre column looking along the camera's
+    horizontal forward direction; ``pano_center`` and ``pano_axes`` choose the authors' pose:
+    :func:`~snell_bench.optics.conventions.panorama_pose`).
 
     =========================  ========  ======================================================
     field                      paper     meaning
@@ -26,7 +28,9 @@ Convention:
     =========================  ========  ======================================================
 
     Panorama coordinates of a ray are those of *its end point* seen from the panorama centre
-    (exact parallax for the scene's geometry); only a ray that hits nothing uses its direction.
+    (exact parallax for the scene's geometry), valid only where the centre sees that point (a
+    surface in between would lend its colour to the glass: :mod:`~snell_bench.optics.occlusion`);
+    only a ray that hits nothing uses its direction (and π^-R with ``reflection_parallax=False``).
 
 Far background at infinity:
     With ``infinity_tolerance_px``, background that moves no warp by more than that many pixels
@@ -44,22 +48,24 @@ Stages of :func:`compute_warps`:
     3. cast primary rays in the region of interest: the object mask;
     4. trace the refracted paths through the object: π^R, bounces, Fresnel reflectance;
     5. cast the first-bounce mirror rays: the reflection warp;
-    6. project both ray ends into the panorama: π⁻¹ and π^-R;
+    6. project both ray ends into the panorama and re-cast from its centre to each: π⁻¹ and π^-R;
     7. cast the panorama's straight rays through the glass-free scene: π; re-cast from the
        panorama centre to every background point the image shows: π⁻¹ over the whole frame;
-    8. gather the masks and statistics into a :class:`WarpSet` (and save it to the cache).
+    8. shift the perspective maps by half a pixel (``half_pixel_shift`` only), gather the masks
+       and statistics into a :class:`WarpSet` (and save it to the cache).
 """
 
 from __future__ import annotations
 
 import logging
 import os
-from pathlib import Path
 
 import numpy as np
 
 from snell_bench.imaging.equirect import PanoramaCamera
+from snell_bench.optics.conventions import panorama_pose, shift_half_pixel
 from snell_bench.optics.far_field import AtInfinity, far_background_mask
+from snell_bench.optics.options import Variant, cache_lookup, check_object_in_view, warp_options
 from snell_bench.optics.tracer import SceneTracer
 from snell_bench.optics.warp_maps import (
     PrimaryRays,
@@ -122,6 +128,12 @@ def compute_warps(
     verify_visibility: bool = False,
     roi: bool = True,
     infinity_tolerance_px: float | None = None,
+    recipe_max_bounces: int | None = None,
+    back_faces: bool = False,
+    reflection_parallax: bool = True,
+    half_pixel_shift: bool = False,
+    pano_center: str = "bbox",
+    pano_axes: str = "level",
 ) -> WarpSet:
     """Trace the camera's rays through ``obj`` placed in the scene of ``depth`` and return every warp.
 
@@ -143,13 +155,24 @@ def compute_warps(
             faster).
         infinity_tolerance_px: treat background that moves no warp by more than this many pixels
             as at infinity (:mod:`~snell_bench.optics.far_field`); ``None`` keeps the exact geometry.
+        recipe_max_bounces: a recipe's own interaction limit; replaces ``max_bounces`` when given.
+        back_faces: a refracted ray that ends on the back side of the depth mesh is valid in π^R (at
+            the pixel that shows the front of its end point), and π⁻¹'s occlusion test accepts
+            either side of the depth mesh (the authors' code); ``False``: such an end is unobserved.
+        reflection_parallax: π^-R is the panorama pixel of the mirror ray's end seen from the
+            panorama centre, where the centre sees it; ``False``: of the mirror direction alone.
+        half_pixel_shift: shift the source coordinates of π^R, the reflection warp and π by +0.5 px
+            and keep sources in ``[0, W - 1) x [0, H - 1)``
+            (:func:`~snell_bench.optics.conventions.shift_half_pixel`: the authors' sampling).
+        pano_center, pano_axes: the panorama's centre (``bbox`` or ``centroid``) and axes (``level``
+            or ``camera``; :func:`~snell_bench.optics.conventions.panorama_pose`).
 
     Returns:
         The :class:`WarpSet` (from the cache if it holds one for these inputs).
 
     Raises:
-        ValueError: the depth map does not match the camera, ``pano_height``, ``up`` or
-            ``infinity_tolerance_px`` is invalid, the object is not placed, not in front of the
+        ValueError: the depth map does not match the camera, ``pano_height``, ``up``,
+            ``pano_center``, ``pano_axes`` or ``infinity_tolerance_px`` is invalid, the object is not placed, not in front of the
             camera or outside its view, or the depth map has no valid pixel.
 
     Examples:
@@ -166,7 +189,10 @@ def compute_warps(
     """
     # 1. inputs, options, cache
     depth = np.asarray(depth)
-    up_vec, options = _warp_options(
+    if recipe_max_bounces is not None:
+        max_bounces = recipe_max_bounces
+    variant = Variant(back_faces, reflection_parallax, half_pixel_shift, pano_center, pano_axes)
+    up_vec, options = warp_options(
         depth,
         camera,
         obj,
@@ -179,13 +205,14 @@ def compute_warps(
         verify_visibility=verify_visibility,
         infinity_tolerance_px=infinity_tolerance_px,
         roi=roi,
+        variant=variant,
     )
     pano_height = options["pano_height"]
     key = warp_inputs_hash(depth, camera, obj, options)
-    cache_path, cached = _cache_lookup(cache_dir, key)
+    cache_path, cached = cache_lookup(cache_dir, key)
     if cached is not None:
         return cached
-    _check_object_in_view(obj, camera)
+    check_object_in_view(obj, camera)
     timer = Timer()
 
     # 2. the ray-casting scene
@@ -204,23 +231,8 @@ def compute_warps(
     # 3. primary rays: which pixels see the object
     with timer("primary"):
         primary = _trace_primary(camera, obj, scene.tracer, roi)
-    # 4. refraction through the object
-    with timer("refraction"):
-        tr = trace_refraction(scene, primary)
-        arrays = refraction_warps(camera, scene.tracer, tr, primary, verify_visibility)
-    # 5. first-bounce reflection
-    with timer("reflection"):
-        refl = trace_reflection(scene, tr)
-        arrays |= reflection_warps(camera, scene.tracer, refl, primary, verify_visibility)
-    # 6. panorama coordinates of the refracted and mirror rays
-    with timer("panorama"):
-        pano = PanoramaCamera.level(obj.center, up_vec, (0.0, 0.0, 1.0), pano_height)
-        arrays |= panorama_warps(pano, tr, refl, primary)
-    # 7. the panorama seen through the glass-free scene
-    with timer("panorama"):
-        arrays |= pano_to_persp_warp(pano, camera, scene, primary, verify_visibility)
-    with timer("frame"):
-        arrays |= pano_refraction_frame_warp(pano, camera, scene, depth, primary, arrays["pano_refraction"])
+    pano = panorama_pose(obj, up_vec, pano_height, variant.pano_center, variant.pano_axes)
+    arrays = _trace_warps(scene, primary, camera, depth, pano, variant, verify_visibility, timer)
     # 8. masks, statistics, the WarpSet
     arrays["object_mask"] = primary.mask
     stats = _warp_stats(timer, scene, primary, roi)
@@ -232,116 +244,53 @@ def compute_warps(
 
 
 # ---------------------------------------------------------------------------------------------
-# stage 1: inputs, options and the cache
+# stages 4-7: the warps
 # ---------------------------------------------------------------------------------------------
-def _warp_options(
-    depth: np.ndarray,
+def _trace_warps(
+    scene: RayScene,
+    primary: PrimaryRays,
     camera: Camera,
-    obj: GlassObject,
-    pano_height,
-    *,
-    max_bounces,
-    normals: str,
-    edge_threshold,
-    up,
-    eps,
-    verify_visibility,
-    infinity_tolerance_px,
-    roi: bool = True,
-) -> tuple[np.ndarray, dict]:
-    """Check the arguments of :func:`compute_warps` and collect the options its warps depend on.
-
-    Args:
-        depth, camera, obj, pano_height, max_bounces, normals, edge_threshold, up, eps,
-        verify_visibility, infinity_tolerance_px: as :func:`compute_warps` (``depth`` an array).
+    depth: np.ndarray,
+    pano: PanoramaCamera,
+    variant: Variant,
+    verify_visibility: bool,
+    timer: Timer,
+) -> dict[str, np.ndarray]:
+    """Trace the refracted and mirror paths of the object pixels and build every warp from them
+    (module docstring, stages 4-7), the perspective maps shifted by half a pixel with
+    ``variant.half_pixel_shift``.
 
     Returns:
-        ``(up (3,) unit float64, options)``: ``options`` is the JSON-serialisable dict hashed into
-        the cache key and stored in the :class:`WarpSet` (``pano_height`` as an int, ``up`` rounded
-        to 12 decimals; ``infinity_tolerance_px`` only when given, so exact warps keep their keys).
-
-    Raises:
-        ValueError: ``depth`` does not match the camera, or ``pano_height`` or ``up`` is invalid.
+        The flat arrays of :func:`~snell_bench.optics.warpset.assemble` but ``object_mask``.
     """
-    if depth.ndim != 2 or depth.shape != camera.shape:
-        raise ValueError(
-            f"depth has shape {depth.shape} but the camera is {camera.height}x{camera.width}; "
-            "pass a depth map of the camera's (height, width)"
+    # 4. refraction through the object
+    with timer("refraction"):
+        tr = trace_refraction(scene, primary)
+        arrays = refraction_warps(camera, scene.tracer, tr, primary, verify_visibility, variant.back_faces)
+    # 5. first-bounce reflection
+    with timer("reflection"):
+        refl = trace_reflection(scene, tr)
+        arrays |= reflection_warps(camera, scene.tracer, refl, primary, verify_visibility)
+    # 6. panorama coordinates of the refracted and mirror rays, where the panorama centre sees their ends
+    with timer("panorama"):
+        arrays |= panorama_warps(
+            pano,
+            scene,
+            tr,
+            refl,
+            primary,
+            back_faces=variant.back_faces,
+            reflection_parallax=variant.reflection_parallax,
         )
-    if int(pano_height) != pano_height or pano_height < 2:
-        raise ValueError(f"pano_height must be an integer >= 2, got {pano_height!r}")
-    pano_height = int(pano_height)
-    up_vec = np.asarray(up if up is not None else (obj.up if obj.up is not None else (0.0, -1.0, 0.0)), np.float64)
-    if up_vec.shape != (3,) or not np.all(np.isfinite(up_vec)) or np.linalg.norm(up_vec) == 0:
-        raise ValueError(f"up must be a non-zero 3-vector, got {up!r}")
-    up_vec = up_vec / np.linalg.norm(up_vec)
-    options = {
-        "pano_height": pano_height,
-        "max_bounces": int(max_bounces),
-        "normals": normals,
-        "edge_threshold": float(edge_threshold),
-        "up": up_vec.round(12).tolist(),
-        "eps": eps,
-        "verify_visibility": bool(verify_visibility),
-    }
-    if infinity_tolerance_px is not None:  # keeps the hashes of exact warps unchanged
-        options["infinity_tolerance_px"] = float(infinity_tolerance_px)
-    if not roi:  # the same arrays, other statistics (traced rays, timings): a cache entry of its own
-        options["roi"] = False
-    return up_vec, options
-
-
-def _cache_lookup(cache_dir: str | os.PathLike | None, key: str) -> tuple[Path | None, WarpSet | None]:
-    """The cache file of ``key`` and the :class:`WarpSet` it holds.
-
-    Args:
-        cache_dir: the cache folder, or ``None`` for no caching.
-        key: the :func:`warp_inputs_hash` of the inputs.
-
-    Returns:
-        ``(path or None, cached WarpSet or None)``: ``path`` is ``<cache_dir>/<key>.npz``; the
-        :class:`WarpSet` is loaded when that file exists. An entry that cannot be read (truncated,
-        corrupt, of another version or layout) is a miss: it is logged with its path and the
-        reason, deleted, and the warps are recomputed, never an error.
-    """
-    if cache_dir is None:
-        return None, None
-    path = Path(cache_dir) / f"{key}.npz"
-    if not path.is_file():
-        return path, None
-    log.info("warps: loading cached %s", path)
-    try:
-        return path, WarpSet.load(path)
-    except Exception as e:  # noqa: BLE001 - any unreadable entry is a miss; the recomputation overwrites it
-        log.warning(
-            "warps: cache entry %s cannot be read (%s: %s); deleting it and recomputing", path, type(e).__name__, e
-        )
-        path.unlink(missing_ok=True)
-        return path, None
-
-
-def _check_object_in_view(obj: GlassObject, camera: Camera) -> None:
-    """Raise ``ValueError`` unless ``obj`` is placed, entirely in front of the camera (z > 0) and
-    its projection overlaps the image."""
-    if not obj.placed:
-        raise ValueError(
-            f"{obj.name}: the object is in its canonical frame, not in camera coordinates; place it first "
-            "(snell_bench.scene.place_object) or build it with GlassObject.from_mesh(...) from camera-frame vertices"
-        )
-    v = obj.vertices
-    zmin = float(v[:, 2].min())
-    if zmin <= 0:
-        where = "behind the camera" if float(v[:, 2].max()) <= 0 else "crossing the camera plane (z <= 0)"
-        raise ValueError(
-            f"{obj.name}: the object is {where} (min z = {zmin:.4g}); move it in front of the camera (z > 0)"
-        )
-    pix, _ = camera.project(v)
-    lo, hi = pix.min(axis=0), pix.max(axis=0)
-    if hi[0] < -0.5 or lo[0] > camera.width - 0.5 or hi[1] < -0.5 or lo[1] > camera.height - 0.5:
-        raise ValueError(
-            f"{obj.name}: the object is outside the view (its projection spans x in [{lo[0]:.1f}, {hi[0]:.1f}], "
-            f"y in [{lo[1]:.1f}, {hi[1]:.1f}], the image is {camera.width}x{camera.height}); move it into the frustum"
-        )
+    # 7. the panorama seen through the glass-free scene
+    with timer("panorama"):
+        arrays |= pano_to_persp_warp(pano, camera, scene, primary, verify_visibility)
+    with timer("frame"):
+        arrays |= pano_refraction_frame_warp(pano, camera, scene, depth, primary, arrays["pano_refraction"])
+    if variant.half_pixel_shift:
+        arrays |= shift_half_pixel(arrays, camera, primary.mask)
+        arrays["pano_to_persp_object"] &= arrays["pano_to_persp_valid"]
+    return arrays
 
 
 # ---------------------------------------------------------------------------------------------

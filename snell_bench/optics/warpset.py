@@ -21,8 +21,9 @@ __all__ = ["WarpSet", "warp_inputs_hash", "assemble", "WARPS_VERSION", "ARRAY_FI
 
 #: Bump when the meaning or computation of any warp changes, or a field is added (invalidates
 #: caches: the version is part of the cache key, and :meth:`WarpSet.load` refuses other versions).
-#: 2: ``pano_refraction_frame`` (π⁻¹ over the whole frame).
-WARPS_VERSION = 2
+#: 2: ``pano_refraction_frame`` (π⁻¹ over the whole frame). 3: π⁻¹ and π^-R valid only where the
+#: panorama centre sees the ray's end.
+WARPS_VERSION = 3
 
 ARRAY_FIELDS = (
     "object_mask",
@@ -74,7 +75,8 @@ class WarpSet:
     #: (H, W, 2) float32 π^R; identity outside the object, NaN where invalid.
     refraction: np.ndarray
     #: (H, W) bool: true outside the object; inside, the refracted ray ends on a background point
-    #: that I⁻ observes (front side, in view, not hidden behind other background geometry).
+    #: that I⁻ observes (front side, or either side with ``back_faces``; in view, not hidden behind
+    #: other background geometry).
     refraction_valid: np.ndarray
     #: (H, W) int8 :class:`HitKind` of the refracted ray's end (NONE outside the object).
     refraction_kind: np.ndarray
@@ -85,7 +87,8 @@ class WarpSet:
     #: (H, W, 2) float32 I⁻ pixel seen by the first-bounce mirror ray, NaN where invalid.
     reflection: np.ndarray
     reflection_valid: np.ndarray
-    #: (H, W, 2) float32 π⁻¹: panorama pixel of the refracted ray (object pixels), NaN elsewhere.
+    #: (H, W, 2) float32 π⁻¹: panorama pixel of the refracted ray (object pixels), NaN elsewhere and
+    #: where the panorama centre does not see the ray's end (:mod:`~snell_bench.optics.occlusion`).
     pano_refraction: np.ndarray
     pano_refraction_valid: np.ndarray
     #: (H, W, 2) float32 π⁻¹ over the whole frame: ``pano_refraction`` on object pixels; elsewhere
@@ -95,7 +98,8 @@ class WarpSet:
     pano_refraction_frame: np.ndarray
     #: (H, W) bool: ``pano_refraction_frame`` is finite.
     pano_refraction_frame_valid: np.ndarray
-    #: (H, W, 2) float32 π^-R: panorama pixel of the mirror ray (object pixels), NaN elsewhere.
+    #: (H, W, 2) float32 π^-R: panorama pixel of the mirror ray (object pixels), NaN elsewhere and
+    #: where the panorama centre does not see its end (with parallax; else of its direction).
     pano_reflection: np.ndarray
     pano_reflection_valid: np.ndarray
     #: (Hp, Wp, 2) float32 π: perspective pixel seen by each panorama pixel, NaN where invalid.

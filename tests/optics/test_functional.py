@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from tolerances import EPS64
 
 from snell_bench.optics import face_forward, fresnel, fresnel_cos, reflect, refract
 
@@ -102,12 +103,23 @@ class TestRefract:
         torch.testing.assert_close(out[tir], reflect(d[tir], N_UP.expand_as(d[tir])))
         assert torch.all(out[tir][:, 2] > 0)  # mirrored back up
 
-    def test_unit_ior_is_identity(self):
-        d = torch.nn.functional.normalize(torch.randn(1000, 3, dtype=torch.float64), dim=-1)
-        n = face_forward(torch.nn.functional.normalize(torch.randn(1000, 3, dtype=torch.float64), dim=-1), d)
+    @pytest.mark.parametrize("seed", [0, 1, 2])
+    def test_unit_ior_is_identity(self, seed):
+        """``gamma = 1 - (1 - beta^2)`` carries the rounding of ``1 - beta^2`` (at most ``u``), so
+        ``sqrt(gamma)`` is off ``beta`` by at most ``u / (2 beta)`` (``sqrt(u)`` as ``beta -> 0``): grazing
+        rays leave IOR 1 with that error, plus a few ``u`` from the products; twice the bound."""
+        g = torch.Generator().manual_seed(seed)
+        d = torch.nn.functional.normalize(torch.randn(1000, 3, dtype=torch.float64, generator=g), dim=-1)
+        n = face_forward(
+            torch.nn.functional.normalize(torch.randn(1000, 3, dtype=torch.float64, generator=g), dim=-1), d
+        )
         out, tir = refract(d, n, 1.0)
         assert not tir.any()
-        torch.testing.assert_close(out, d, rtol=0, atol=1e-12)
+        beta = -(d * n).sum(-1)
+        tol = 2 * (torch.minimum(EPS64 / beta, torch.tensor(2 * EPS64).sqrt()) + 4 * EPS64)
+        assert ((out - d).abs().amax(-1) <= tol).all()
+        near = beta > 1e-3  # away from grazing the error stays at rounding level
+        torch.testing.assert_close(out[near], d[near], rtol=0, atol=1e-12)
 
     def test_ior_near_one_is_continuous(self):
         th = torch.linspace(0.0, 1.4, 50, dtype=torch.float64)
