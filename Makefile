@@ -12,7 +12,7 @@ TORCH_SPEC ?= torch==2.14.1 torchvision==0.29.1
 comma := ,
 STAMP := $(VENV)/.installed-$(subst $(comma),-,$(EXTRAS))
 
-.PHONY: setup demo test test-slow lint format bench clean docs docs-serve docs-results system-deps system-deps-slurm system-deps-browser
+.PHONY: setup setup-cycles demo test test-slow lint format bench clean docs docs-serve docs-results system-deps system-deps-slurm system-deps-browser
 
 setup: $(STAMP)
 
@@ -65,6 +65,21 @@ $(STAMP): pyproject.toml | system-deps
 	$(PY) -m pip install -q -e ".[$(EXTRAS)]"
 	touch $(STAMP)
 
+# Blender Cycles as a Python module, for `reference.renderer=cycles` (the authors' reference render,
+# recipe=authors): its own environment (bpy pins numpy 1.26; ~1.1 GB), run as a subprocess.
+CYCLES_VENV ?= .venv-cycles
+CYCLES_SPEC ?= bpy==4.5.15 trimesh scipy pillow
+CYCLES_STAMP := $(CYCLES_VENV)/.installed-bpy-4.5.15
+
+setup-cycles: $(CYCLES_STAMP)
+
+$(CYCLES_STAMP):
+	test -x $(CYCLES_VENV)/bin/python || $(PYTHON) -m venv $(CYCLES_VENV)
+	$(CYCLES_VENV)/bin/python -m pip install -q --upgrade pip
+	$(CYCLES_VENV)/bin/python -m pip install -q $(CYCLES_SPEC)
+	$(CYCLES_VENV)/bin/python -c "import bpy; print('bpy', bpy.app.version_string)"
+	touch $(CYCLES_STAMP)
+
 demo: setup
 	HF_HUB_OFFLINE=1 $(PY) -m snell_bench +experiment=smoke
 
@@ -88,7 +103,7 @@ docs-serve: $(DOCS_STAMP)
 	HF_HUB_OFFLINE=1 $(VENV)/bin/mkdocs serve
 
 # the tests marked slow (end-to-end launchers, a real Slurm, the installed package, long sweeps)
-test-slow: setup system-deps-slurm system-deps-browser
+test-slow: setup setup-cycles system-deps-slurm system-deps-browser
 	HF_HUB_OFFLINE=1 $(PY) -m pytest -q -m slow
 
 # import contracts (pyproject.toml [tool.importlinter]) and import cycles between modules: both
