@@ -60,6 +60,7 @@ from .functional import (
 )
 from .scoring import (
     PROMPT_METRICS,
+    PSNR_CEILING_DB,
     REFERENCE_METRICS,
     SCORER_NAMES,
     CellScores,
@@ -86,6 +87,7 @@ __all__ = [
     "NON_FINITE_REASON",
     "PROMPT_METRICS",
     "PROTOCOLS",
+    "PSNR_CEILING_DB",
     "PROTOCOL_CONFIG_KEY",
     "REFERENCE_METRICS",
     "SCORER_NAMES",

@@ -397,6 +397,7 @@ def score_all(
     generated_path: str | os.PathLike | None = None,
     histogram_match: bool = True,
     protocol: str = "paper",
+    lpips_box_range: str = "signed",
 ) -> ScoreResult:
     """All metrics of one generated image: ``{"metrics": {...}, "missing": {...}}``.
 
@@ -410,8 +411,9 @@ def score_all(
           :class:`~snell_bench.metrics.fidelity.MaskedLPIPS`). An unknown ``protocol`` raises
           ``ValueError`` naming ``metrics.protocol``. The LPIPS scorer is called as
           ``lpips(generated, reference, mask)`` under ``paper`` and as ``lpips(generated, reference,
-          mask, protocol="authors")`` and ``lpips(..., protocol="authors", box=True)`` under ``authors``.
-          ``histogram_match`` applies to PSNR and MAE only.
+          mask, protocol="authors")`` and ``lpips(..., protocol="authors", box=True,
+          box_range=lpips_box_range)`` under ``authors`` (``lpips_box_range``: config key
+          ``metrics.lpips_box_range``). ``histogram_match`` applies to PSNR and MAE only.
         - CLIP and ImageReward: the full image against ``prompt``, the text exactly as given (the
           caller picks the full prompt or the object phrase, config key ``metrics.clip_text``).
         - A scorer given as ``None`` is missing with reason ``"not configured (set <config key>)"``;
@@ -448,7 +450,7 @@ def score_all(
             "lpips_box",
             lpips,
             MaskedLPIPS.CONFIG_KEY,
-            lambda s: s(generated, reference, mask, **lpips_kwargs, box=True),
+            lambda s: s(generated, reference, mask, **lpips_kwargs, box=True, box_range=lpips_box_range),
         )
     run_scorer("clip", clip, CLIPScore.CONFIG_KEY, lambda s: s(generated, prompt))
     run_scorer(

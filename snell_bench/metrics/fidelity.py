@@ -12,13 +12,15 @@ Convention:
       :func:`masked_lpips`, :func:`authors_lpips` and :func:`authors_lpips_box` around a network
       callable (:data:`LpipsNetwork`), wrapped by :class:`MaskedLPIPS`:
 
-      * ``"paper"`` (the paper's text, "LPIPS (VGG) averaged over the mask of its spatial map"): the
-        spatial LPIPS map of the two RGB images as they are (full frame, neither masked, gray nor
-        matched), averaged over the mask pixels.
+      * ``"paper"`` (the paper's text says only "masked LPIPS"; snell_bench's reading, VGG as the
+        authors' code uses): the spatial LPIPS map of the two RGB images as they are (full frame,
+        neither masked, gray nor matched), averaged over the mask pixels.
       * ``"authors"`` (``eval/masked_metrics.py``), on the 8-bit images and mask as they read them
         (:func:`~snell_bench.metrics.functional.authors_inputs`): ``lpips``: the spatial map of the
         images multiplied by the mask (black outside it), averaged over the mask pixels;
-        ``lpips_box``: the plain (non-spatial) LPIPS of the bounding-box crop of those masked images.
+        ``lpips_box``: the plain (non-spatial) LPIPS of the bounding-box crop of those masked images,
+        in [-1, 1] (``eval/eval.py``) or mapped to [0, 1] (``eval/masked_metrics.py``; config key
+        ``metrics.lpips_box_range``).
 
     - Every LPIPS value at a pixel also depends on the pixels of its receptive field. No gradients.
     - Results: a Python ``float`` (never NaN), or :class:`~snell_bench.metrics.functional.MetricUnavailable`
@@ -50,12 +52,14 @@ from snell_bench.utils.tensors import as_tensor, hwc_to_bchw
 
 __all__ = [
     "BOX_PAPER_REASON",
+    "BOX_RANGES",
     "LpipsNetwork",
     "MaskedLPIPS",
     "MaskedMAE",
     "MaskedPSNR",
     "authors_lpips",
     "authors_lpips_box",
+    "check_box_range",
     "masked_lpips",
 ]
 
@@ -151,10 +155,11 @@ def masked_lpips(net: LpipsNetwork, generated, reference, mask) -> float:
     """LPIPS of the paper's protocol: the spatial LPIPS map of the two RGB images averaged over the
     mask.
 
-    The paper's text says "LPIPS (VGG) averaged over the mask of its spatial map" and names no other
-    preprocessing for LPIPS (the grayscale conversion and the histogram matching are stated for PSNR
-    and MAE), so the inputs are the full RGB images as they are, scaled to [-1, 1] (``2 x - 1``): the
-    network sees the object in its context, and the mask only selects which pixels of the map count.
+    The paper's text says only "masked LPIPS": it names neither the backbone, nor how the mask
+    applies, nor any preprocessing (the grayscale conversion and the histogram matching are stated
+    for PSNR and MAE). snell_bench reads it as the VGG backbone (the authors' code's), the full RGB
+    images as they are, scaled to [-1, 1] (``2 x - 1``), and the spatial map averaged over the mask:
+    the network sees the object in its context, and the mask only selects which pixels count.
 
     Convention:
         Images and masks as in :mod:`snell_bench.metrics.functional` (float in [0, 1], not
@@ -205,28 +210,50 @@ def authors_lpips(net: LpipsNetwork, generated, reference, mask) -> float:
     return float(lp.reshape(valid.shape)[valid].mean())
 
 
-def authors_lpips_box(net: LpipsNetwork, generated, reference, mask) -> float:
+#: The input ranges of the authors' bounding-box LPIPS (config key ``metrics.lpips_box_range``).
+BOX_RANGES = ("signed", "unit")
+
+
+def check_box_range(box_range) -> str:
+    """``box_range`` checked: one of :data:`BOX_RANGES`, else ``ValueError`` naming the key."""
+    if box_range not in BOX_RANGES:
+        raise ValueError(
+            f"metrics.lpips_box_range={box_range!r} is unknown: use 'signed' (eval/eval.py, the range "
+            "lpips reads) or 'unit' (eval/masked_metrics.py)"
+        )
+    return box_range
+
+
+def authors_lpips_box(net: LpipsNetwork, generated, reference, mask, box_range: str = "signed") -> float:
     """The authors' ``lpips_non_spatial``: the plain LPIPS of the mask's bounding box.
 
     Steps (float32): the masked images in [-1, 1] as in :func:`authors_lpips`; the crop
-    ``[y_min, y_max] x [x_min, x_max]`` (inclusive) of the mask pixels; the crop mapped back with
-    ``(x + 1) / 2`` to [0, 1] and given to ``net(gen, ref, spatial=False)`` AS IT IS: ``lpips.LPIPS``
-    reads its inputs as [-1, 1] and the authors do not pass ``normalize=True``, so the network sees
-    images half as contrasted and centred on mid-grey instead of black. This is the authors'
-    behaviour, reproduced; the value is the network's mean over the crop (black pixels of the box
-    outside the mask included).
+    ``[y_min, y_max] x [x_min, x_max]`` (inclusive) of the mask pixels, given to
+    ``net(gen, ref, spatial=False)``:
+
+    - ``box_range="signed"`` (``eval/eval.py``, which scores the files the released pipeline
+      writes): the crop in [-1, 1] as it is, the range ``lpips.LPIPS`` reads;
+    - ``box_range="unit"`` (``eval/masked_metrics.py``): the crop mapped back with ``(x + 1) / 2``
+      to [0, 1] and passed without ``normalize=True``, so the network reads it as [-1, 1]: half
+      the contrast, centred on mid-grey instead of black.
+
+    The value is the network's mean over the crop (black pixels of the box outside the mask
+    included).
 
     Convention:
         As :func:`authors_lpips`. The crop must be large enough for the network (VGG: 16 pixels a
-        side; :class:`MaskedLPIPS` reports a smaller box as missing).
+        side; :class:`MaskedLPIPS` reports a smaller box as missing). An unknown ``box_range``
+        raises ``ValueError`` naming ``metrics.lpips_box_range``.
     """
+    check_box_range(box_range)
     g, r, valid = _authors_masked_inputs(generated, reference, mask)
     rows = torch.nonzero(valid[0, 0].any(dim=1)).flatten()
     cols = torch.nonzero(valid[0, 0].any(dim=0)).flatten()
     y0, y1 = int(rows.min()), int(rows.max()) + 1
     x0, x1 = int(cols.min()), int(cols.max()) + 1
-    g_crop = (g[:, :, y0:y1, x0:x1] + 1.0) / 2.0
-    r_crop = (r[:, :, y0:y1, x0:x1] + 1.0) / 2.0
+    g_crop, r_crop = g[:, :, y0:y1, x0:x1], r[:, :, y0:y1, x0:x1]
+    if box_range == "unit":
+        g_crop, r_crop = (g_crop + 1.0) / 2.0, (r_crop + 1.0) / 2.0
     return float(net(g_crop, r_crop, False).detach().cpu().reshape(()))
 
 
@@ -429,13 +456,16 @@ class MaskedLPIPS(torch.nn.Module):
         method: str = "cdf",
         protocol: str = "paper",
         box: bool = False,
+        box_range: str = "signed",
         _network: LpipsNetwork | None = None,
     ) -> float:
         """LPIPS of the pair under ``protocol`` (see the class); ``box`` selects the authors'
-        bounding-box LPIPS."""
+        bounding-box LPIPS, ``box_range`` its input range (:func:`authors_lpips_box`)."""
         protocol = self._check_options(protocol, grayscale, histogram_match, method, box)
         net = self.network if _network is None else _network
         if protocol == "authors":
-            return (authors_lpips_box if box else authors_lpips)(net, generated, reference, mask)
+            if box:
+                return authors_lpips_box(net, generated, reference, mask, box_range)
+            return authors_lpips(net, generated, reference, mask)
         g, r = self._paper_pair(generated, reference, mask, grayscale, histogram_match, method)
         return masked_lpips(net, g, r, mask)

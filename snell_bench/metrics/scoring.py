@@ -25,11 +25,13 @@ import torch
 from snell_bench.utils.tensors import bchw_to_hwc
 
 from .alignment import METRIC_NAMES, CLIPScore, ImageRewardScorer, ScoreResult, metric_names, score_all
-from .fidelity import MaskedLPIPS
+from .fidelity import MaskedLPIPS, check_box_range
+from .files import check_files, evaluated_files
 from .functional import MetricUnavailable, check_protocol, masked_psnr
 
 __all__ = [
     "PROMPT_METRICS",
+    "PSNR_CEILING_DB",
     "REFERENCE_METRICS",
     "SCORER_METRICS",
     "SCORER_NAMES",
@@ -62,9 +64,12 @@ SCORER_NAMES = ("lpips", "clip", "image_reward")
 
 
 class CellScores(ScoreResult):
-    """What :func:`score_cell` returns: ``metrics`` and ``missing`` as in :class:`ScoreResult`, and
-    ``protocol``, the evaluation protocol the fidelity metrics were computed under."""
+    """What :func:`score_cell` returns: ``metrics`` and ``missing`` as in :class:`ScoreResult`,
+    ``notes`` (``{name: why the value is what it is}``: a PSNR recorded at
+    :data:`PSNR_CEILING_DB`), and ``protocol``, the evaluation protocol the fidelity metrics were
+    computed under."""
 
+    notes: dict[str, str]
     protocol: str
 
 
@@ -150,14 +155,33 @@ def load_scorers(metrics_cfg: Any = None, *, device: str | torch.device = "cpu")
     )
 
 
+#: The highest PSNR a cell records (dB): ``10 log10(1 / 1e-8)``, the PSNR of the smallest MSE the
+#: authors' evaluation tells from zero (``torch.isclose(MSE, 0)``: ``MSE <= 1e-8``). Every recorded
+#: PSNR is ``min(PSNR, ceiling)``, so identical pixels (``inf``) count in every mean at the ceiling,
+#: and the record says so in ``notes``.
+PSNR_CEILING_DB = 80.0
+
+
+def _ceiling_note(value: float) -> str:
+    what = "identical pixels (infinite PSNR)" if value == math.inf else f"{value:.2f} dB"
+    return f"{what} after the protocol's preprocessing: recorded at the {PSNR_CEILING_DB:g} dB ceiling"
+
+
 def _is_finite(x) -> bool:
     return not (isinstance(x, float) and not math.isfinite(x))
 
 
-def _non_finite_reason(name: str, x: float) -> str:
-    if name.startswith("psnr") and x == math.inf:
-        return "infinite PSNR: the masked pixels are identical after the protocol's preprocessing"
+def _non_finite_reason(x: float) -> str:
     return f"not a finite value ({x!r})"
+
+
+def _apply_psnr_ceiling(metrics: dict, notes: dict) -> None:
+    """Clamp every PSNR (``psnr``, ``psnr_true``, ...) of ``metrics`` at :data:`PSNR_CEILING_DB`
+    in place, with a note for each value clamped (NaN is left for the non-finite filter)."""
+    for name, value in metrics.items():
+        if name.startswith("psnr") and isinstance(value, float) and value > PSNR_CEILING_DB:
+            metrics[name] = PSNR_CEILING_DB
+            notes[name] = _ceiling_note(value)
 
 
 def _hwc(image: Any) -> Any:
@@ -179,6 +203,8 @@ def score_cell(
     object_mask: np.ndarray | None = None,
     generated_path: str | os.PathLike | None = None,
     protocol: str = "paper",
+    files: str = "png",
+    lpips_box_range: str = "signed",
 ) -> CellScores:
     """Every metric of one generated image, each a float or None with the reason.
 
@@ -192,11 +218,13 @@ def score_cell(
     Then, for each scorer that could not be built, its reason replaces the recorded one wherever one
     of its metrics (:data:`SCORER_METRICS`) has no value. With ``true_render``,
     ``psnr_true`` is the masked PSNR (same protocol) of the image against it over ``object_mask``.
-    Last, NaN and infinite values (e.g. the PSNR of identical pixels) become None, with a reason.
+    Last, every PSNR above :data:`PSNR_CEILING_DB` (identical pixels: ``inf``) is recorded at the
+    ceiling with a note in ``notes``, so a perfect match counts in every mean; any other NaN or
+    infinite value becomes None, with a reason.
 
     Convention:
         Every metric is a finite float or None (never NaN or inf); a value turned into None gets its
-        reason in ``missing``. ``protocol`` is recorded in the result as given (reports show it); it changes PSNR, MAE,
+        reason in ``missing``; PSNR is at most :data:`PSNR_CEILING_DB`. ``protocol`` is recorded in the result as given (reports show it); it changes PSNR, MAE,
         LPIPS and ``psnr_true``, never CLIP or ImageReward.
 
     Args:
@@ -213,21 +241,33 @@ def score_cell(
         generated_path: the saved image, handed to ImageReward as is.
         protocol: the evaluation protocol, ``"paper"`` or ``"authors"`` (config key
             ``metrics.protocol``).
+        files: ``"png"`` (the images as given) or ``"jpeg"`` (config key ``metrics.files``): the
+            generated image, the reference and the mask first go through the JPEG round trips of
+            the authors' ``main.jpg``, ``blender.jpg`` and ``blender_mask.jpg``
+            (:func:`~snell_bench.metrics.files.evaluated_files`), for every metric, CLIP and
+            ImageReward included; the true render and ``object_mask`` stay as given.
+        lpips_box_range: the input range of ``lpips_box`` (``authors`` only; config key
+            ``metrics.lpips_box_range``, :func:`~snell_bench.metrics.fidelity.authors_lpips_box`).
 
     Returns:
-        ``{"metrics": {name: float | None}, "missing": {name: reason}, "protocol": protocol}``: the
+        ``{"metrics": {name: float | None}, "missing": {name: reason}, "notes": {name: note},
+        "protocol": protocol}``: the
         names of ``metric_names(protocol)`` in order (``lpips_box`` under ``"authors"`` only), then
         ``psnr_true`` when ``true_render`` is given.
 
     Raises:
-        ValueError: ``true_render`` without ``object_mask``; an unknown ``protocol`` (the message
-            names ``metrics.protocol`` and the allowed values).
+        ValueError: ``true_render`` without ``object_mask``; an unknown ``protocol``, ``files`` or
+            ``lpips_box_range`` (the message names the config key and the allowed values).
     """
     check_protocol(protocol)
+    check_box_range(lpips_box_range)
     if true_render is not None and object_mask is None:
         raise ValueError("score_cell: true_render needs the object_mask it is scored over")
     scorers = scorers if isinstance(scorers, Scorers) else Scorers(scorers or {})
     gen = _hwc(generated)
+    if check_files(files) == "jpeg":  # ImageReward then reads the decoded JPEG, not the PNG file
+        gen, reference, mask = evaluated_files(gen, reference, mask, files)
+        generated_path = None
     if reference is None:
         metrics: dict[str, float | None] = {name: None for name in metric_names(protocol)}
         missing = {name: reference_reason or "no reference" for name in reference_metrics(protocol)}
@@ -247,6 +287,7 @@ def score_cell(
             image_reward=scorers.image_reward,
             generated_path=generated_path,
             protocol=protocol,
+            lpips_box_range=lpips_box_range,
         )
         metrics, missing = out["metrics"], out["missing"]
     for scorer_name, reason in scorers.reasons.items():
@@ -259,8 +300,10 @@ def score_cell(
         except MetricUnavailable as e:
             metrics["psnr_true"] = None
             missing["psnr_true"] = e.reason
+    notes: dict[str, str] = {}
+    _apply_psnr_ceiling(metrics, notes)
     for name, value in metrics.items():
         if not _is_finite(value):
             metrics[name] = None
-            missing.setdefault(name, _non_finite_reason(name, value))
-    return {"metrics": metrics, "missing": missing, "protocol": protocol}
+            missing.setdefault(name, _non_finite_reason(value))
+    return {"metrics": metrics, "missing": missing, "notes": notes, "protocol": protocol}

@@ -90,20 +90,24 @@ class CallSettings:
         return asdict(self)
 
 
-def call_settings(pipe, steps: int | None = None, guidance: float | None = None) -> CallSettings:
+def call_settings(pipe, steps: int | None = None, guidance: float | None = None, *, cfg: bool = True) -> CallSettings:
     """The steps and guidance a call of ``pipe`` uses: the given ones, else its ``__call__`` defaults.
 
     Convention:
         - The guidance keyword is ``guidance_scale`` if the signature has one with a default that is
           not ``None``; else ``true_cfg_scale`` if present; else ``guidance_scale`` (default
           ``None``); else there is none.
-        - With ``true_cfg_scale`` above 1 and a ``negative_prompt`` parameter, the negative prompt
-          :data:`EMPTY_NEGATIVE_PROMPT` is passed: without any, the pipeline skips the guidance.
+        - With ``true_cfg_scale`` above 1, a ``negative_prompt`` parameter and ``cfg`` (config key
+          ``method.cfg``), the negative prompt :data:`EMPTY_NEGATIVE_PROMPT` is passed; without
+          any (``cfg=False``, as the authors call Qwen-Image), the pipeline skips the guidance: one
+          transformer pass per step, ``true_cfg_scale`` passed but unused.
 
     Args:
         pipe: a diffusers pipeline or pipeline class.
         steps: ``num_inference_steps``; ``None``: the signature's default.
         guidance: the guidance value; ``None``: the signature's default.
+        cfg: whether a ``true_cfg_scale`` pipeline gets the negative prompt that turns its
+            guidance on.
 
     Returns:
         The settings.
@@ -138,7 +142,7 @@ def call_settings(pipe, steps: int | None = None, guidance: float | None = None)
     value = default(key) if guidance is None else guidance
     value = None if value is None else float(value)
     negative = None
-    if key == "true_cfg_scale" and value is not None and value > 1 and "negative_prompt" in params:
+    if cfg and key == "true_cfg_scale" and value is not None and value > 1 and "negative_prompt" in params:
         negative = EMPTY_NEGATIVE_PROMPT
     return CallSettings(cls.__name__, int(steps), value, key, negative)
 
@@ -376,6 +380,7 @@ def generate_external(
     dtype: torch.dtype | str | None = None,
     pipeline: str | type | None = None,
     return_settings: bool = False,
+    cfg: bool = True,
 ) -> torch.Tensor | tuple[torch.Tensor, CallSettings]:
     """Text-to-image with a diffusers pipeline (FLUX.2-dev, Qwen-Image, SD3.5-Large, FLUX.1, ...).
 
@@ -400,6 +405,7 @@ def generate_external(
         dtype: a dtype or its name; ``None``: bfloat16 on CUDA, float32 otherwise.
         pipeline: the pipeline class name; ``None``: the one ``model_index.json`` names.
         return_settings: also return the :class:`CallSettings` used.
+        cfg: a ``true_cfg_scale`` pipeline's guidance on or off (:func:`call_settings`).
 
     Returns:
         The image ``(1, 3, H, W)``, float32 in [0, 1], on the CPU; with ``return_settings``, the pair
@@ -414,7 +420,7 @@ def generate_external(
         pipe = load_pipeline(pipe_or_model_id, pipeline=pipeline, device=device, dtype=dtype)
     else:
         pipe = pipe_or_model_id
-    settings = call_settings(pipe, steps, guidance)
+    settings = call_settings(pipe, steps, guidance, cfg=cfg)
     H, W = size
     out = pipe(
         prompt=prompt,

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from snell_bench.metrics import load_scorers, score_cell
 from snell_bench.pipeline.cell import CellInputs, CellResult, node_key, plain, prompt_of
@@ -17,13 +17,37 @@ from snell_bench.utils.io import save_png
 from snell_bench.utils.tensors import bchw_to_hwc
 from snell_bench.utils.timing import Timer
 
-__all__ = ["scorers_of", "score", "run_method", "sample_stage", "finish_method"]
+__all__ = ["clip_prompt", "scorers_of", "score", "run_method", "sample_stage", "finish_method"]
 
 
 def scorers_of(metrics_cfg: DictConfig, pool: ModelPool):
     """The metric backbones of a ``metrics`` node (LPIPS, CLIP, ImageReward; each missing with its
     reason where it cannot load) from the pool, pinned: every cell of a sweep scores with them."""
     return pool.get("scorers", node_key(metrics_cfg), lambda: load_scorers(metrics_cfg), label="metrics", pin=True)[0]
+
+
+def clip_prompt(cfg: DictConfig) -> str:
+    """The text CLIP and ImageReward score against: the scene's entry of the ``metrics.clip_prompts``
+    file (``{object}``: the object's noun) where it lists the scene, else ``metrics.clip_text``.
+
+    Raises:
+        ValueError: the file cannot be read, is not a mapping of scene names to texts (naming
+            ``metrics.clip_prompts``).
+    """
+    path = cfg.metrics.get("clip_prompts")
+    if path:
+        try:
+            table = OmegaConf.to_container(OmegaConf.load(Path(str(path)).expanduser()))
+        except Exception as e:  # noqa: BLE001 - any unreadable file: say which and why
+            raise ValueError(
+                f"metrics.clip_prompts={str(path)!r} cannot be read ({e}); give a YAML or JSON file"
+            ) from e
+        if not isinstance(table, dict) or not all(isinstance(v, str) for v in table.values()):
+            raise ValueError(f"metrics.clip_prompts={str(path)!r} is not a mapping {{scene name: text}}")
+        text = table.get(str(cfg.scene.name))
+        if text is not None:
+            return text.replace("{object}", str(cfg.object.noun))
+    return prompt_of(cfg, cfg.metrics.clip_text, "metrics.clip_text")
 
 
 def score(
@@ -34,19 +58,22 @@ def score(
     ``metrics.protocol``: ``{"metrics": {name: float | None}, "missing": {name: reason}, "protocol":
     ...}`` with ``lpips_box`` under ``authors`` only. Under ``authors`` the in-memory image and
     reference are scored as their 8-bit PNGs (``save_png``'s rounding), so the numbers equal those of
-    the files written next to ``metrics.json``."""
+    the files written next to ``metrics.json``; ``metrics.files=jpeg`` scores the JPEG files the
+    authors' evaluation reads instead; CLIP and ImageReward see :func:`clip_prompt`."""
     ref = inputs.reference if reference is None else reference
     return score_cell(
         bchw_to_hwc(image),
         None if ref is None else ref.image,
         None if ref is None else ref.mask,
-        prompt_of(cfg, cfg.metrics.clip_text, "metrics.clip_text"),
+        clip_prompt(cfg),
         scorers,
         reference_reason=inputs.reference_reason,
         true_render=inputs.true_render if reference is None else None,
         object_mask=inputs.warps.object_mask,
         generated_path=image_path,
         protocol=str(cfg.metrics.protocol),
+        files=str(cfg.metrics.get("files", "png")),
+        lpips_box_range=str(cfg.metrics.get("lpips_box_range", "signed")),
     )
 
 

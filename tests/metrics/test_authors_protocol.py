@@ -368,11 +368,21 @@ class TestLPIPSStub:
         # 0.16 + 0, 0: sum 0.44, mean 0.44 / 6.
         gen, ref, mask = lpips_triplet()
         net = StubNet()
-        assert authors_lpips_box(net, gen, ref, mask) == pytest.approx(0.44 / 6, abs=1e-6)
+        assert authors_lpips_box(net, gen, ref, mask, "unit") == pytest.approx(0.44 / 6, abs=1e-6)
         in0, in1, spatial = net.calls[0]
         assert not spatial
         torch.testing.assert_close(in0[0, 0], torch.tensor([[0.6, 0.0, 0.6], [0.0, 0.6, 0.0]]))
         torch.testing.assert_close(in1[0, 0], torch.tensor([[0.4, 0.0, 0.4], [0.0, 0.2, 0.0]]))
+
+    def test_authors_box_crop_in_minus_1_1_as_eval_py(self):
+        # the same crop left in [-1, 1]: differences doubled, q' four times the unit crop's: 1.76 / 6
+        gen, ref, mask = lpips_triplet()
+        net = StubNet()
+        assert authors_lpips_box(net, gen, ref, mask) == pytest.approx(1.76 / 6, abs=1e-6)
+        in0, in1, _ = net.calls[0]
+        torch.testing.assert_close(in0[0, 0], torch.tensor([[0.2, -1.0, 0.2], [-1.0, 0.2, -1.0]]))
+        with pytest.raises(ValueError, match="metrics.lpips_box_range='half'.*signed.*unit"):
+            authors_lpips_box(net, gen, ref, mask, "half")
 
     def test_score_all_routes_the_protocol(self):
         gen, ref, mask = lpips_triplet()
@@ -383,9 +393,11 @@ class TestLPIPSStub:
         assert tuple(authors["metrics"]) == ("psnr", "mae", "lpips", "lpips_box", "clip", "image_reward")
         assert paper["metrics"]["lpips"] == pytest.approx(0.48, abs=1e-6)
         assert authors["metrics"]["lpips"] == pytest.approx(0.32, abs=1e-6)
-        assert authors["metrics"]["lpips_box"] == pytest.approx(0.44 / 6, abs=1e-6)
+        assert authors["metrics"]["lpips_box"] == pytest.approx(1.76 / 6, abs=1e-6)
         cell = score_cell(gen, ref, mask, "a glass sphere", {"lpips": lp}, protocol="authors")
         assert cell["metrics"]["lpips_box"] == authors["metrics"]["lpips_box"]
+        unit = score_cell(gen, ref, mask, "a", {"lpips": lp}, protocol="authors", lpips_box_range="unit")
+        assert unit["metrics"]["lpips_box"] == pytest.approx(0.44 / 6, abs=1e-6)
 
     def test_missing_weights_make_both_lpips_missing(self):
         gen, ref, mask = lpips_triplet()
@@ -436,7 +448,8 @@ def test_real_network_variants(random_lpips):
         model.spatial = False
         ys, xs = np.nonzero(mask)
         box = np.s_[..., ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
-        box_value = model((gin[box] + 1) / 2, (rin[box] + 1) / 2).item()
+        box_value = model(gin[box], rin[box]).item()
+        box_unit = model((gin[box] + 1) / 2, (rin[box] + 1) / 2).item()
         model.spatial = True
         full_map = model(t(gen) * 2 - 1, t(ref) * 2 - 1)[0, 0]
     # a mean of up to h w float32 values: reordering bound
@@ -445,6 +458,9 @@ def test_real_network_variants(random_lpips):
     )
     assert random_lpips(gen, ref, mask, protocol="authors", box=True) == pytest.approx(
         box_value, abs=reordering_tolerance(h * w, box_value)
+    )
+    assert random_lpips(gen, ref, mask, protocol="authors", box=True, box_range="unit") == pytest.approx(
+        box_unit, abs=reordering_tolerance(h * w, box_unit)
     )
     assert random_lpips(gen, ref, mask) == pytest.approx(
         full_map[m].double().mean().item(), abs=reordering_tolerance(h * w, full_map)
@@ -455,3 +471,40 @@ def test_real_network_variants(random_lpips):
     small[5:10, 5:30] = True  # a 5-pixel-high box: below VGG's 16
     with pytest.raises(MetricUnavailable, match="16 pixels"):
         random_lpips(gen, ref, small, protocol="authors", box=True)
+
+
+def test_the_box_ranges_against_lpips_normalize():
+    """lpips documents its inputs as [-1, 1], or [0, 1] with ``normalize=True`` (which maps them
+    with ``2 x - 1``): the ``signed`` box (eval/eval.py) is LPIPS of the [0, 1] crop with
+    ``normalize=True``; the ``unit`` box (eval/masked_metrics.py) is the [0, 1] crop without it,
+    another number."""
+    import lpips
+
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        model = lpips.LPIPS(net="vgg", pnet_rand=True, verbose=False).eval()
+    rng = np.random.default_rng(3)
+    h, w = 36, 40
+    ref = rng.integers(0, 256, (h, w, 3)) / 255
+    gen = np.clip(ref + rng.integers(-40, 41, (h, w, 3)) / 255, 0, 1)
+    mask = np.zeros((h, w), bool)
+    mask[6:30, 4:36] = rng.random((24, 32)) < 0.8
+    ys, xs = np.nonzero(mask)
+    crop = np.s_[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a[crop] * mask[crop][..., None])).permute(2, 0, 1)[None]  # noqa: E731
+    g01, r01 = t(gen).float(), t(ref).float()
+
+    def net(in0, in1, spatial):
+        assert not spatial
+        return model(in0, in1)
+
+    with torch.no_grad():
+        normalized = model(g01, r01, normalize=True).item()
+        as_given = model(g01, r01).item()
+        signed = authors_lpips_box(net, gen, ref, mask, "signed")
+        unit = authors_lpips_box(net, gen, ref, mask, "unit")
+    # the same network on inputs equal up to one float32 rounding (2 x - 1 here and there): the
+    # reordering bound of the network's longest reduction (3 x 3 x 512 VGG taps)
+    assert signed == pytest.approx(normalized, abs=reordering_tolerance(9 * 512, normalized))
+    assert unit == pytest.approx(as_given, abs=reordering_tolerance(9 * 512, as_given))
+    assert abs(unit - normalized) > 100 * reordering_tolerance(9 * 512, normalized)

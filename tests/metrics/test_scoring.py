@@ -14,6 +14,7 @@ from snell_bench.metrics import (
     EMPTY_MASK_REASON,
     METRIC_NAMES,
     PROMPT_METRICS,
+    PSNR_CEILING_DB,
     REFERENCE_METRICS,
     SCORER_NAMES,
     MaskedLPIPS,
@@ -121,12 +122,35 @@ def test_the_reason_a_scorer_is_missing_wins(cell):
     assert no_ref["missing"]["lpips"] == why and no_ref["missing"]["psnr"] == "no reference.png"
 
 
-def test_non_finite_values_become_none(cell):
-    gen, _, mask, _, obj = cell
+def test_a_perfect_match_is_recorded_at_the_psnr_ceiling_and_counts_in_the_mean(cell):
+    """Identical pixels (infinite PSNR) are a result, not a missing value: the record holds the
+    stated ceiling with a note, and a mean over cells counts the perfect cell."""
+    gen, ref, mask, _, obj = cell
     res = score_cell(gen, gen.copy(), mask, PROMPT, None, true_render=gen.copy(), object_mask=obj)
     assert math.isinf(masked_psnr(gen, gen, mask))
-    assert res["metrics"]["psnr"] is None and res["metrics"]["psnr_true"] is None
+    assert res["metrics"]["psnr"] == PSNR_CEILING_DB and res["metrics"]["psnr_true"] == PSNR_CEILING_DB
+    assert "psnr" not in res["missing"] and "psnr_true" not in res["missing"]
+    assert "80 dB ceiling" in res["notes"]["psnr"] and "identical" in res["notes"]["psnr_true"]
     assert res["metrics"]["mae"] == 0.0
+    worse = score_cell(gen, ref, mask, PROMPT, None)
+    assert worse["notes"] == {} and worse["metrics"]["psnr"] < PSNR_CEILING_DB
+    cells = [res["metrics"]["psnr"], worse["metrics"]["psnr"]]
+    assert np.mean(cells) == pytest.approx((PSNR_CEILING_DB + worse["metrics"]["psnr"]) / 2)
+    # 10 log10(1 / 1e-8): the authors' evaluation calls any MSE <= 1e-8 zero
+    assert PSNR_CEILING_DB == pytest.approx(10 * math.log10(1 / 1e-8))
+
+
+def test_the_record_of_a_perfect_cell_is_strict_json_with_the_ceiling(cell, tmp_path):
+    from snell_bench.experiment.reports.records import GRID_RECORD, record_problem
+    from snell_bench.utils.io import write_json
+
+    gen, _, mask, _, _ = cell
+    res = score_cell(gen, gen.copy(), mask, PROMPT, None)
+    rec = {"status": "ok", "experiment": "e", "scene": "s", "variation": 0, "object": "o", "method": "m", **res}
+    write_json(tmp_path / "metrics.json", rec)
+    back = json.loads((tmp_path / "metrics.json").read_text())
+    assert back["metrics"]["psnr"] == PSNR_CEILING_DB and record_problem(back, GRID_RECORD) is None
+    assert "not of type" in record_problem({**back, "notes": {"psnr": 3}}, GRID_RECORD)
 
 
 def test_empty_masks(cell):
@@ -203,7 +227,7 @@ def test_authors_protocol_is_passed_down(cell):
     assert m["psnr"] == masked_psnr(gen, ref, mask, protocol="authors") != masked_psnr(gen, ref, mask)
     assert m["mae"] == masked_mae(gen, ref, mask, protocol="authors")
     assert m["psnr_true"] == masked_psnr(gen, true, obj, protocol="authors")
-    assert lp.calls == [{"protocol": "authors"}, {"protocol": "authors", "box": True}]
+    assert lp.calls == [{"protocol": "authors"}, {"protocol": "authors", "box": True, "box_range": "signed"}]
     assert tuple(m) == ("psnr", "mae", "lpips", "lpips_box", "clip", "image_reward", "psnr_true")
     assert m["clip"] == fake_clip(gen, PROMPT)  # the text scores do not depend on the protocol
     # the paper protocol calls the LPIPS scorer once, with no option, and has no lpips_box
@@ -241,8 +265,8 @@ def test_identical_and_constant_images_never_give_nan(cell, protocol):
     gen, ref, mask, _, obj = cell
     res = score_cell(gen, gen.copy(), mask, PROMPT, None, true_render=gen.copy(), object_mask=obj, protocol=protocol)
     if protocol == "paper":
-        assert res["metrics"]["psnr"] is None and res["metrics"]["psnr_true"] is None and res["metrics"]["mae"] == 0.0
-        assert res["missing"]["psnr"].startswith("infinite PSNR") and res["missing"]["psnr_true"].startswith("infinite")
+        assert res["metrics"]["psnr"] == res["metrics"]["psnr_true"] == PSNR_CEILING_DB
+        assert res["metrics"]["mae"] == 0.0 and "psnr" not in res["missing"]
     else:  # the authors' matching is not the identity on identical images (test_authors_protocol.py)
         assert all(math.isfinite(res["metrics"][k]) for k in ("psnr", "mae", "psnr_true"))
     flat = np.full_like(gen, 0.4)

@@ -349,3 +349,88 @@ def test_a_built_pipeline_is_moved_only_when_asked(scene):
     img = inpaint_external(pipe, PROMPT, i_minus, mask, steps=1, dtype="bf16")
     check_image(img)
     assert pipe.transformer.dtype == torch.bfloat16 and pipe.device.type == "cpu"
+
+
+# ---------------------------------------------------------------------------- the recipes' baselines
+#: What each recipe hands the baselines (DESIGN §6: eval/compare.py, eval/compare_inpaint.py):
+#: (the object phrase in their prompts, FLUX t2i steps, Fill steps, Fill guidance, Qwen model, CFG).
+RECIPE_BASELINES = {
+    "paper": ("a big glass sphere", None, None, None, "Qwen/Qwen-Image", True),
+    "authors": ("a solid transparent glass sphere", 28, 30, 30.0, "Qwen/Qwen-Image-2512", False),
+}
+
+
+def _method_cfg(recipe, method):
+    from snell_bench.config import compose
+
+    return compose([f"recipe={recipe}", f"method={method}", "output_dir=/tmp/x"])
+
+
+@pytest.mark.parametrize("recipe", sorted(RECIPE_BASELINES))
+def test_the_recipe_sets_the_baselines_methods(recipe):
+    from snell_bench.pipeline.methods import baseline_prompt
+
+    phrase, flux_steps, fill_steps, fill_guidance, qwen, cfg_on = RECIPE_BASELINES[recipe]
+    t2i = _method_cfg(recipe, "t2i")
+    assert t2i.method.steps == flux_steps and phrase in baseline_prompt(t2i)
+    assert baseline_prompt(t2i) == str(t2i.scene.prompt).replace("{object}", "sphere").replace(
+        "a big glass sphere", phrase
+    )
+    fill = _method_cfg(recipe, "inpaint")
+    assert (baseline_prompt(fill), fill.method.steps, fill.method.guidance) == (phrase, fill_steps, fill_guidance)
+    q = _method_cfg(recipe, "qwen_image")
+    assert (q.method.model_id, q.method.cfg) == (qwen, cfg_on) and phrase in baseline_prompt(q)
+    assert _method_cfg(recipe, "snellcaster").method.steps is None  # the method itself keeps sampler.steps
+
+
+def _spy(monkeypatch, cls):
+    """Record the keywords of every ``cls.__call__`` (signature kept: call_settings reads it)."""
+    import functools
+
+    calls = []
+    original = cls.__call__
+
+    @functools.wraps(original)
+    def spy(self, *args, **kwargs):
+        calls.append(kwargs)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(cls, "__call__", spy)
+    return calls
+
+
+@pytest.mark.parametrize("recipe", sorted(RECIPE_BASELINES))
+def test_each_baseline_pipeline_receives_the_recipes_prompt_steps_and_guidance(folders, scene, recipe, monkeypatch):
+    import diffusers
+
+    from snell_bench.pipeline.methods import baseline_prompt
+
+    _, _, fill_steps, fill_guidance, _, cfg_on = RECIPE_BASELINES[recipe]
+    q = _method_cfg(recipe, "qwen_image")
+    calls = _spy(monkeypatch, diffusers.QwenImagePipeline)
+    generate_external(
+        folders["qwen_image"], baseline_prompt(q), (H, W), seed=1, device="cpu", steps=q.method.steps, cfg=q.method.cfg
+    )
+    (kw,) = calls
+    assert kw["prompt"] == baseline_prompt(q) and kw["num_inference_steps"] == 50 and kw["true_cfg_scale"] == 4.0
+    assert ("negative_prompt" in kw) is cfg_on  # without one the pipeline skips its true CFG
+    fill = _method_cfg(recipe, "inpaint")
+    calls = _spy(monkeypatch, diffusers.FluxFillPipeline)
+    i_minus, mask = scene
+    inpaint_external(
+        folders["fill"], baseline_prompt(fill), i_minus, mask, seed=1, device="cpu",
+        steps=fill.method.steps, guidance=fill.method.guidance,
+    )  # fmt: skip
+    (kw,) = calls
+    assert kw["prompt"] == baseline_prompt(fill)
+    assert (kw["num_inference_steps"], kw["guidance_scale"]) == (fill_steps or 50, fill_guidance or 30.0)
+
+
+def test_without_cfg_the_qwen_call_passes_no_negative_prompt():
+    import diffusers
+
+    on = call_settings(diffusers.QwenImagePipeline)
+    off = call_settings(diffusers.QwenImagePipeline, cfg=False)
+    assert on.call_kwargs() == {"num_inference_steps": 50, "true_cfg_scale": 4.0, "negative_prompt": " "}
+    assert off.call_kwargs() == {"num_inference_steps": 50, "true_cfg_scale": 4.0}
+    assert call_settings(diffusers.FluxPipeline, cfg=False) == call_settings(diffusers.FluxPipeline)

@@ -154,10 +154,12 @@ def test_each_variation_has_its_own_seed(inputs):
     variation 0 keeps the run's seed."""
     from omegaconf import OmegaConf
 
-    cfg = pipeline.apply_method(compose([*TINY, "model=tiny_flux", "method=t2i"]))
+    cfg = pipeline.apply_method(compose([*TINY, "model=tiny_flux", "scene.source=procedural", "method=t2i"]))
     assert pipeline.cell_seed(cfg) == 0
     a = pipeline.run_method(cfg, inputs).image
-    cfg1 = pipeline.apply_method(compose([*TINY, "model=tiny_flux", "method=t2i", "scene.variation=1", "seed=0"]))
+    cfg1 = pipeline.apply_method(
+        compose([*TINY, "model=tiny_flux", "scene.source=procedural", "method=t2i", "scene.variation=1", "seed=0"])
+    )
     assert pipeline.cell_seed(cfg1) == 1 and OmegaConf.to_yaml(cfg1.model) == OmegaConf.to_yaml(cfg.model)
     assert not torch.equal(a, pipeline.run_method(cfg1, inputs).image)
 
@@ -172,7 +174,9 @@ def test_flux_fill_without_its_device_or_weights_is_skipped(inputs):
 def test_inpainting_runs_a_tiny_flux_fill_on_the_cpu(inputs):
     """``model=tiny_flux``: a tiny random ``FluxFillPipeline`` repaints the object's silhouette from
     the object phrase, with the authors' 30 steps and guidance 30."""
-    cfg = pipeline.apply_method(compose([*TINY, "model=tiny_flux", "method=inpaint", "method.steps=2"]))
+    cfg = pipeline.apply_method(
+        compose([*TINY, "model=tiny_flux", "scene.source=procedural", "method=inpaint", "method.steps=2"])
+    )
     res = pipeline.run_method(cfg, inputs)
     m = torch.from_numpy(inputs.warps.object_mask)
     assert res.stats["pipeline"]["steps"] == 2 and res.stats["pipeline"]["guidance"] == 30.0

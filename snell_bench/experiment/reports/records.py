@@ -15,6 +15,8 @@ Conventions (both schemas):
     - An ``ok`` record holds ``metrics``, a mapping of metric name to a number or null (a JSON
       ``NaN`` or ``Infinity`` is a number here; the reports show it as missing, "not finite in the
       record"); a sweep's ``ok`` record also holds ``timings_s``.
+    - A PSNR is at most the scorer's ceiling (80 dB; identical pixels are recorded there), with
+      the reason in ``notes`` (metric name -> string).
     - Every other key the reports read has its type (``missing``: strings or null; ``timings_s``:
       numbers or null; ``model_calls``: integers or null; nested groups: objects). Keys the
       schemas do not name are allowed (records of newer versions).
@@ -47,9 +49,12 @@ _COMMON_PROPERTIES = {
     "method": _STR,
     "model": _STR,
     "scene_source": _STR,
+    "generator_on_procedural": {"type": "boolean"},
+    "initial_noise": _OBJECT,
     "protocol": _OPT_STR,
     "metrics": _NUMBERS,
     "missing": _REASONS,
+    "notes": _REASONS,
     "timings_s": _NUMBERS,
     "sampler_timings_s": _NUMBERS,
     "model_calls": _COUNTS,
