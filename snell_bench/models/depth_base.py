@@ -15,6 +15,8 @@ Convention:
     - Device: ``"cpu"`` (default; ``None`` is the same), ``"cuda[:i]"`` (must be available:
       :class:`~snell_bench.models.errors.DeviceNotAvailableError` naming ``depth.device``) or ``"auto"``
       (CUDA when available, else the CPU): :func:`resolve_depth_device`.
+    - Depth edges (config key ``depth.edge_rtol``): :func:`depth_edge_mask` marks the pixels at a
+      depth discontinuity, which an estimator with ``edge_rtol`` set turns into missing depth (NaN).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 import torch
+from scipy import ndimage
 
 from .devices import resolve_device
 
@@ -36,6 +39,8 @@ __all__ = [
     "DepthEstimate",
     "DepthEstimator",
     "check_image",
+    "cut_depth_edges",
+    "depth_edge_mask",
     "resolve_depth_device",
     "valid_depth",
     "weights_help",
@@ -164,6 +169,57 @@ def valid_depth(depth: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         depth[~(np.isfinite(depth) & (depth > 0))] = np.nan
     return depth
+
+
+def depth_edge_mask(depth: np.ndarray, rtol: float, kernel_size: int = 3) -> np.ndarray:
+    """The pixels at a depth discontinuity: MoGe's rule (utils3d's depth-map edge with a relative
+    tolerance, as MoGe's export and the authors' ``utils/moge2_infer.py`` apply it).
+
+    Convention:
+        ``depth`` is an ``(H, W)`` z-depth; NaN, inf and values <= 0 are missing. A valid pixel is an
+        edge when the spread of depth over its ``kernel_size`` x ``kernel_size`` neighbourhood (cut
+        at the image border), ``max - min``, is more than ``rtol`` times its own depth. A missing
+        neighbour counts as infinitely far (MoGe marks missing depth ``inf``), so every valid pixel
+        next to a missing one is an edge. Missing pixels are never edges (they are out already).
+        For a step from ``z1`` to ``z2 > z1`` the near side is cut when ``(z2 - z1) / z1 > rtol``,
+        the far side only when ``(z2 - z1) / z2 > rtol``; a plane seen at a grazing angle is cut
+        where the depth changes by more than ``rtol / 2`` of itself per pixel.
+
+    Args:
+        depth: ``(H, W)`` z-depth.
+        rtol: the relative tolerance, > 0 (the authors: 0.1).
+        kernel_size: the side of the neighbourhood, odd.
+
+    Returns:
+        bool ``(H, W)``, ``True`` on an edge.
+
+    Raises:
+        ValueError: for a depth that is not 2-D, ``rtol`` not > 0 or an even ``kernel_size``.
+    """
+    d = np.asarray(depth, np.float64)
+    if d.ndim != 2:
+        raise ValueError(f"depth must be (H, W), got shape {d.shape}")
+    if not (rtol > 0 and np.isfinite(rtol)):
+        raise ValueError(f"depth.edge_rtol must be a number > 0 (e.g. 0.1) or null (no cut), got {rtol}")
+    if kernel_size < 1 or kernel_size % 2 == 0:
+        raise ValueError(f"kernel_size must be odd and >= 1, got {kernel_size}")
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(d) & (d > 0)
+    far = np.where(valid, d, np.inf)
+    # mode="nearest" repeats border values: the max and min over the window cut at the border
+    hi = ndimage.maximum_filter(far, size=kernel_size, mode="nearest")
+    lo = ndimage.minimum_filter(far, size=kernel_size, mode="nearest")
+    with np.errstate(invalid="ignore"):
+        spread = hi - lo  # inf next to a missing pixel
+        return valid & (spread / np.where(valid, d, 1.0) > rtol)
+
+
+def cut_depth_edges(depth: np.ndarray, rtol: float | None) -> np.ndarray:
+    """float32 ``depth`` with NaN on the pixels :func:`depth_edge_mask` marks (``rtol=None``: as is)."""
+    out = np.array(depth, dtype=np.float32)
+    if rtol is not None:
+        out[depth_edge_mask(out, float(rtol))] = np.nan
+    return out
 
 
 def weights_help(what: str, *, example: str, layout: str) -> str:

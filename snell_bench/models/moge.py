@@ -7,6 +7,9 @@ Convention (see :mod:`snell_bench.models.depth_base` for the shared ones):
     - ``infer`` gives normalised intrinsics (image edges at 0 and 1, the centre of pixel ``i`` at
       ``(i + 0.5) / W``): ``fx = W fx_n``, ``fy = H fy_n``, ``cx = W cx_n - 0.5``, ``cy = H cy_n - 0.5``;
       pixels outside its mask (``inf`` depth) are NaN.
+    - ``edge_rtol`` (config key ``depth.edge_rtol``; ``None``: off, the default): pixels at depth
+      edges (:func:`~snell_bench.models.depth_base.depth_edge_mask`, evaluated with MoGe's mask) are
+      NaN too, as the authors' ``utils/moge2_infer.py`` cuts its mesh (``--threshold 0.1``).
     - The checkpoint ``model.pt`` is read from a local file, a folder or the Hugging Face cache only,
       never downloaded; missing weights raise :class:`~snell_bench.models.errors.WeightsNotFoundError`
       naming the config key ``depth.path``.
@@ -27,6 +30,7 @@ from .depth_base import (
     MOGE2_ID,
     DepthEstimate,
     check_image,
+    cut_depth_edges,
     resolve_depth_device,
     valid_depth,
     weights_help,
@@ -98,6 +102,8 @@ class MoGe2Depth:
         resolution_level: MoGe's ``resolution_level`` (0-9: more ViT tokens, finer detail, slower).
         num_tokens: MoGe's ``num_tokens`` (overrides ``resolution_level``); ``None``: from the level.
         use_fp16: mixed precision; ``None``: on CUDA only.
+        edge_rtol: cut depth edges at this relative tolerance (:func:`cut_depth_edges`);
+            ``None``: keep every pixel MoGe's mask keeps.
     """
 
     name = "moge2"
@@ -110,7 +116,11 @@ class MoGe2Depth:
         resolution_level: int = 9,
         num_tokens: int | None = None,
         use_fp16: bool | None = None,
+        edge_rtol: float | None = None,
     ):
+        if edge_rtol is not None and not (float(edge_rtol) > 0 and np.isfinite(float(edge_rtol))):
+            raise ValueError(f"depth.edge_rtol must be a number > 0 (the authors: 0.1) or null, got {edge_rtol}")
+        self.edge_rtol = None if edge_rtol is None else float(edge_rtol)
         self.device = resolve_depth_device(device)
         self.model = model.to(self.device).eval()
         self.resolution_level = int(resolution_level)
@@ -126,6 +136,7 @@ class MoGe2Depth:
         resolution_level: int = 9,
         num_tokens: int | None = None,
         use_fp16: bool | None = None,
+        edge_rtol: float | None = None,
     ) -> MoGe2Depth:
         """Load a MoGe-2 checkpoint from local files.
 
@@ -136,6 +147,7 @@ class MoGe2Depth:
             resolution_level: see :class:`MoGe2Depth`.
             num_tokens: see :class:`MoGe2Depth`.
             use_fp16: see :class:`MoGe2Depth`.
+            edge_rtol: see :class:`MoGe2Depth` (config key ``depth.edge_rtol``).
 
         Returns:
             The estimator.
@@ -156,7 +168,14 @@ class MoGe2Depth:
                     f"loading {checkpoint!r} failed ({err})", example=MOGE2_ID, layout=f"the MoGe {_MOGE_CHECKPOINT}"
                 )
             ) from err
-        return cls(model, device=dev, resolution_level=resolution_level, num_tokens=num_tokens, use_fp16=use_fp16)
+        return cls(
+            model,
+            device=dev,
+            resolution_level=resolution_level,
+            num_tokens=num_tokens,
+            use_fp16=use_fp16,
+            edge_rtol=edge_rtol,
+        )
 
     @torch.no_grad()
     def __call__(self, image: np.ndarray) -> DepthEstimate:
@@ -183,4 +202,4 @@ class MoGe2Depth:
             depth = np.where(mask.cpu().numpy().reshape(H, W).astype(bool), depth, np.nan)
         K = out["intrinsics"].double().cpu().numpy().reshape(3, 3)
         intrinsics = (W * K[0, 0], H * K[1, 1], W * K[0, 2] - 0.5, H * K[1, 2] - 0.5)
-        return DepthEstimate(depth=valid_depth(depth), intrinsics=intrinsics)
+        return DepthEstimate(depth=cut_depth_edges(valid_depth(depth), self.edge_rtol), intrinsics=intrinsics)

@@ -13,12 +13,20 @@ Convention:
       ``(H, W)``, ``True`` on the surface. The segmenters never raise for a surface they cannot
       find: they return an empty mask, and :func:`surface_region` turns that into an error naming
       the phrase.
-    - SAM 3 is prompted with the phrase as text (no boxes). The mask is the **union** of the
-      instance masks whose score (``sigmoid(logit) * sigmoid(presence)``, transformers'
-      ``post_process_instance_segmentation``) exceeds ``threshold``, binarised at ``mask_threshold``
-      after resizing to the input size. A union rather than the best instance: a surface is often
-      seen in pieces (a floor between pieces of furniture), and where two different surfaces match
-      the phrase, the placement's plane fit keeps the dominant plane of the region.
+    - SAM 3 is prompted with the phrase as text (no boxes). By default (``instance="union"``,
+      config key ``segment.instance``) the mask is the **union** of the instance masks whose score
+      (``sigmoid(logit) * sigmoid(presence)``, transformers' ``post_process_instance_segmentation``)
+      exceeds ``threshold``, binarised at ``mask_threshold`` after resizing to the input size. A
+      union rather than the best instance: a surface is often seen in pieces (a floor between
+      pieces of furniture), and where two different surfaces match the phrase, the placement's
+      plane fit keeps the dominant plane of the region. ``"best"``: the highest-scoring instance;
+      ``"first"``: the first instance above ``threshold`` in the model's query order (what the
+      authors' ``utils/obj_placement.py`` takes: ``centers_2d[0]``; it is not the best one, SAM 3
+      does not sort its queries) (:func:`pick_instance`).
+    - A segmenter's mask may be a :class:`SurfaceMask`, which also carries the box of the chosen
+      instance(s) (SAM 3's predicted box, ``x0, y0, x1, y1`` in pixels with the image's edges at 0
+      and ``W``, ``H``; pixel ``i`` spans ``[i, i + 1]``); the placement's ``centre_ray`` anchor
+      aims at its centre.
     - The image reaches SAM 3 quantised to 8 bits (as a photo would), through the processor's own
       resizing and normalisation.
     - Weights are never downloaded: ``from_pretrained(..., local_files_only=True)``; missing weights
@@ -49,8 +57,11 @@ __all__ = [
     "SAM3_ID",
     "MaskFileSegmenter",
     "Sam3Segmenter",
+    "INSTANCE_CHOICES",
+    "SurfaceMask",
     "SurfaceSegmenter",
     "TinySam3Segmenter",
+    "pick_instance",
     "read_mask",
     "surface_region",
     "tiny_sam3",
@@ -61,6 +72,60 @@ SAM3_ID = "facebook/sam3"
 #: The tiny SAM 3's input size (square, as SAM 3's 1008 x 1008) and ViT patch size (SAM 3's).
 _TINY_IMAGE_SIZE = 56
 _TINY_PATCH_SIZE = 14
+#: How the mask is made from SAM 3's instances (config key ``segment.instance``).
+INSTANCE_CHOICES = ("union", "best", "first")
+
+
+class SurfaceMask(np.ndarray):
+    """A bool ``(H, W)`` surface mask with ``box``: the box of the instance(s) it came from
+    (``x0, y0, x1, y1`` float64 in pixels, the image's edges at 0 and ``W``, ``H``), or ``None``.
+
+    An ndarray in every other way (NumPy's documented way to add an attribute to an array);
+    ``np.asarray`` drops the box.
+    """
+
+    box: np.ndarray | None
+
+    def __new__(cls, mask: np.ndarray, box=None) -> SurfaceMask:
+        obj = np.asarray(mask, dtype=bool).view(cls)
+        obj.box = None if box is None else np.asarray(box, np.float64).reshape(4)
+        return obj
+
+    def __array_finalize__(self, obj) -> None:
+        self.box = getattr(obj, "box", None)
+
+
+def pick_instance(found: dict[str, np.ndarray], how: str, shape: tuple[int, int]) -> SurfaceMask:
+    """The surface mask from instance masks (the output of :meth:`Sam3Segmenter.instances`).
+
+    Args:
+        found: ``{"masks": bool (N, H, W), "scores": (N,), "boxes": (N, 4), "query": int (N,)}``
+            (``query``: each instance's position in the model's query order; optional for
+            ``"union"`` and ``"best"``).
+        how: ``"union"`` (every instance; the box spans their boxes), ``"best"`` (the highest
+            score, the earliest query on ties) or ``"first"`` (the earliest query).
+        shape: ``(H, W)``, for an empty result.
+
+    Returns:
+        The mask and its box; all ``False`` with ``box=None`` when ``N = 0``.
+
+    Raises:
+        ValueError: for an unknown ``how`` (naming ``segment.instance``).
+    """
+    if how not in INSTANCE_CHOICES:
+        raise ValueError(f"segment.instance={how!r}: use one of {', '.join(INSTANCE_CHOICES)}")
+    masks = np.asarray(found["masks"], bool)
+    if len(masks) == 0:
+        return SurfaceMask(np.zeros(shape, bool))
+    boxes = np.asarray(found["boxes"], np.float64).reshape(-1, 4)
+    if how == "union":
+        box = np.concatenate([boxes[:, :2].min(axis=0), boxes[:, 2:].max(axis=0)])
+        return SurfaceMask(masks.any(axis=0), box)
+    query = np.asarray(found.get("query", np.arange(len(masks))), np.int64)
+    scores = np.asarray(found["scores"], np.float64)
+    # lexsort: the last key is the primary one
+    i = int(np.lexsort((query, -scores))[0]) if how == "best" else int(np.argmin(query))
+    return SurfaceMask(masks[i], boxes[i])
 
 
 @runtime_checkable
@@ -103,7 +168,7 @@ def _check_phrase(phrase: str) -> str:
     return phrase.strip()
 
 
-def surface_region(segmenter: SurfaceSegmenter, image: np.ndarray, phrase: str) -> np.ndarray:
+def surface_region(segmenter: SurfaceSegmenter, image: np.ndarray, phrase: str, instance: str = "union") -> np.ndarray:
     """Segment the surface and check the result: the ``region`` for
     :func:`~snell_bench.scene.placement.find_support_plane`.
 
@@ -111,9 +176,11 @@ def surface_region(segmenter: SurfaceSegmenter, image: np.ndarray, phrase: str) 
         segmenter: the backend.
         image: float ``(H, W, 3)`` sRGB in ``[0, 1]``.
         phrase: the surface's name.
+        instance: for a segmenter with ``instances`` (SAM 3): which of them make the mask
+            (:func:`pick_instance`; config key ``segment.instance``). Others (a mask file) ignore it.
 
     Returns:
-        bool ``(H, W)``, not empty.
+        bool ``(H, W)``, not empty (a :class:`SurfaceMask` with its box when the segmenter gives one).
 
     Raises:
         ValueError: if the segmenter finds nothing (the message names the phrase and the config
@@ -122,7 +189,13 @@ def surface_region(segmenter: SurfaceSegmenter, image: np.ndarray, phrase: str) 
         TypeError: if the segmenter returns a mask that is not boolean.
     """
     image = _check_image(image)
-    mask = np.asarray(segmenter(image, phrase))
+    if instance not in INSTANCE_CHOICES:
+        raise ValueError(f"segment.instance={instance!r}: use one of {', '.join(INSTANCE_CHOICES)}")
+    if instance != "union" and hasattr(segmenter, "instances"):
+        raw = pick_instance(segmenter.instances(image, phrase), instance, image.shape[:2])
+    else:  # the union: the segmenter's own mask
+        raw = segmenter(image, phrase)
+    mask = raw if isinstance(raw, SurfaceMask) else np.asarray(raw)
     name = getattr(segmenter, "name", type(segmenter).__name__)
     if mask.shape != image.shape[:2]:
         raise ValueError(f"segmenter {name!r} returned a mask of shape {mask.shape} for an image of {image.shape[:2]}")
@@ -312,8 +385,9 @@ class Sam3Segmenter:
             phrase: what to segment.
 
         Returns:
-            ``{"masks": bool (N, H, W), "scores": float32 (N,), "boxes": float32 (N, 4)}`` (boxes in
-            pixels, ``x0, y0, x1, y1``), highest score first; ``N`` may be 0.
+            ``{"masks": bool (N, H, W), "scores": float32 (N,), "boxes": float32 (N, 4), "query":
+            int64 (N,)}`` (boxes in pixels, ``x0, y0, x1, y1``; ``query``: the instance's rank in
+            the model's query order among those kept), highest score first; ``N`` may be 0.
         """
         import torch
 
@@ -333,20 +407,23 @@ class Sam3Segmenter:
             masks = np.zeros((0, h, w), bool)
         else:
             masks = result["masks"].bool().cpu().numpy()[order]
-        return {"masks": masks, "scores": scores[order], "boxes": result["boxes"].float().cpu().numpy()[order]}
+        boxes = result["boxes"].float().cpu().numpy().reshape(-1, 4)[order]
+        return {"masks": masks, "scores": scores[order], "boxes": boxes, "query": order.astype(np.int64)}
 
-    def __call__(self, image: np.ndarray, phrase: str) -> np.ndarray:
-        """The union of the phrase's instance masks.
+    def __call__(self, image: np.ndarray, phrase: str, instance: str = "union") -> SurfaceMask:
+        """The phrase's instance masks, combined as ``instance`` says (:func:`pick_instance`).
 
         Args:
             image: float ``(H, W, 3)`` sRGB in ``[0, 1]``.
             phrase: the surface's name.
+            instance: ``"union"`` (default), ``"best"`` or ``"first"``.
 
         Returns:
-            bool ``(H, W)``; all ``False`` when no instance passes ``threshold``.
+            bool ``(H, W)`` with the box of the chosen instance(s); all ``False`` when no instance
+            passes ``threshold``.
         """
         found = self.instances(image, phrase)
-        mask = found["masks"].any(axis=0) if len(found["masks"]) else np.zeros(np.shape(image)[:2], bool)
+        mask = pick_instance(found, instance, np.shape(image)[:2])
         log.info(
             "%s: %d instance(s) of %r (scores %s), %.1f%% of the image",
             self.name,

@@ -9,6 +9,17 @@ Convention:
     (a bool ``(H, W)`` mask of the supporting surface, e.g. from
     :mod:`snell_bench.models.segment`) replaces the window, so the named surface can lie anywhere
     in the image.
+    Two anchors (config key ``object.anchor``, :data:`ANCHORS`):
+
+    - ``plane`` (default): a RANSAC plane fitted to the depth inside the region (or window); the
+      object's bottom centre at the median of the plane's points, lifted by ``lift`` x its size
+      along the plane's normal, its front turned to the camera.
+    - ``centre_ray``: the authors' rule (``utils/obj_placement.py``, ``place_object_on_surface_sam3``):
+      the camera ray through the centre of the region's box (SAM 3's predicted box when the region
+      carries one, else the box of the mask; without a region, the pixel where the ``plane``
+      anchor's plane centre is seen) meets the depth
+      mesh (:func:`~snell_bench.scene.depth_mesh.depth_to_mesh`); the normal of the triangle it hits,
+      turned up, tilts the object (:func:`centre_ray_support`, :func:`centre_ray_transform`).
 """
 
 from __future__ import annotations
@@ -19,19 +30,37 @@ from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
+import trimesh
 
 from snell_bench.scene.camera import Camera
-from snell_bench.scene.depth_mesh import valid_depth_mask
+from snell_bench.scene.depth_mesh import depth_to_mesh, valid_depth_mask
 from snell_bench.scene.objects import GlassObject
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SupportPlane", "find_support_plane", "place_object", "placement_transform"]
+__all__ = [
+    "ANCHORS",
+    "CENTRE_RAY_LIFT",
+    "SupportPlane",
+    "anchor_pixel",
+    "centre_ray_support",
+    "centre_ray_transform",
+    "find_support_plane",
+    "place_object",
+    "placement_transform",
+]
+
+#: Where the object stands (config key ``object.anchor``).
+ANCHORS = ("plane", "centre_ray")
+#: The ``centre_ray`` anchor's lift in scene units (metres) along the up direction: the authors'
+#: ``eps = 0.005`` added to the height (Blender's z), not along the surface normal.
+CENTRE_RAY_LIFT = 0.005
 
 
 @dataclass(frozen=True)
 class SupportPlane:
-    """A horizontal plane ``normal . x = normal . point`` with ``normal`` pointing up."""
+    """A horizontal plane ``normal . x = normal . point`` with ``normal`` pointing up (the
+    ``centre_ray`` anchor: the hit point and the hit triangle's normal, ``inliers=1``)."""
 
     point: np.ndarray  # (3,) the centre of the visible supporting region (camera frame)
     normal: np.ndarray  # (3,) unit, pointing up
@@ -210,6 +239,138 @@ def placement_transform(size: float, point: np.ndarray, up: np.ndarray, yaw_deg:
     return T
 
 
+def anchor_pixel(region: np.ndarray | None, camera: Camera) -> np.ndarray:
+    """The pixel the ``centre_ray`` anchor aims at, ``(x, y)`` with integer pixel centres.
+
+    The centre of the region's box: its ``box`` attribute (``x0, y0, x1, y1`` with the image's edges
+    at 0 and ``W``, ``H``, e.g. SAM 3's predicted box, as the authors take it) when it has one, else
+    the box of its pixels (the first pixel's left edge to the last one's right edge); without a
+    region, the image centre (:func:`place_object` aims at the fitted plane's centre instead). The authors' ray uses ``X / W`` of a box coordinate ``X``: the same
+    ray as pixel ``X - 0.5`` here for a centred principal point.
+
+    Raises:
+        ValueError: for an empty region (naming ``segment``).
+    """
+    if region is None:
+        return np.array([(camera.width - 1) / 2.0, (camera.height - 1) / 2.0])
+    box = getattr(region, "box", None)
+    if box is None:
+        ys, xs = np.nonzero(np.asarray(region))
+        if len(xs) == 0:
+            raise ValueError("the supporting-surface region is empty: check the segmentation (config group `segment`)")
+        box = (xs.min(), ys.min(), xs.max() + 1.0, ys.max() + 1.0)
+    x0, y0, x1, y1 = (float(v) for v in box)
+    return np.array([(x0 + x1) / 2.0 - 0.5, (y0 + y1) / 2.0 - 0.5])
+
+
+def centre_ray_support(
+    depth: np.ndarray,
+    camera: Camera,
+    pixel: np.ndarray,
+    *,
+    up_hint=(0.0, -1.0, 0.0),
+    edge_threshold: float = 0.05,
+    max_tilt_deg: float = 30.0,
+) -> SupportPlane:
+    """Where the camera ray through ``pixel`` first meets the depth mesh, and the normal there.
+
+    The mesh is :func:`~snell_bench.scene.depth_mesh.depth_to_mesh` (cut at ``edge_threshold``, as
+    ``warps.edge_threshold`` cuts the background); the ray is cast with Open3D, the hit point and
+    the normal are recomputed in float64 from the hit triangle. The normal is the hit triangle's
+    (flat, as the authors'), turned so that it points along ``up_hint``. A normal more than
+    ``max_tilt_deg`` off ``up_hint`` is used anyway (the authors do not check) and logged.
+
+    Returns:
+        ``SupportPlane(point, normal, inliers=1, pixel)``: one triangle holds the point.
+
+    Raises:
+        ValueError: if the ray meets no depth (a hole or a cut depth edge), naming the keys.
+    """
+    up = np.asarray(up_hint, np.float64)
+    up = up / np.linalg.norm(up)
+    verts, faces, _ = depth_to_mesh(depth, camera, edge_threshold)
+    px = np.asarray(pixel, np.float64).reshape(2)
+    d = camera.pixel_rays(px[None], normalize=False)[0]
+    scene = o3d.t.geometry.RaycastingScene()
+    if len(faces):
+        scene.add_triangles(o3d.core.Tensor.from_numpy(verts), o3d.core.Tensor.from_numpy(faces))
+    rays = o3d.core.Tensor(np.concatenate([np.zeros(3), d])[None].astype(np.float32))
+    hit = scene.cast_rays(rays)
+    prim = int(hit["primitive_ids"].numpy()[0])
+    if not len(faces) or not np.isfinite(float(hit["t_hit"].numpy()[0])) or prim < 0 or prim >= len(faces):
+        raise ValueError(
+            f"the ray through pixel ({px[0]:.1f}, {px[1]:.1f}), the centre of the supporting surface's box, meets "
+            "no depth (a hole or a depth edge there): check the segmentation (config group `segment`) and the depth "
+            "(scene.depth, depth.edge_rtol), or stand the object on a fitted plane (object.anchor=plane)"
+        )
+    a, b, c = verts[faces[prim]].astype(np.float64)
+    n = np.cross(b - a, c - a)
+    n = n / np.linalg.norm(n)
+    point = d * float(n @ a) / float(n @ d)
+    if n @ up < 0:
+        n = -n
+    tilt = math.degrees(math.acos(min(1.0, float(n @ up))))
+    if tilt > max_tilt_deg:
+        log.warning(
+            "centre_ray: the surface under pixel %s is %.1f deg off up (object.max_tilt_deg=%g)", px, tilt, max_tilt_deg
+        )
+    return SupportPlane(point=point, normal=n, inliers=1, pixel=px)
+
+
+def _camera_aligned(up: np.ndarray, yaw_deg: float) -> np.ndarray:
+    """3x3 columns ``(x, up, z)``: ``z`` is the camera's -z made perpendicular to ``up`` (the
+    object faces the camera's axis, not the camera), turned by ``yaw_deg`` about ``up``."""
+    z = np.array([0.0, 0.0, -1.0]) - (-up[2]) * up
+    if np.linalg.norm(z) < 1e-9:
+        z = np.cross(up, [1.0, 0.0, 0.0])
+    z = z / np.linalg.norm(z)
+    if yaw_deg:
+        t = math.radians(yaw_deg)
+        z = math.cos(t) * z + math.sin(t) * np.cross(up, z)
+    return np.stack([np.cross(up, z), up, z], axis=1)
+
+
+def _centre_ray_terms(vertices, point, normal, up, yaw_deg, lift):
+    """``(base, coef, R, B, bottom, mean)``: a canonical vertex v lands at ``base + size * coef(v)``."""
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    normal = np.asarray(normal, np.float64) / np.linalg.norm(normal)
+    B = _camera_aligned(up, yaw_deg)
+    v = np.asarray(vertices, np.float64)
+    bottom = v[v[:, 1] == v[:, 1].min()].mean(axis=0)  # the mean of the lowest vertices (exactly the lowest)
+    mean = v.mean(axis=0)
+    R = trimesh.geometry.align_vectors(up, normal)[:3, :3]
+    coef = (v - mean) @ (R @ B).T + (mean - bottom) @ B.T
+    return np.asarray(point, np.float64) + lift * up, coef, R, B, bottom, mean
+
+
+def centre_ray_transform(
+    vertices: np.ndarray,
+    size: float,
+    point: np.ndarray,
+    normal: np.ndarray,
+    up: np.ndarray,
+    yaw_deg: float = 0.0,
+    lift: float = CENTRE_RAY_LIFT,
+) -> np.ndarray:
+    """4x4 transform from the canonical frame (y up, unit size) to the camera frame, the authors'
+    pose: (1) scaled to ``size`` with its local y along ``up`` and local z along the camera's -z made
+    horizontal (their mesh keeps the camera's axes; ``yaw_deg`` turns it about ``up``); (2) moved so
+    that its bottom centre, the mean of its lowest vertices, is at ``point``; (3) turned about the
+    mean of its vertices by the smallest rotation taking ``up`` to ``normal`` (so on a tilted
+    surface the bottom leaves ``point`` by ``2 h sin(tilt / 2)``, h the mean's height above the
+    bottom); (4) raised by ``lift`` (scene units) along ``up``, not along the normal.
+
+    ``vertices`` ``(N, 3)`` are the canonical ones (only their lowest ones and their mean matter);
+    ``point``, ``normal``, ``up`` are ``(3,)`` in the camera frame; ``lift`` is in scene units.
+    """
+    base, _, R, B, bottom, mean = _centre_ray_terms(vertices, point, normal, up, yaw_deg, lift)
+    # v -> base + size (R B (v - mean) + B (mean - bottom)) = base + size (B (mean - bottom) - R B mean) + size R B v
+    T = np.eye(4)
+    T[:3, :3] = size * (R @ B)
+    T[:3, 3] = base + size * (B @ (mean - bottom) - R @ B @ mean)
+    return T
+
+
 #: Smallest projected extent (pixels) an object must span to be traced and scored.
 MIN_EXTENT_PX = 4.0
 
@@ -218,13 +379,11 @@ def _size_keys(size: float, dist: float) -> str:
     return f"object.size={size:.3g} (or object.relative_size={size / dist:.3g} x the distance {dist:.3g})"
 
 
-def _check_fits(obj, camera: Camera, plane: SupportPlane, *, size: float, lift: float, yaw_deg: float, dist: float):
+def _check_fits(obj, camera: Camera, p: np.ndarray, coef: np.ndarray, *, size: float, dist: float):
     """Raise ``ValueError`` naming the size keys and the size that works if the object placed at
-    ``size`` reaches behind the camera or spans fewer than :data:`MIN_EXTENT_PX` pixels."""
-    # a vertex v of the canonical object lands at p + s (lift n + R v): linear in the size s
-    R = placement_transform(1.0, np.zeros(3), plane.normal, yaw_deg)[:3, :3]
-    coef = obj.vertices @ R.T + lift * plane.normal
-    p = np.asarray(plane.point, np.float64)
+    ``size`` reaches behind the camera or spans fewer than :data:`MIN_EXTENT_PX` pixels; a vertex of
+    the canonical object lands at ``p + size * coef`` (linear in the size)."""
+    p = np.asarray(p, np.float64)
     z = p[2] + size * coef[:, 2]
     near = 1e-3 * dist
     if float(z.min()) <= near:
@@ -261,13 +420,17 @@ def place_object(
     region: np.ndarray | None = None,
     yaw_deg: float = 0.0,
     lift: float = 1e-3,
+    anchor: str = "plane",
     **plane_kwargs,
 ) -> GlassObject:
     """Put a canonical object on the supporting surface.
 
     ``size`` is the object's largest bounding-box side in scene units; by default
-    ``relative_size`` times the distance from the camera to the placement point. ``lift`` raises it
-    by that fraction of its size, so it stands on the surface instead of touching it.
+    ``relative_size`` times the distance from the camera to the placement point. With
+    ``anchor="plane"`` ``lift`` raises it by that fraction of its size along the plane's normal, so
+    it stands on the surface instead of touching it; ``anchor="centre_ray"`` is the authors' pose
+    (:func:`centre_ray_support`, :func:`centre_ray_transform`, :data:`CENTRE_RAY_LIFT` along up;
+    ``lift`` unused).
 
     Args:
         obj: the canonical (unplaced) object.
@@ -280,8 +443,10 @@ def place_object(
         region: ``(H, W)`` bool mask of the supporting surface, passed to :func:`find_support_plane`
             (the plane is fitted inside it; ``None``: the central window).
         yaw_deg: turn about the up direction, in degrees.
-        lift: raise the object by this fraction of its size.
-        **plane_kwargs: more arguments of :func:`find_support_plane`.
+        lift: raise the object by this fraction of its size (``anchor="plane"``).
+        anchor: ``"plane"`` or ``"centre_ray"`` (:data:`ANCHORS`; config key ``object.anchor``).
+        **plane_kwargs: more arguments of :func:`find_support_plane` (``"centre_ray"``: its
+            ``up_hint`` and ``max_tilt_deg``, and ``edge_threshold`` of the depth mesh).
 
     Returns:
         The placed object.
@@ -291,7 +456,21 @@ def place_object(
     """
     if obj.placed:
         raise ValueError(f"{obj.name} is already placed in camera coordinates")
-    if plane is None:
+    if anchor not in ANCHORS:
+        raise ValueError(f"object.anchor={anchor!r}: use one of {', '.join(ANCHORS)}")
+    up = np.asarray(plane_kwargs.get("up_hint", (0.0, -1.0, 0.0)), np.float64)
+    up = up / np.linalg.norm(up)
+    if plane is None and anchor == "centre_ray":
+        keep = {k: plane_kwargs.pop(k) for k in ("max_tilt_deg", "edge_threshold") if k in plane_kwargs}
+        # without a region the ray aims where the fitted plane's centre is seen (the image centre
+        # often shows a wall)
+        pixel = (
+            anchor_pixel(region, camera)
+            if region is not None
+            else find_support_plane(depth, camera, max_tilt_deg=keep.get("max_tilt_deg", 30.0), **plane_kwargs).pixel
+        )
+        plane = centre_ray_support(depth, camera, pixel, up_hint=up, **keep)
+    elif plane is None:
         plane = find_support_plane(depth, camera, region=region, **plane_kwargs)
     dist = float(np.linalg.norm(plane.point))
     if size is None:
@@ -300,15 +479,17 @@ def place_object(
         size = relative_size * dist
     if not (size > 0 and math.isfinite(size)):
         raise ValueError(f"size must be finite and > 0, got {size}")
-    point = plane.point + lift * size * plane.normal
-    T = placement_transform(size, point, plane.normal, yaw_deg)
-    _check_fits(obj, camera, plane, size=size, lift=lift, yaw_deg=yaw_deg, dist=dist)
+    if anchor == "centre_ray":
+        base, coef, *_ = _centre_ray_terms(obj.vertices, plane.point, plane.normal, up, yaw_deg, CENTRE_RAY_LIFT)
+        T = centre_ray_transform(obj.vertices, size, plane.point, plane.normal, up, yaw_deg)
+        point = base
+    else:
+        point = plane.point + lift * size * plane.normal
+        T = placement_transform(size, point, plane.normal, yaw_deg)
+        # a vertex v of the canonical object lands at p + s (lift n + R v): linear in the size s
+        R = placement_transform(1.0, np.zeros(3), plane.normal, yaw_deg)[:3, :3]
+        base, coef = plane.point, obj.vertices @ R.T + lift * plane.normal
+    _check_fits(obj, camera, base, coef, size=size, dist=dist)
     placed = obj.transformed(T, up=plane.normal)
-    log.info(
-        "placed %s (size %.3g) at %s on a plane with normal %s",
-        obj.name,
-        size,
-        np.round(point, 3),
-        np.round(plane.normal, 3),
-    )
+    log.info("placed %s (size %.3g) at %s, normal %s", obj.name, size, np.round(point, 3), np.round(plane.normal, 3))
     return placed

@@ -415,6 +415,22 @@ class TestMoGe2:
         MoGe2Depth.from_pretrained(str(tmp_path / "model.pt"), num_tokens=1200)
         assert fake_moge.loaded_from == [str(tmp_path / "model.pt")] * 2
 
+    def test_edge_rtol_cuts_the_ring_around_the_mask(self, fake_moge, tmp_path):
+        """A flat grey image: the fake's depth 1.5 + y / H changes by < 1 % per pixel, so rtol 0.1
+        cuts only the valid pixels next to its mask's hole (the top-left H/4 x W/3 block)."""
+        (tmp_path / "model.pt").write_bytes(b"")
+        H, W = 24, 36
+        img = np.full((H, W, 3), 0.5, np.float32)
+        plain = MoGe2Depth.from_pretrained(tmp_path, device="cpu")(img).depth
+        cut = MoGe2Depth.from_pretrained(tmp_path, device="cpu", edge_rtol=0.1)(img).depth
+        ring = np.zeros((H, W), bool)
+        ring[: H // 4 + 1, : W // 3 + 1] = True
+        ring[: H // 4, : W // 3] = False
+        assert np.array_equal(np.isnan(cut), np.isnan(plain) | ring)
+        assert np.array_equal(cut[~np.isnan(cut)], plain[~np.isnan(cut)])
+        with pytest.raises(ValueError, match="depth.edge_rtol"):
+            MoGe2Depth.from_pretrained(tmp_path, edge_rtol=-1.0)
+
     @pytest.mark.parametrize("kind", ["empty folder", "no such path", "not cached", "not set"])
     def test_missing_weights_name_the_config_key(self, fake_moge, tmp_path, kind):
         paths = {"empty folder": tmp_path, "no such path": tmp_path / "nothing.pt", "not cached": NOT_CACHED}

@@ -12,8 +12,10 @@ from snell_bench.models.errors import WeightsNotFoundError
 from snell_bench.models.segment import (
     MaskFileSegmenter,
     Sam3Segmenter,
+    SurfaceMask,
     SurfaceSegmenter,
     TinySam3Segmenter,
+    pick_instance,
     read_mask,
     surface_region,
     tiny_sam3,
@@ -127,6 +129,78 @@ def test_real_sam3_finds_the_desk_of_the_tum_frame():
     mask = seg(image, "desk")
     assert mask.shape == image.shape[:2] and mask.dtype == np.bool_
     assert 0.02 < mask.mean() < 0.9
+
+
+# ---------------------------------------------------------------------------- segment.instance
+def three_instances():
+    """Three instances in score order; the model's query order is 2, 0, 1 (so the first query is
+    not the best one, as SAM 3's queries are not sorted)."""
+    masks = np.zeros((3, 8, 10), bool)
+    masks[0, 0:2, 0:3] = masks[1, 4:6, 5:9] = masks[2, 6:8, 0:2] = True
+    boxes = np.array([[0, 0, 3, 2], [5, 4, 9, 6], [0, 6, 2, 8]], np.float32)
+    return {"masks": masks, "scores": np.array([0.9, 0.8, 0.8]), "boxes": boxes, "query": np.array([2, 0, 1])}
+
+
+def test_pick_instance_union_best_first():
+    found = three_instances()
+    union = pick_instance(found, "union", (8, 10))
+    assert isinstance(union, SurfaceMask) and np.array_equal(union, found["masks"].any(0))
+    assert np.array_equal(union.box, [0, 0, 9, 8])
+    best = pick_instance(found, "best", (8, 10))
+    assert np.array_equal(best, found["masks"][0]) and np.array_equal(best.box, [0, 0, 3, 2])
+    first = pick_instance(found, "first", (8, 10))
+    assert np.array_equal(first, found["masks"][1]) and np.array_equal(first.box, [5, 4, 9, 6])
+    tie = dict(found, scores=np.array([0.8, 0.8, 0.8]))  # a tie: the earlier query wins
+    assert np.array_equal(pick_instance(tie, "best", (8, 10)), found["masks"][1])
+    empty = pick_instance({k: v[:0] for k, v in found.items()}, "first", (8, 10))
+    assert empty.shape == (8, 10) and not empty.any() and empty.box is None
+    with pytest.raises(ValueError, match="segment.instance='all'"):
+        pick_instance(found, "all", (8, 10))
+
+
+class StubSam3:
+    """Instances only; ``__call__`` is the union (as :class:`Sam3Segmenter`)."""
+
+    name = "stub"
+
+    def instances(self, image, phrase):
+        return three_instances()
+
+    def __call__(self, image, phrase):
+        return pick_instance(self.instances(image, phrase), "union", image.shape[:2])
+
+
+def test_surface_region_takes_the_instance_the_config_names(tmp_path):
+    image = photo(8, 10)
+    first = surface_region(StubSam3(), image, "table", instance="first")
+    assert np.array_equal(first, three_instances()["masks"][1]) and np.array_equal(first.box, [5, 4, 9, 6])
+    union = surface_region(StubSam3(), image, "table")
+    assert np.array_equal(union, three_instances()["masks"].any(0)) and union.box is not None
+    Image.fromarray(np.full((8, 10), 255, np.uint8)).save(tmp_path / "m.png")
+    drawn = surface_region(MaskFileSegmenter(tmp_path / "m.png"), image, "table", instance="first")
+    assert drawn.all() and getattr(drawn, "box", None) is None  # a mask file has one region
+    with pytest.raises(ValueError, match="segment.instance"):
+        surface_region(StubSam3(), image, "table", instance="largest")
+
+
+def test_tiny_sam3_keeps_the_query_order(tiny):
+    image = photo()
+    found = tiny.instances(image, "table")
+    assert sorted(found["query"]) == list(range(len(found["query"])))
+    first = tiny(image, "table", instance="first")
+    i = int(np.argmin(found["query"]))
+    assert np.array_equal(first, found["masks"][i]) and np.array_equal(first.box, found["boxes"][i])
+    assert np.array_equal(tiny(image, "table", instance="best"), found["masks"][0])
+    assert np.array_equal(tiny(image, "table"), found["masks"].any(0))
+
+
+def test_segment_instance_is_checked_by_the_schema():
+    from snell_bench.config.errors import ConfigError
+    from snell_bench.config.schema import SegmentConfig
+
+    assert SegmentConfig().instance == "union"
+    with pytest.raises(ConfigError, match="segment.instance='all'"):
+        SegmentConfig(instance="all")
 
 
 # ---------------------------------------------------------------------------- mask files
