@@ -70,6 +70,7 @@ from snell_bench.experiment.plan import (
 from snell_bench.experiment.reports.records import GRID_RECORD
 from snell_bench.pipeline import apply_method
 from snell_bench.pipeline.cell import node_key
+from snell_bench.sampler.authors_calls import authors_model_calls
 
 __all__ = [
     "Basis",
@@ -130,13 +131,17 @@ class Basis:
     peak_gb: dict[str, float] = field(default_factory=dict)
 
 
-#: The documented basis (docs/gpu.md): 44 main-view + 20 panorama model calls at 720 x 1280 with
-#: a 1024 x 2048 panorama, t2i at 20 steps, Fill at 30, Kontext at its 28 per candidate.
+#: The model calls per view of the authors' loop at the paper's setting (T = 20, time travel x3 in
+#: [0.2 T, 0.8 T)): 56 main-view + 56 panorama (:func:`~snell_bench.sampler.authors_calls.authors_model_calls`).
+AUTHORS_PAIR_CALLS = (authors_model_calls(SamplerSettings())["main"], authors_model_calls(SamplerSettings())["pano"])
+
+#: The documented basis (docs/gpu.md): the authors' 56 main-view + 56 panorama model calls at
+#: 720 x 1280 with a 1024 x 2048 panorama, t2i at 20 steps, Fill at 30, Kontext at its 28 per candidate.
 README_BASIS = Basis(
     label=README_LABEL,
     measured=False,
     pair_s=(50.0, 75.0),
-    pair_calls=(44, 20),
+    pair_calls=AUTHORS_PAIR_CALLS,
     size=(720, 1280, 1024),
     t2i_s=(10.0, 10.0),
     t2i_steps=20,
@@ -567,6 +572,15 @@ NO_WEIGHTS = {
 FLUX_GENERATOR = "snell_bench.models.flux.FluxGenerator.from_pretrained"
 FLUX_FILL = "snell_bench.models.external.load_pipeline"
 KONTEXT = "snell_bench.relight.kontext.KontextRelighter.from_pretrained"
+#: ``_target_`` of the builders that read real weights, each looked up by :func:`describe_model`.
+REAL_BUILDERS = (
+    FLUX_GENERATOR,
+    FLUX_FILL,
+    KONTEXT,
+    "snell_bench.models.depth.MoGe2Depth.from_pretrained",
+    "snell_bench.models.depth.TransformersDepth.from_pretrained",
+    "snell_bench.models.segment.Sam3Segmenter",
+)
 
 
 def _builder(kind: str, node: Any, name: str) -> ModelNeed | None:
@@ -574,7 +588,7 @@ def _builder(kind: str, node: Any, name: str) -> ModelNeed | None:
     target = str(node.get("_target_", "")) if isinstance(node, DictConfig) else ""
     if target in NO_WEIGHTS:
         return ModelNeed(kind, NO_WEIGHTS[target], weights="none", where="built in code, no weights")
-    if target in (FLUX_GENERATOR, FLUX_FILL, KONTEXT):
+    if target in REAL_BUILDERS:
         return None
     return ModelNeed(kind, name, source=target, weights="unchecked", where=f"{target}: not known to job=plan")
 

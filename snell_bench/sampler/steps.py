@@ -49,17 +49,24 @@ def rounding_dtype(gen, mode: str = "float32") -> torch.dtype | None:
     ``mode="float32"`` keeps the latents float32 whatever the model's precision; ``mode="model"``
     rounds them to the model's dtype (``gen.dtype``; float32 when absent), as ``FluxPipeline``
     does by holding its latents in the transformer's dtype (bfloat16 on a GPU) between scheduler
-    steps. A float32 model needs no rounding either way.
+    steps; a float32 model needs no rounding. ``mode="float16"`` rounds them to float16 whatever
+    the model (the authors' float16 pipeline, also on a float32 stand-in).
 
     Args:
         gen: the generator (its ``dtype`` attribute is read).
-        mode: ``"float32"`` or ``"model"`` (config key ``sampler.latent_dtype``).
+        mode: ``"float32"``, ``"model"`` or ``"float16"`` (config key ``sampler.latent_dtype``).
 
     Raises:
         ValueError: for an unknown mode.
+
+    Examples:
+        >>> rounding_dtype(None, "float16"), rounding_dtype(None, "model"), rounding_dtype(None)
+        (torch.float16, None, None)
     """
-    if mode not in ("float32", "model"):
-        raise ValueError(f"sampler.latent_dtype={mode!r} is unknown; use 'float32' or 'model'")
+    if mode not in ("float32", "model", "float16"):
+        raise ValueError(f"sampler.latent_dtype={mode!r} is unknown; use 'float32', 'model' or 'float16'")
+    if mode == "float16":
+        return torch.float16
     dt = getattr(gen, "dtype", None) or torch.float32
     return None if mode == "float32" or dt == torch.float32 else dt
 

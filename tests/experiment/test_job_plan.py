@@ -143,7 +143,7 @@ def test_model_calls_equal_the_sampler_s(tiny_run):
         )
         assert model_calls(settings) == recorded, method
     # by hand: one call per step per branch, plus one per window step 0.2 T <= i < 0.8 T for a branch that
-    # travelled (guided), or R - 1 per window step (repaint, the paper's 44 main-view calls at T = 20)
+    # travelled (guided), or R - 1 per window step (repaint: 44 main-view calls at T = 20; the authors' loop makes 56 per view, see below)
     assert model_calls(SamplerSettings()) == {"main": 20 + 12, "pano": 20}
     assert model_calls(SamplerSettings(tt_mode="repaint")) == {"main": 20 + 2 * 12, "pano": 20}
     assert model_calls(SamplerSettings(tt_repeats_pano=3)) == {"main": 32, "pano": 32}
@@ -215,7 +215,12 @@ def test_the_main_grid_is_planned_per_part_and_names_missing_weights(empty_cache
     models = {m.kind if m.kind != "pipeline" else m.name: m for m in plan.models}
     assert models["generator"].weights == "missing" and "model.path=/data/FLUX.1-dev" in models["generator"].fix
     assert models["fill"].weights == "missing" and "model.fill.model_id=/data/FLUX.1-Fill-dev" in models["fill"].fix
-    assert models["generator"].cells == 600 and models["fill"].cells == 300 and models["fill"].methods == ["inpaint"]
+    # the paper's scene pipeline: FLUX.1-dev generates every group's I⁻ (so every cell needs it), MoGe-2
+    # estimates its depth, SAM 3 finds the surface
+    assert models["generator"].cells == 1800 and models["fill"].cells == 300 and models["fill"].methods == ["inpaint"]
+    assert models["depth"].name == "moge2" and models["depth"].weights == "missing" and "depth.path=" in models["depth"].fix
+    assert models["segmenter"].name == "SAM 3" and models["segmenter"].weights == "missing"
+    assert "segment.path=" in models["segmenter"].fix
     for name, method in (("FLUX.2-dev", "flux2_dev"), ("Qwen-Image", "qwen_image"), ("SD3.5-Large", "sd35_large")):
         assert models[name].weights == "missing" and f"conf/method/{method}.yaml" in models[name].fix
         assert "method.model_id=" in models[name].fix and models[name].needs_gpu
@@ -321,7 +326,9 @@ def test_the_readme_basis_scaled_by_model_calls(tmp_path):
     plan = plan_of([*GPU_GRID, f"runs_dir={tmp_path}"])
     t = {x.method: x for x in plan.times}
     main, pano = 720 * 1280, 2 * 1024 * 1024
-    ratio = (32 * main + 20 * pano) / (44 * main + 20 * pano)  # our guided time travel: 32 main-view calls, not 44
+    # the basis: the authors' 56 + 56 calls (test_the_authors_loop_makes_56_calls_per_view); ours 32 + 20
+    ratio = (32 * main + 20 * pano) / (56 * main + 56 * pano)
+    assert ratio == pytest.approx(0.4226, abs=1e-4)
     assert t["snellcaster"].per_cell == pytest.approx((50 * ratio, 75 * ratio), rel=1e-12)
     assert t["t2i"].per_cell == (10.0, 10.0) and t["inpaint"].per_cell == (15.0, 15.0)
     relit = 20 * 20.0  # relight.candidates = 20 at Kontext's 20 s
@@ -378,7 +385,8 @@ def test_a_malformed_bench_file_names_plan_bench(tmp_path, content, error, match
 def test_memory_counts_shared_weights_and_plans_offloading(tmp_path):
     grid = [*GPU_GRID[:-1], "grid.methods=[snellcaster,inpaint,snellcaster_relit,flux2_dev]", f"runs_dir={tmp_path}"]
     plan = plan_of(grid, device=H100)
-    flux = [m for m in plan.models if m.name != "FLUX.2-dev"]
+    # the FLUX family (the scene pipeline's MoGe-2 and SAM 3 are left out: this counts shared weights)
+    flux = [m for m in plan.models if m.name != "FLUX.2-dev" and m.kind not in ("depth", "segmenter")]
 
     def memory(device=H100, basis=README_BASIS, **models):
         models_cfg = OmegaConf.create({"memory_gb": None, "offload": True, **models})
@@ -428,3 +436,32 @@ def test_a_plan_is_never_a_sweep(tmp_path):
     res = run_cli(cwd, "-m", "job=plan", "+experiment=smoke")
     assert res.returncode != 0 and "run it without -m/--multirun" in res.stderr
     assert list(cwd.rglob("*")) == []
+
+
+def test_the_authors_loop_makes_56_calls_per_view():
+    """Walk the authors' dual-view loop (pipeline_snellcaster_flux_dual_view.py) step by step: each
+    step calls ``_compute_noise_predictions`` once (the transformer on both views); a step with
+    ``int(0.2 T) <= i < int(0.8 T)`` and R > 1 then runs ``_apply_time_travel``: R - 1 renoise-and-call
+    rounds (both views; ``tt_sigma_idx > 0`` there) and one re-prediction (both views)."""
+    from snell_bench.experiment.estimate import README_BASIS
+    from snell_bench.sampler.authors_calls import authors_model_calls
+
+    def walk(T, R, start=0.2, end=0.8):
+        t_start, t_end = int(T * start), int(T * end)
+        main = pano = 0
+        for i in range(T):
+            main, pano = main + 1, pano + 1  # the step's own call
+            if t_start <= i < t_end and R > 1:
+                tt_sigma_idx = i
+                for _ in range(R - 1):
+                    if tt_sigma_idx <= 0:
+                        break
+                    main, pano = main + 1, pano + 1  # at the noisier level, output discarded
+                main, pano = main + 1, pano + 1  # the re-prediction at the step's level
+        return {"main": main, "pano": pano}
+
+    assert walk(20, 3) == {"main": 56, "pano": 56}
+    assert README_BASIS.pair_calls == (56, 56)
+    for T, R, window in ((20, 3, [0.2, 0.8]), (20, 1, [0.2, 0.8]), (28, 2, [0.2, 0.8]), (10, 4, [0.0, 0.5])):
+        s = SamplerSettings(steps=T, tt_repeats_main=R, tt_window=window)
+        assert authors_model_calls(s) == walk(T, R, *window), (T, R, window)
