@@ -211,7 +211,8 @@ def build_object(obj_cfg: DictConfig) -> GlassObject:
 
 def surface_region(cfg: DictConfig, scene: SceneInputs, pool: ModelPool | None = None) -> np.ndarray | None:
     """Stage 2a: where the object may stand, ``(H, W)`` bool: the surface ``scene.surface`` names,
-    segmented by ``segment.segmenter`` (SAM 3, a mask file), or ``None`` (RANSAC near the image
+    segmented by ``segment.segmenter`` (SAM 3, a mask file; SAM 3's instances combined as
+    ``segment.instance`` says, the mask carrying their box), or ``None`` (RANSAC near the image
     centre, the default)."""
     if not cfg.segment.get("segmenter"):
         return None
@@ -224,13 +225,16 @@ def surface_region(cfg: DictConfig, scene: SceneInputs, pool: ModelPool | None =
     segmenter = pool.get(
         "segmenter", node_key(cfg.segment), lambda: build(cfg.segment.segmenter), label=str(cfg.segment.name)
     )[0]
-    return segment_surface(segmenter, scene.image, str(phrase))
+    return segment_surface(segmenter, scene.image, str(phrase), instance=str(cfg.segment.get("instance", "union")))
 
 
 def place(obj: GlassObject, scene: SceneInputs, obj_cfg: DictConfig, seed: int = 0, region=None) -> GlassObject:
     """Stage 2b: ``obj`` standing on a supporting surface of the scene (``object.size``,
-    ``object.relative_size``, ``object.yaw_deg``), inside ``region`` when given."""
-    kwargs: dict[str, Any] = {"seed": seed, "max_tilt_deg": float(obj_cfg.max_tilt_deg)}
+    ``object.relative_size``, ``object.yaw_deg``), inside ``region`` when given; ``object.anchor``:
+    on a plane fitted there, or where the ray through the centre of the region's box meets the
+    depth (the authors' rule)."""
+    anchor = str(obj_cfg.get("anchor", "plane"))
+    kwargs: dict[str, Any] = {"seed": seed, "max_tilt_deg": float(obj_cfg.max_tilt_deg), "anchor": anchor}
     if scene.up is not None:
         kwargs["up_hint"] = scene.up
     if region is not None:
@@ -246,7 +250,7 @@ def place(obj: GlassObject, scene: SceneInputs, obj_cfg: DictConfig, seed: int =
             **kwargs,
         )
     except ValueError as e:
-        if "surface" not in str(e) or region is not None:
+        if "surface" not in str(e) or region is not None or anchor != "plane":
             raise
         raise ValueError(
             f"placing object {obj_cfg.name!r}: {e}. The depth (scene.depth) must cover a horizontal surface near the "
@@ -263,31 +267,73 @@ def trace_warps(scene: SceneInputs, obj: GlassObject, warps_cfg: DictConfig) -> 
 
 # ---------------------------------------------------------------------------- 4-5. references
 def render_reference(cfg: DictConfig, scene: SceneInputs, obj: GlassObject, *, spp: int | None = None):
-    """Stage 4: the reference render and metric mask (every key of the ``reference`` node that the
-    renderer takes, ``spp`` replaced when given), or ``(None, reason)``."""
-    if not cfg.reference.enabled:
+    """Stage 4: the reference render and metric mask, or ``(None, reason)``.
+
+    ``reference.renderer``: ``mitsuba`` (every key of the ``reference`` node that the renderer takes,
+    ``spp`` replaced when given) or ``cycles`` (the authors' ``render_gt`` scene, ``cycles_spp``
+    samples; skipped, with the reason, where no Python with ``bpy`` is found: never another
+    renderer instead). ``reference.ior`` replaces the object's IOR in the render and the mask.
+    ``reference.mask``: ``unobserved`` (Mitsuba's unobserved pass; with ``cycles`` rendered at one
+    sample per pixel for its mask only) or ``authors`` (the authors' ray-traced mask).
+    """
+    import dataclasses
+
+    from snell_bench.render.authors_mask import authors_mask
+    from snell_bench.render.cycles import CyclesUnavailable, render_cycles
+    from snell_bench.scene.depth_mesh import build_background
+
+    rc = cfg.reference
+    if not rc.enabled:
         return None, "reference.enabled=false"
-    kwargs = kwargs_for(
-        render,
-        cfg.reference,
-        spp=int(cfg.reference.spp if spp is None else spp),
-        edge_threshold=float(cfg.warps.edge_threshold),
-        seed=int(cfg.seed),
-    )
+    glass = obj if rc.get("ior") is None else dataclasses.replace(obj, ior=float(rc.ior), _cache={})
+    edge = float(cfg.warps.edge_threshold)
+    renderer, mask_kind = str(rc.get("renderer", "mitsuba")), str(rc.get("mask", "unobserved"))
+    mitsuba_spp = int(rc.spp if spp is None else spp)
+    if renderer == "cycles" and mask_kind == "unobserved":
+        mitsuba_spp = 1  # only the unobserved pass (the mask) is kept
+    kwargs = kwargs_for(render, rc, spp=mitsuba_spp, edge_threshold=edge, seed=int(cfg.seed))
+    if renderer == "cycles":
+        kwargs["self_noise"] = False if mitsuba_spp == 1 else kwargs.get("self_noise", True)
+    ref = None
+    if renderer == "cycles":
+        try:
+            ref = render_cycles(
+                scene.image,
+                scene.depth,
+                scene.camera,
+                glass,
+                spp=int(rc.cycles_spp if spp is None else spp),
+                seed=int(cfg.seed),
+                edge_threshold=edge,
+                ior=None,
+                blender_python=rc.get("blender_python"),
+            )
+        except CyclesUnavailable as e:
+            reason = f"reference skipped: {e}"
+            log.warning(reason)
+            return None, reason
+        if mask_kind == "authors":
+            return ref, None
     try:  # Mitsuba is imported on the first render
-        ref = render(scene.image, scene.depth, scene.camera, obj, **kwargs)
+        mitsuba = render(scene.image, scene.depth, scene.camera, glass, **kwargs)
     except ImportError as e:
         reason = f"reference renderer unavailable ({e}); install the render extra: make setup EXTRAS=test,render"
         log.warning(reason)
         return None, reason
-    return ref, None
+    if ref is not None:  # Cycles' image, Mitsuba's unobserved share and mask
+        return dataclasses.replace(ref, unobserved=mitsuba.unobserved, mask=mitsuba.mask), None
+    if mask_kind == "authors":
+        bg = build_background(scene.depth, scene.camera, edge)
+        mask, _ = authors_mask(scene.camera, (bg.vertices, bg.faces), (glass.vertices, glass.faces), ior=glass.ior)
+        mitsuba = dataclasses.replace(mitsuba, mask=mask)
+    return mitsuba, None
 
 
 def render_true_scene(cfg: DictConfig, scene: SceneInputs, obj: GlassObject) -> np.ndarray | None:
     """Stage 5: the procedural scene rendered with the object (``reference.true_render``), or None."""
     if not (cfg.reference.true_render and Source(cfg.scene.source) is Source.procedural):
         return None
-    bounces = cfg.reference.true_max_bounces or cfg.warps.max_bounces
+    bounces = cfg.reference.true_max_bounces or cfg.warps.get("recipe_max_bounces") or cfg.warps.max_bounces
     return render_true(
         scene.source, scene.camera, obj, spp=int(cfg.reference.true_spp), max_bounces=int(bounces), seed=int(cfg.seed)
     )

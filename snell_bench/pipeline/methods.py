@@ -20,7 +20,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from scipy.ndimage import binary_dilation
 
-from snell_bench.config import InpaintMask, MethodKind, SamplerSettings
+from snell_bench.config import InpaintMask, MethodKind, PromptKind, SamplerSettings
 from snell_bench.models.errors import DeviceNotAvailableError, WeightsNotFoundError
 from snell_bench.models.external import generate_external, inpaint_external, load_pipeline
 from snell_bench.models.sizes import node_weights_bytes
@@ -43,6 +43,7 @@ from snell_bench.scene.sources import panorama_prior
 from snell_bench.utils.timing import Timer
 
 __all__ = [
+    "baseline_prompt",
     "generator_scope",
     "build_generator",
     "inpaint_mask",
@@ -112,18 +113,60 @@ def inpaint_mask(cfg: DictConfig, warps: WarpSet) -> np.ndarray:
     return m
 
 
+def baseline_prompt(cfg: DictConfig) -> str:
+    """The text a baseline sees (``method.prompt``): the full prompt p or the object phrase p_obj,
+    with ``baselines.object_phrase`` (``{object}``: the object's noun) in place of p_obj where it
+    is set (the authors' "a solid transparent glass {object}").
+
+    Raises:
+        ValueError: the scene's p_obj does not occur in its p, so it cannot be replaced (naming
+            ``baselines.object_phrase``).
+    """
+    kind = PromptKind.of(cfg.method.prompt, "method.prompt")
+    phrase = OmegaConf.select(cfg, "baselines.object_phrase", default=None)
+    if phrase is None:
+        return prompt_of(cfg, kind)
+    new = str(phrase).replace("{object}", str(cfg.object.noun))
+    if kind is PromptKind.object:
+        return new
+    full, old = full_prompt(cfg), object_phrase(cfg)
+    if old not in full:
+        raise ValueError(
+            f"baselines.object_phrase={phrase!r}: the scene's object phrase {old!r} is not in its prompt "
+            f"{full!r}, so it cannot be replaced; set baselines.object_phrase=null"
+        )
+    return full.replace(old, new, 1)
+
+
+def _architecture(cfg: DictConfig) -> str:
+    """``method.architecture`` of an external baseline, which a model's ``pipelines`` builder needs."""
+    if not cfg.method.get("architecture"):
+        raise ValueError(
+            f"method={cfg.method.name}: model={cfg.model.name} builds the external baselines' pipelines "
+            "(model.pipelines) by architecture: set method.architecture (flux2, qwen_image or sd3)"
+        )
+    return str(cfg.method.architecture)
+
+
 def _pipeline_call(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
     """A baseline that is a diffusers pipeline: another text-to-image model (``external``, from
     ``method.model_id``) or FLUX Fill (``inpaint``, from ``model.fill``), with the method's steps,
     guidance and prompt, seeded with the cell's seed, on ``model.device``."""
     pool = inputs.pool
     external = MethodKind(cfg.method.kind) is MethodKind.external
-    text = prompt_of(cfg, cfg.method.prompt)
+    text = baseline_prompt(cfg)
     steps = None if cfg.method.steps is None else int(cfg.method.steps)
     guidance = None if cfg.method.guidance is None else float(cfg.method.guidance)
     device, dtype = cfg.model.device, cfg.model.dtype
     try:
-        if external:
+        if external and cfg.model.get("pipelines"):  # the model's stand-ins (tiny random pipelines)
+            pipe, t.seconds["generator"] = pool.get(
+                "pipeline",
+                f"{node_key(cfg.model.pipelines)}:{cfg.method.architecture}",
+                lambda: build(cfg.model.pipelines, kind=_architecture(cfg)),
+                label=f"{cfg.model.name} {cfg.method.architecture}",
+            )
+        elif external:
             key = node_key(OmegaConf.create({"model_id": cfg.method.model_id, "device": device, "dtype": dtype}))
             pipe, t.seconds["generator"] = pool.get(
                 "pipeline",
@@ -149,6 +192,7 @@ def _pipeline_call(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer
                     steps=steps,
                     guidance=guidance,
                     return_settings=True,
+                    cfg=bool(cfg.method.get("cfg", True)),
                 )
             else:
                 img, used = inpaint_external(
@@ -174,9 +218,10 @@ def _synchronized(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer)
     settings = OmegaConf.to_object(cfg.sampler)
     assert isinstance(settings, SamplerSettings)
     prompt = full_prompt(cfg)
-    inpaint = MethodKind(cfg.method.kind) is MethodKind.inpaint
-    if inpaint:
-        prompt = prompt_of(cfg, cfg.method.prompt)
+    kind = MethodKind(cfg.method.kind)
+    inpaint = kind is MethodKind.inpaint
+    if kind is not MethodKind.snellcaster:  # a baseline: its prompt and steps (baselines node)
+        prompt = baseline_prompt(cfg)
         if cfg.method.steps is not None:
             settings.steps = int(cfg.method.steps)
     with t("sampling"):

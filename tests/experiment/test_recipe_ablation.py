@@ -21,6 +21,7 @@ SMALL = [
     "sampler.steps=6",
     "sampler.levels=3",
     "reference.spp=8",
+    "reference.cycles_spp=16",  # recipe=authors renders the reference in Blender Cycles
     "reference.unobserved_spp=4",
     "reference.true_spp=1",
     "relight.candidates=1",
