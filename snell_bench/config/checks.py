@@ -247,6 +247,25 @@ def _files(cfg: DictConfig, out: list[str]) -> None:
         need("segment.mask", "a PNG mask file, nonzero on the surface", f"segment={_get(cfg, 'segment.name')}")
 
 
+def _scene_models(cfg: DictConfig, out: list[str]) -> None:
+    """A generated scene's models: a text-to-image generator (not one built from a scene) and a
+    depth estimator (what ``model=tiny_flux`` or ``model=flux_dev`` selects for the paper's prompts)."""
+    if _get(cfg, "scene.source") != Source.generated:
+        return
+    model = _get(cfg, "model.name")
+    if _get(cfg, "model.from_scene"):
+        out.append(
+            f"scene.source=generated needs a text-to-image generator; model={model} is built from the scene itself: "
+            "use model=tiny_flux (CPU, random weights) or model=flux_dev (GPU), or scene.source=procedural"
+        )
+    if not _get(cfg, "depth.estimator") and not _get(cfg, "scene.depth"):
+        out.append(
+            f"scene.source=generated (the paper's scene pipeline, which model={model} selects) needs a depth "
+            "estimator for I⁻: set depth=moge2 (GPU, weights), or depth=tiny_depth_pro segment=tiny_sam3 (CPU, "
+            "random weights); or name the procedural stand-in with scene.source=procedural"
+        )
+
+
 def _camera(cfg: DictConfig, out: list[str]) -> None:
     """The camera of a photo or a generated scene: one of ``scene.intrinsics`` and
     ``scene.fov_deg`` (a photo with a depth file needs one), and a field of view in which the
@@ -502,7 +521,7 @@ def check_config(cfg: DictConfig, *, grid: bool | None = None) -> DictConfig:
     problems = unknown_keys(cfg)
     if problems:  # a value check may trip over an unknown key's node
         raise ConfigError(problems)
-    for check in (_nodes, _sizes, _camera, _files, _sampler, _devices):
+    for check in (_nodes, _sizes, _camera, _scene_models, _files, _sampler, _devices):
         check(cfg, problems)
     job = _get(cfg, "job")
     if grid if grid is not None else job == Job.grid:

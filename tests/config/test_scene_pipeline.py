@@ -96,3 +96,14 @@ def test_cfg_job_shows_the_generated_source_moge2_and_sam3():
     ).stdout
     assert "  source: generated" in out
     assert "depth:\n  name: moge2" in out and "segment:\n  name: sam3" in out
+
+
+def test_a_generated_scene_without_a_depth_estimator_stops_before_any_work():
+    from snell_bench.config import ConfigError, check_config
+
+    with pytest.raises(ConfigError, match="depth=tiny_depth_pro segment=tiny_sam3") as e:
+        check_config(_cfg("+experiment=smoke", "model=tiny_flux", "scene.height=352"))
+    assert "scene.source=procedural" in str(e.value)
+    with pytest.raises(ConfigError, match="needs a text-to-image generator"):
+        check_config(_cfg("+experiment=smoke", "scene.source=generated", "depth=tiny_depth_pro"))
+    check_config(_cfg("+experiment=smoke", "model=tiny_flux", "scene.height=352", "depth=tiny_depth_pro"))

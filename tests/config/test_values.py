@@ -112,7 +112,13 @@ def test_the_edge_stretch_is_the_pinhole_cameras():
     "overrides, key, mult, lo, hi",
     [
         (["warps.pano_height=100"], "warps.pano_height", 8, 96, 104),
-        (["warps.pano_height=100", "model=tiny_flux", "scene.height=352"], "warps.pano_height", 16, 96, 112),
+        (
+            ["warps.pano_height=100", "model=tiny_flux", "scene.source=procedural", "scene.height=352"],
+            "warps.pano_height",
+            16,
+            96,
+            112,
+        ),
         (["warps.pano_height=4"], "warps.pano_height", 8, None, 8),
         (["+method.warps.pano_height=60"], "method.warps.pano_height", 8, 56, 64),
     ],
