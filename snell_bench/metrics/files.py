@@ -125,19 +125,25 @@ def jpeg_mask_round_trip(mask: Any, quality: int = MASK_QUALITY) -> np.ndarray:
     return (decoded.astype(np.float32) / np.float32(255.0)) >= AUTHORS_MASK_THRESHOLD
 
 
-def evaluated_files(generated: Any, reference: Any, mask: Any, files: str = "png") -> tuple[Any, Any, Any]:
+def evaluated_files(
+    generated: Any, reference: Any, mask: Any, files: str = "png", *, reference_is_jpeg: bool = False
+) -> tuple[Any, Any, Any]:
     """``(generated, reference, mask)`` as the evaluation of ``files`` reads them.
 
     Convention:
         ``"png"``: returned as given. ``"jpeg"``: the generated image through
         :func:`jpeg_round_trip` at :data:`GENERATED_QUALITY`, the reference at
-        :data:`REFERENCE_QUALITY`, the mask through :func:`jpeg_mask_round_trip`; a ``None``
-        reference or mask stays ``None``. An unknown ``files`` raises ``ValueError`` naming
-        ``metrics.files``.
+        :data:`REFERENCE_QUALITY` (as given where ``reference_is_jpeg``: it already decodes the
+        JPEG its renderer wrote, the Cycles reference), the mask through
+        :func:`jpeg_mask_round_trip`; a ``None`` reference or mask stays ``None``. An unknown
+        ``files`` raises ``ValueError`` naming ``metrics.files``.
     """
     if check_files(files) == "png":
         return generated, reference, mask
     gen = jpeg_round_trip(generated, GENERATED_QUALITY)
-    ref = None if reference is None else jpeg_round_trip(reference, REFERENCE_QUALITY)
+    if reference is None or reference_is_jpeg:
+        ref = reference
+    else:
+        ref = jpeg_round_trip(reference, REFERENCE_QUALITY)
     m = None if mask is None else jpeg_mask_round_trip(mask)
     return gen, ref, m

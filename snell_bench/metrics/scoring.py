@@ -205,6 +205,7 @@ def score_cell(
     protocol: str = "paper",
     files: str = "png",
     lpips_box_range: str = "signed",
+    reference_is_jpeg: bool = False,
 ) -> CellScores:
     """Every metric of one generated image, each a float or None with the reason.
 
@@ -248,6 +249,8 @@ def score_cell(
             ImageReward included; the true render and ``object_mask`` stay as given.
         lpips_box_range: the input range of ``lpips_box`` (``authors`` only; config key
             ``metrics.lpips_box_range``, :func:`~snell_bench.metrics.fidelity.authors_lpips_box`).
+        reference_is_jpeg: the reference already decodes the JPEG its renderer wrote (the Cycles
+            reference, the authors' ``blender.jpg``): ``files="jpeg"`` does not encode it again.
 
     Returns:
         ``{"metrics": {name: float | None}, "missing": {name: reason}, "notes": {name: note},
@@ -266,7 +269,7 @@ def score_cell(
     scorers = scorers if isinstance(scorers, Scorers) else Scorers(scorers or {})
     gen = _hwc(generated)
     if check_files(files) == "jpeg":  # ImageReward then reads the decoded JPEG, not the PNG file
-        gen, reference, mask = evaluated_files(gen, reference, mask, files)
+        gen, reference, mask = evaluated_files(gen, reference, mask, files, reference_is_jpeg=reference_is_jpeg)
         generated_path = None
     if reference is None:
         metrics: dict[str, float | None] = {name: None for name in metric_names(protocol)}

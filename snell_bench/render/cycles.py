@@ -356,4 +356,5 @@ def render_cycles(
         unobserved_spp=0,
         window=(0, 0, camera.width, camera.height),
         reflection=False,
+        file_format="jpeg",
     )

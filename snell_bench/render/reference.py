@@ -145,6 +145,9 @@ class ReferenceRender:
         halves: ``(n1, n2)``, the samples per pixel of the two halves; ``None``: one render.
         reflection: whether the image pass shows the first-surface reflection (see the module's
             conventions; ``False`` also with ``fresnel=False``).
+        file_format: ``None`` (an image in memory), or the file the renderer wrote that ``image``
+            decodes (``"jpeg"``: the Cycles reference is already the authors' ``blender.jpg``, so
+            ``metrics.files=jpeg`` must not encode it again).
     """
 
     image: np.ndarray
@@ -165,6 +168,7 @@ class ReferenceRender:
     self_noise_halves_db: float | None = None
     halves: tuple | None = None
     reflection: bool = True
+    file_format: str | None = None
 
     def summary(self) -> dict:
         """What a results file records about this reference: variant, sampler, counts, window,

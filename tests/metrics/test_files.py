@@ -92,3 +92,17 @@ def test_score_cell_scores_the_jpeg_files(image, protocol, tmp_path):
     png = score_cell(image, ref, mask, "p", None, protocol=protocol)
     for name in ("psnr", "mae"):
         assert jpeg["metrics"][name] == files["metrics"][name] != png["metrics"][name]
+
+
+def test_a_reference_that_is_already_a_jpeg_is_not_encoded_again():
+    """The Cycles reference decodes the authors' blender.jpg itself: a second q95 encode would not be
+    what their evaluation reads."""
+    from snell_bench.metrics.files import evaluated_files
+
+    rng = np.random.default_rng(3)
+    gen, ref = rng.random((16, 24, 3)).astype(np.float32), rng.random((16, 24, 3)).astype(np.float32)
+    mask = np.zeros((16, 24), bool)
+    mask[4:12, 6:18] = True
+    _, again, _ = evaluated_files(gen, ref, mask, "jpeg")
+    _, kept, _ = evaluated_files(gen, ref, mask, "jpeg", reference_is_jpeg=True)
+    assert kept is ref and not np.array_equal(again, ref)
