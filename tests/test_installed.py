@@ -150,7 +150,9 @@ def test_help_lists_every_shipped_experiment_with_its_first_sentence(help_page):
 def test_help_lists_the_config_groups_without_schema_nodes(help_page):
     assert "base_" not in help_page
     groups = {k: [o.strip() for o in v.split(",")] for k, v in entries(section(help_page, "Config groups")).items()}
-    for folder in sorted(p for p in CONF.iterdir() if p.is_dir() and p.name not in ("experiment", "hydra", "scene_source")):
+    for folder in sorted(
+        p for p in CONF.iterdir() if p.is_dir() and p.name not in ("experiment", "hydra", "scene_source")
+    ):
         assert [o.rstrip("*") for o in groups[folder.name]] == sorted(p.stem for p in folder.glob("*.yaml")), folder
     assert "kitchen*" in groups["scene"] and "living_room" in groups["scene"]
     assert sum(o.endswith("*") for o in groups["scene"]) == 1

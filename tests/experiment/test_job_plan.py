@@ -218,7 +218,11 @@ def test_the_main_grid_is_planned_per_part_and_names_missing_weights(empty_cache
     # the paper's scene pipeline: FLUX.1-dev generates every group's I⁻ (so every cell needs it), MoGe-2
     # estimates its depth, SAM 3 finds the surface
     assert models["generator"].cells == 1800 and models["fill"].cells == 300 and models["fill"].methods == ["inpaint"]
-    assert models["depth"].name == "moge2" and models["depth"].weights == "missing" and "depth.path=" in models["depth"].fix
+    assert (
+        models["depth"].name == "moge2"
+        and models["depth"].weights == "missing"
+        and "depth.path=" in models["depth"].fix
+    )
     assert models["segmenter"].name == "SAM 3" and models["segmenter"].weights == "missing"
     assert "segment.path=" in models["segmenter"].fix
     for name, method in (("FLUX.2-dev", "flux2_dev"), ("Qwen-Image", "qwen_image"), ("SD3.5-Large", "sd35_large")):
