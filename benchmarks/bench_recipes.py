@@ -3,9 +3,11 @@
 The full method (``method=snellcaster``) on the paper's six indoor scenes with a glass sphere, on a
 CPU stand-in for FLUX (``model=mixture`` by default). The ``paper`` recipe is the baseline; each
 switch of :data:`snell_bench.config.recipes.SWITCHES` is set to the authors' value (and, where
-snell_bench has its own option, to that) alone, and the whole ``authors`` recipe last. Each scene's
-inputs (warps, references) are prepared once; a switch of the reference renders its own; a switch of
-the metrics rescores the same images.
+snell_bench has its own option, to that) alone, and the whole ``authors`` recipe last; the switches
+of relighting and the baselines (which the full method does not read) are left out. Each scene's
+inputs (scene, placement, warps, references) are prepared once per distinct setting of those nodes:
+a switch of the inputs prepares its own (``reference.renderer=cycles`` renders in Blender Cycles,
+``make setup-cycles``, at ``--cycles-spp``); a switch of the metrics rescores the same images.
 
 Prints, per setting, the mean masked PSNR / MAE over the scenes, the difference from ``paper``
 (dB, with the per-scene spread of that difference), the model calls and the sampling seconds.
@@ -31,8 +33,13 @@ import torch
 from snell_bench.config import compose
 from snell_bench.config.recipes import SWITCHES
 from snell_bench.pipeline import ModelPool, apply_method, prepare_inputs, run_method, scorers_of
+from snell_bench.pipeline.cell import node_key
 
 INDOOR = ("living_room", "dining_room", "office", "kitchen", "artroom", "cafe")
+#: Switches the full method does not read (relighting, the baselines' settings).
+SKIPPED = ("relight.", "baselines.")
+#: The nodes a cell's shared inputs (scene, placement, warps, reference) are computed from.
+INPUT_NODES = ("scene", "object", "warps", "reference", "depth", "segment")
 
 
 def _override(key: str, value) -> str:
@@ -45,8 +52,8 @@ def settings() -> list[tuple[str, list[str]]]:
     the authors' value and to snellcaster's own option, and the whole authors recipe."""
     out: list[tuple[str, list[str]]] = [("paper", ["recipe=paper"])]
     for s in SWITCHES:
-        if s.key.startswith("relight."):
-            continue  # the full method does not relight
+        if s.key.startswith(SKIPPED):
+            continue  # the full method neither relights nor runs a baseline
         for which, value in (("authors", s.authors), ("own", s.own)):
             if which == "own" and value is None or value == s.paper:
                 continue
@@ -63,6 +70,7 @@ def main() -> None:
     ap.add_argument("--pano", type=int, default=128)
     ap.add_argument("--steps", type=int, default=12)
     ap.add_argument("--spp", type=int, default=50)
+    ap.add_argument("--cycles-spp", type=int, default=256, help="Blender Cycles' samples (reference.renderer=cycles)")
     ap.add_argument("--scenes", nargs="*", default=list(INDOOR))
     args = ap.parse_args()
     size = [
@@ -72,6 +80,7 @@ def main() -> None:
         f"warps.pano_height={args.pano}",
         f"sampler.steps={args.steps}",
         f"reference.spp={args.spp}",
+        f"reference.cycles_spp={args.cycles_spp}",
         "reference.true_render=false",
         "sampler.progress=false",
         "warps.cache_dir=null",
@@ -89,7 +98,7 @@ def main() -> None:
         psnr, mae, secs, calls = [], [], 0.0, 0
         for scene in args.scenes:
             cfg = apply_method(compose([f"scene={scene}", "method=snellcaster", *size, *ov]))
-            key = (scene, bool(cfg.reference.reflection))
+            key = tuple(node_key(cfg[n]) for n in INPUT_NODES)  # a switch of the inputs prepares its own
             if key not in inputs_of:
                 inputs_of[key] = prepare_inputs(cfg, references=True, pool=pool)
             t0 = time.perf_counter()
@@ -128,7 +137,7 @@ def markdown(rows) -> None:
             if key in effect and value != s.paper:
                 d, sd = effect[key]
                 parts.append(f"{which} {d:+.2f} ± {sd:.2f}")
-        text = "; ".join(parts) or "not measured (relighting)"
+        text = "; ".join(parts) or "not measured (the full method neither relights nor runs a baseline)"
         print(f"| `{s.key}` | {cell(s.paper)} | {cell(s.authors)} | {cell(s.own)} | {s.what} | {text} |")
 
 
