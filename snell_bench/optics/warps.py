@@ -164,8 +164,9 @@ def compute_warps(
         half_pixel_shift: shift the source coordinates of π^R, the reflection warp and π by +0.5 px
             and keep sources in ``[0, W - 1) x [0, H - 1)``
             (:func:`~snell_bench.optics.conventions.shift_half_pixel`: the authors' sampling).
-        pano_center, pano_axes: the panorama's centre (``bbox`` or ``centroid``) and axes (``level``
-            or ``camera``; :func:`~snell_bench.optics.conventions.panorama_pose`).
+        pano_center: the panorama's centre, ``bbox`` or ``centroid``
+            (:func:`~snell_bench.optics.conventions.panorama_pose`).
+        pano_axes: the panorama's axes, ``level`` or ``camera``.
 
     Returns:
         The :class:`WarpSet` (from the cache if it holds one for these inputs).
