@@ -133,6 +133,9 @@ def main() -> None:
         *model,
         f"model.device={args.device}",
         "scene=living_room",
+        # the sampler's cost on the procedural room (named: a text-to-image model would generate I⁻,
+        # which needs a depth estimator and is timed by the plan apart)
+        "scene.source=procedural",
         f"scene.width={W}",
         f"scene.height={H}",
         "scene.supersample=1",

@@ -46,6 +46,10 @@ def test_the_ablation_runs_under_each_recipe(tmp_path, recipe, model):
         f"model={model}",
         # a text-to-image model runs the paper's scene pipeline: the tiny depth and segmentation models
         *(["depth=tiny_depth_pro", "segment=tiny_sam3"] if model == "tiny_flux" else []),
+        # the authors' centre-ray anchor needs a surface under the segmented box's centre, which random
+        # models do not give at 96 x 64 (the tiny depth's floor is cut at depth edges near the horizon):
+        # their placement is tested on hand-made depth in tests/scene/test_placement_anchor.py
+        *(["object.anchor=plane"] if model == "tiny_flux" and recipe == "authors" else []),
         *SMALL,
         f"runs_dir={tmp_path / 'runs'}",
         f"reports_dir={tmp_path / 'reports'}",
