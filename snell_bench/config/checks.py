@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -236,6 +237,12 @@ def _files(cfg: DictConfig, out: list[str]) -> None:
                 f"{key}={str(value)!r}: no such file (the {what}); fix the path, or set {key}=null to report the "
                 "metric as missing"
             )
+    blender = _get(cfg, "reference.blender_python")
+    if blender and str(_get(cfg, "reference.renderer")) == "cycles" and not os.access(str(blender), os.X_OK):
+        out.append(
+            f"reference.blender_python={str(blender)!r}: not an executable (the Python with Blender's bpy that renders "
+            "the Cycles reference); fix the path, or set it to null for the one `make setup-cycles` installs"
+        )
     bench = _get(cfg, "plan.bench")
     if bench and not Path(str(bench)).is_file():
         out.append(

@@ -107,3 +107,11 @@ def test_a_generated_scene_without_a_depth_estimator_stops_before_any_work():
     with pytest.raises(ConfigError, match="needs a text-to-image generator"):
         check_config(_cfg("+experiment=smoke", "scene.source=generated", "depth=tiny_depth_pro"))
     check_config(_cfg("+experiment=smoke", "model=tiny_flux", "scene.height=352", "depth=tiny_depth_pro"))
+
+
+def test_a_named_blender_python_that_is_not_there_stops_before_any_work():
+    from snell_bench.config import ConfigError, check_config
+
+    with pytest.raises(ConfigError, match="reference.blender_python='/nonexistent/python': not an executable"):
+        check_config(_cfg("+experiment=smoke", "recipe=authors", "reference.blender_python=/nonexistent/python"))
+    check_config(_cfg("+experiment=smoke", "recipe=authors"))  # null: the installed one, or the cell says why not
