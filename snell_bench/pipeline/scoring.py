@@ -74,7 +74,7 @@ def score(
         protocol=str(cfg.metrics.protocol),
         files=str(cfg.metrics.get("files", "png")),
         lpips_box_range=str(cfg.metrics.get("lpips_box_range", "signed")),
-        reference_is_jpeg=ref is not None and ref.file_format == "jpeg",
+        reference_is_jpeg=getattr(ref, "file_format", None) == "jpeg",
     )
 
 

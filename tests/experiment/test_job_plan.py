@@ -165,6 +165,7 @@ def test_model_calls_equal_the_sampler_s(tiny_run):
             "sampler.steps=6",
             "++method.sampler.lam=0.3",
             "segment=tiny_sam3",
+            "depth=tiny_depth_pro",  # the paper's scene pipeline of a text-to-image model (the photo keeps its depth)
             "scene.width=320",
             "scene.height=176",
         ],
