@@ -13,14 +13,11 @@ from PIL import Image
 
 from snell_bench.imaging.pyramid import pyramid_warp
 from snell_bench.models.analytic import AnalyticGenerator
-from snell_bench.optics import compute_warps
 from snell_bench.sampler import SamplerSettings, sample
 from snell_bench.sampler.eight_bit import to_8bit_floor, to_8bit_round
 from snell_bench.sampler.steps import renoise_euler_maruyama, sde_step
 from snell_bench.sampler.views import Views
-from snell_bench.scene.objects import GlassObject
-from snell_bench.scene.placement import place_object
-from snell_bench.scene.procedural import ProceduralScene
+from tests.sampler.room import room_sphere
 from tests.tolerances import EPS64, reordering_tolerance
 
 H, W, HP = 64, 96, 32
@@ -28,11 +25,7 @@ H, W, HP = 64, 96, 32
 
 @pytest.fixture(scope="module")
 def setup():
-    scene = ProceduralScene("room", seed=0)
-    r = scene.render(W, H)
-    obj = place_object(GlassObject.sphere(subdivisions=3), r.depth, r.camera, up_hint=scene.up, relative_size=0.4)
-    ws = compute_warps(r.depth, r.camera, obj, pano_height=HP)
-    i_minus = torch.from_numpy(r.image).permute(2, 0, 1)[None].float()
+    scene, r, ws, i_minus = room_sphere(W, H, HP)
     p = ws.pano
     pano = scene.render_panorama(center=p.center, height=p.height, up=-p.rotation[:, 1], forward=p.rotation[:, 2])
     gen = AnalyticGenerator.from_scene(r.image, ws.object_mask, pano)

@@ -7,12 +7,9 @@ import torch
 from scipy.ndimage import binary_dilation
 
 from snell_bench.imaging.pyramid import collapse, gaussian_pyramid, laplacian_pyramid, warped_bands
-from snell_bench.optics import compute_warps
 from snell_bench.sampler import SamplerSettings
 from snell_bench.sampler.views import Views, keep_outside
-from snell_bench.scene.objects import GlassObject
-from snell_bench.scene.placement import place_object
-from snell_bench.scene.procedural import ProceduralScene
+from tests.sampler.room import room_sphere
 from tests.tolerances import reordering_tolerance
 
 H, W, HP = 64, 96, 32
@@ -20,11 +17,7 @@ H, W, HP = 64, 96, 32
 
 @pytest.fixture(scope="module")
 def setup():
-    scene = ProceduralScene("room", seed=0)
-    r = scene.render(W, H)
-    obj = place_object(GlassObject.sphere(subdivisions=3), r.depth, r.camera, up_hint=scene.up, relative_size=0.4)
-    ws = compute_warps(r.depth, r.camera, obj, pano_height=HP)
-    i_minus = torch.from_numpy(r.image).permute(2, 0, 1)[None].float()
+    _, _, ws, i_minus = room_sphere(W, H, HP)
     return ws, i_minus
 
 
