@@ -96,6 +96,7 @@ from snell_bench.experiment.plan import (
     object_overrides,
 )
 from snell_bench.experiment.reports import (  # noqa: F401  (re-exported)
+    CONVERGED_METRICS,
     PRESET_AXIS,
     RECORD_METRICS,
     SPP_KEY,
@@ -112,6 +113,7 @@ from snell_bench.experiment.reports import (  # noqa: F401  (re-exported)
     tradeoff_table,
     update_spp_records,
 )
+from snell_bench.metrics.registry import builtin_metric
 from snell_bench.pipeline.cell import plain
 from snell_bench.utils.io import json_hash, save_npy, write_json
 
@@ -384,7 +386,7 @@ def _run_setting(cell: Cell, shared: SharedCache, sweep: _Sweep) -> dict:
     scored = res.scores
     if converged is not None:  # an evaluation on top: not part of the setting's cost
         conv = pipeline.score(c, inputs, res.image, sweep.scorers, reference=converged)
-        for k in ("psnr", "mae", "lpips"):
+        for k in CONVERGED_METRICS:
             scored["metrics"][f"{k}_converged"] = conv["metrics"].get(k)
             if conv["metrics"].get(k) is None:
                 scored["missing"][f"{k}_converged"] = conv["missing"].get(k, "no value")
@@ -394,17 +396,21 @@ def _run_setting(cell: Cell, shared: SharedCache, sweep: _Sweep) -> dict:
             if not sweep.converged_spp
             else f"no converged reference: {inputs.reference_reason}"
         )
-        for k in ("psnr", "mae", "lpips"):
+        for k in CONVERGED_METRICS:
             scored["missing"][f"{k}_converged"] = why
     t["total"] = _r(sum(t[k] for k in TOTAL_STAGES))
-    metrics = {k: scored["metrics"].get(k) for k in RECORD_METRICS}
-    missing = {k: v for k, v in scored["missing"].items() if k in RECORD_METRICS}
+    # users' metrics (metrics.extra) after the sweep's own
+    names = RECORD_METRICS + tuple(
+        k for k in scored["metrics"] if k not in RECORD_METRICS and builtin_metric(k) is None
+    )
+    metrics = {k: scored["metrics"].get(k) for k in names}
+    missing = {k: v for k, v in scored["missing"].items() if k in names}
     if inputs.true_render is None and "psnr_true" not in missing:
         missing["psnr_true"] = (
             "no true render (reference.true_render=false, the renderer is unavailable, or the scene source is "
             "not procedural)"
         )
-    for k in RECORD_METRICS:
+    for k in names:
         if metrics[k] is None and k not in missing:
             missing[k] = "no value"
     return {

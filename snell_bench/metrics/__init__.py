@@ -4,6 +4,9 @@
   histogram matching, the protocols.
 - :mod:`~snell_bench.metrics.fidelity`: their class forms (batch accumulators) and masked LPIPS.
 - :mod:`~snell_bench.metrics.alignment`: CLIP score, ImageReward and :func:`score_all`.
+- :mod:`~snell_bench.metrics.registry`: one :class:`MetricSpec` per metric (label, direction, format,
+  what it needs, how it is computed), read by scoring, every table, page and plot; users' metrics
+  plug in by the ``snell_bench.metrics`` entry point or a dotted path (``metrics.extra``).
 - :mod:`~snell_bench.metrics.scoring`: the scorers of a run and :func:`score_cell`.
 - :mod:`~snell_bench.metrics.refraction`: the object region against π^R(I⁻).
 
@@ -58,6 +61,16 @@ from .functional import (
     quantize_8bit,
     to_gray,
 )
+from .registry import (
+    BUILTIN_METRICS,
+    MetricSpec,
+    ScoreInputs,
+    compute_metrics,
+    installed_metrics,
+    load_metric,
+    metric_spec,
+    metrics_for,
+)
 from .scoring import (
     PROMPT_METRICS,
     PSNR_CEILING_DB,
@@ -72,6 +85,14 @@ from .scoring import (
 
 __all__ = [
     "AUTHORS_ONLY_METRICS",
+    "BUILTIN_METRICS",
+    "MetricSpec",
+    "ScoreInputs",
+    "compute_metrics",
+    "installed_metrics",
+    "load_metric",
+    "metric_spec",
+    "metrics_for",
     "AuthorsScores",
     "CLIPScore",
     "CellScores",

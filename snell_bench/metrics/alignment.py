@@ -30,7 +30,8 @@ import numpy as np
 import torch
 
 from .fidelity import MaskedLPIPS
-from .functional import MetricUnavailable, check_protocol, masked_mae, masked_psnr
+from .functional import MetricUnavailable, check_protocol
+from .registry import BUILTIN_METRICS, ScoreInputs, compute_metrics, metrics_for
 
 __all__ = [
     "AUTHORS_ONLY_METRICS",
@@ -44,21 +45,19 @@ __all__ = [
     "score_all",
 ]
 
-#: The metrics :func:`score_all` reports under ``metrics.protocol=paper``, in order.
-METRIC_NAMES = ("psnr", "mae", "lpips", "clip", "image_reward")
+#: The metrics :func:`score_all` reports under ``metrics.protocol=paper``, in order (the built-in
+#: metrics of :mod:`~snell_bench.metrics.registry` scored against the reference and the prompt).
+METRIC_NAMES = tuple(m.name for m in BUILTIN_METRICS if "paper" in m.protocols and "true_render" not in m.needs)
 
 #: The metrics only the authors' evaluation has (``lpips_box``: their bounding-box LPIPS).
-AUTHORS_ONLY_METRICS = ("lpips_box",)
+AUTHORS_ONLY_METRICS = tuple(m.name for m in BUILTIN_METRICS if m.protocols == ("authors",))
 
 
 def metric_names(protocol: str = "paper") -> tuple[str, ...]:
     """The metrics :func:`score_all` reports under ``protocol``, in order: :data:`METRIC_NAMES`, and
     under ``"authors"`` also ``lpips_box`` (after ``lpips``). Under ``"paper"`` ``lpips_box`` is not
     reported at all (the paper has no such metric)."""
-    if check_protocol(protocol) == "authors":
-        i = METRIC_NAMES.index("lpips") + 1
-        return METRIC_NAMES[:i] + AUTHORS_ONLY_METRICS + METRIC_NAMES[i:]
-    return METRIC_NAMES
+    return tuple(m.name for m in metrics_for(protocol) if "true_render" not in m.needs)
 
 
 def _to_pil(image: Any):
@@ -423,40 +422,16 @@ def score_all(
         - ``generated_path``: the generated image's file, handed to ImageReward as is (else a
           temporary PNG of ``generated`` is written).
     """
-    metrics: dict[str, float | None] = {name: None for name in metric_names(protocol)}
-    missing: dict[str, str] = {}
-    fidelity = dict(histogram_match=histogram_match, protocol=protocol)
-    lpips_kwargs = {} if protocol == "paper" else dict(protocol=protocol)
-
-    def run(name, fn):
-        try:
-            metrics[name] = float(fn())
-        except MetricUnavailable as e:
-            missing[name] = e.reason
-
-    def run_scorer(name, scorer, key, fn):
-        if scorer is None:
-            missing[name] = f"not configured (set {key})"
-        elif isinstance(scorer, MetricUnavailable):
-            missing[name] = scorer.reason
-        else:
-            run(name, lambda: fn(scorer))
-
-    run("psnr", lambda: masked_psnr(generated, reference, mask, **fidelity))
-    run("mae", lambda: masked_mae(generated, reference, mask, **fidelity))
-    run_scorer("lpips", lpips, MaskedLPIPS.CONFIG_KEY, lambda s: s(generated, reference, mask, **lpips_kwargs))
-    if "lpips_box" in metrics:
-        run_scorer(
-            "lpips_box",
-            lpips,
-            MaskedLPIPS.CONFIG_KEY,
-            lambda s: s(generated, reference, mask, **lpips_kwargs, box=True, box_range=lpips_box_range),
-        )
-    run_scorer("clip", clip, CLIPScore.CONFIG_KEY, lambda s: s(generated, prompt))
-    run_scorer(
-        "image_reward",
-        image_reward,
-        ImageRewardScorer.CONFIG_KEY,
-        lambda s: s(generated_path if generated_path is not None else generated, prompt),
+    inputs = ScoreInputs(
+        generated,
+        reference,
+        mask,
+        prompt,
+        protocol=check_protocol(protocol),
+        scorers={"lpips": lpips, "clip": clip, "image_reward": image_reward},
+        generated_path=generated_path,
+        lpips_box_range=lpips_box_range,
+        histogram_match=histogram_match,
     )
+    metrics, missing = compute_metrics([m for m in metrics_for(protocol) if "true_render" not in m.needs], inputs)
     return {"metrics": metrics, "missing": missing}

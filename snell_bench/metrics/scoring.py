@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -24,10 +24,11 @@ import torch
 
 from snell_bench.utils.tensors import bchw_to_hwc
 
-from .alignment import METRIC_NAMES, CLIPScore, ImageRewardScorer, ScoreResult, metric_names, score_all
+from .alignment import METRIC_NAMES, CLIPScore, ImageRewardScorer, ScoreResult, metric_names
 from .fidelity import MaskedLPIPS, check_box_range
 from .files import check_files, evaluated_files
-from .functional import MetricUnavailable, check_protocol, masked_psnr
+from .functional import MetricUnavailable, check_protocol
+from .registry import ScoreInputs, compute_metrics, metrics_for
 
 __all__ = [
     "PROMPT_METRICS",
@@ -206,6 +207,7 @@ def score_cell(
     files: str = "png",
     lpips_box_range: str = "signed",
     reference_is_jpeg: bool = False,
+    extra: Sequence[str] = (),
 ) -> CellScores:
     """Every metric of one generated image, each a float or None with the reason.
 
@@ -214,10 +216,11 @@ def score_cell(
     ``"paper"``: grayscale, histogram-matched PSNR and MAE, LPIPS of the RGB images averaged over the
     mask of its spatial map; ``"authors"``: the authors' evaluation on the 8-bit images, with
     ``lpips_box``, their bounding-box LPIPS, after ``lpips``; CLIP and ImageReward: the full image
-    against ``prompt``). Without one (``reference is None``), PSNR, MAE and LPIPS are None with
-    ``reference_reason`` (default ``"no reference"``), CLIP is still scored, and ImageReward is None.
-    Then, for each scorer that could not be built, its reason replaces the recorded one wherever one
-    of its metrics (:data:`SCORER_METRICS`) has no value. With ``true_render``,
+    against ``prompt``), each computed as its :class:`~snell_bench.metrics.registry.MetricSpec` says
+    (:func:`~snell_bench.metrics.registry.compute_metrics`). A metric whose scorer could not be built
+    is None with the scorer's reason; without a reference (``reference is None``) PSNR, MAE and LPIPS
+    are None with ``reference_reason`` (default ``"no reference"``), and CLIP and ImageReward, which
+    need the prompt alone, are still scored. Users' metrics (``extra``) follow. With ``true_render``,
     ``psnr_true`` is the masked PSNR (same protocol) of the image against it over ``object_mask``.
     Last, every PSNR above :data:`PSNR_CEILING_DB` (identical pixels: ``inf``) is recorded at the
     ceiling with a note in ``notes``, so a perfect match counts in every mean; any other NaN or
@@ -251,6 +254,8 @@ def score_cell(
             ``metrics.lpips_box_range``, :func:`~snell_bench.metrics.fidelity.authors_lpips_box`).
         reference_is_jpeg: the reference already decodes the JPEG its renderer wrote (the Cycles
             reference, the authors' ``blender.jpg``): ``files="jpeg"`` does not encode it again.
+        extra: users' metrics (``metrics.extra``: names of installed metrics or dotted paths,
+            :func:`~snell_bench.metrics.registry.load_metric`), scored after the built-in ones.
 
     Returns:
         ``{"metrics": {name: float | None}, "missing": {name: reason}, "notes": {name: note},
@@ -271,38 +276,19 @@ def score_cell(
     if check_files(files) == "jpeg":  # ImageReward then reads the decoded JPEG, not the PNG file
         gen, reference, mask = evaluated_files(gen, reference, mask, files, reference_is_jpeg=reference_is_jpeg)
         generated_path = None
-    if reference is None:
-        metrics: dict[str, float | None] = {name: None for name in metric_names(protocol)}
-        missing = {name: reference_reason or "no reference" for name in reference_metrics(protocol)}
-        if scorers.clip is not None:
-            try:
-                metrics["clip"] = float(scorers.clip(gen, prompt))
-            except MetricUnavailable as e:
-                missing["clip"] = e.reason
-    else:
-        out = score_all(
-            gen,
-            reference,
-            mask,
-            prompt,
-            lpips=scorers.lpips,
-            clip=scorers.clip,
-            image_reward=scorers.image_reward,
-            generated_path=generated_path,
-            protocol=protocol,
-            lpips_box_range=lpips_box_range,
-        )
-        metrics, missing = out["metrics"], out["missing"]
-    for scorer_name, reason in scorers.reasons.items():
-        for name in SCORER_METRICS.get(scorer_name, (scorer_name,)):
-            if name in metrics and metrics[name] is None:
-                missing[name] = reason
-    if true_render is not None:
-        try:
-            metrics["psnr_true"] = float(masked_psnr(gen, true_render, object_mask, protocol=protocol))
-        except MetricUnavailable as e:
-            metrics["psnr_true"] = None
-            missing["psnr_true"] = e.reason
+    inputs = ScoreInputs(
+        gen,
+        reference,
+        mask,
+        prompt,
+        object_mask=object_mask,
+        true_render=true_render,
+        protocol=protocol,
+        scorers=scorers,
+        generated_path=generated_path,
+        lpips_box_range=lpips_box_range,
+    )
+    metrics, missing = compute_metrics(metrics_for(protocol, extra), inputs, reference_reason=reference_reason)
     notes: dict[str, str] = {}
     _apply_psnr_ceiling(metrics, notes)
     for name, value in metrics.items():

@@ -87,7 +87,7 @@ def test_a_torch_image_scores_like_its_numpy_form(cell, scorers):
         assert score_cell(t, ref, mask, PROMPT, scorers, true_render=true, object_mask=obj) == as_numpy
 
 
-def test_without_a_reference_only_clip_is_scored(cell, scorers):
+def test_without_a_reference_only_the_prompt_metrics_are_scored(cell, scorers):
     gen, _, _, true, obj = cell
     res = score_cell(
         gen, None, None, PROMPT, scorers, reference_reason="reference.enabled=false", true_render=true, object_mask=obj
@@ -98,7 +98,11 @@ def test_without_a_reference_only_clip_is_scored(cell, scorers):
     assert m["psnr_true"] == masked_psnr(gen, true, obj)  # the true render needs no reference
     assert res["missing"] == {**{k: "reference.enabled=false" for k in REFERENCE_METRICS}, "image_reward": NO_IR}
     plain = score_cell(gen, None, None, PROMPT, Scorers(clip=MetricUnavailable("no CLIP weights")))
-    assert plain["missing"] == {**{k: "no reference" for k in REFERENCE_METRICS}, "clip": "no CLIP weights"}
+    assert plain["missing"] == {
+        **{k: "no reference" for k in REFERENCE_METRICS},
+        "clip": "no CLIP weights",
+        "image_reward": "not configured (set metrics.image_reward_python)",
+    }
     assert "psnr_true" not in plain["metrics"]
 
 

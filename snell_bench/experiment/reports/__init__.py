@@ -107,6 +107,7 @@ from .tables import (
     with_recorded_metrics,
 )
 from .tradeoff import (
+    CONVERGED_METRICS,
     PRESET_AXIS,
     RECORD_METRICS,
     SPP_KEY,
@@ -206,6 +207,7 @@ __all__ = [
     "TOTAL_STAGES",
     "TOTAL_NOTE",
     "RECORD_METRICS",
+    "CONVERGED_METRICS",
     "PRESET_AXIS",
     "SPP_KEY",
     "pareto_front",

@@ -33,6 +33,8 @@ __all__ = [
     "not_finite_reason",
     "BASE_COLUMNS",
     "recipe_and_protocol",
+    "RECORDED_METRICS",
+    "recorded_metrics",
     "provenance_line",
     "cell_notes",
     "reference_noise_note",
@@ -53,6 +55,11 @@ BASE_COLUMNS = (
     "protocol",
 )
 """The identity columns of :func:`collect`, first and in this order."""
+
+RECORDED_METRICS = "metrics"
+"""The key of ``DataFrame.attrs`` listing the metric columns of :func:`collect`, in order: the
+built-in metrics the cells record, then the others (users' metrics, ``metrics.extra``) as first
+recorded."""
 
 SKIPPED_FILES = "skipped_files"
 """The key of ``DataFrame.attrs`` listing the record files left out: ``[(path relative to the run
@@ -176,6 +183,24 @@ def _flat_groups(records: list[dict]) -> pd.DataFrame:
     return flat.drop(columns=has_list)
 
 
+def recorded_metrics(df: pd.DataFrame) -> list[str]:
+    """The metric columns of ``df`` (:func:`collect`), in order: ``attrs["metrics"]`` where
+    :func:`collect` set it, else the built-in metrics and the installed users' metrics among its
+    columns.
+
+    Args:
+        df: the rows.
+
+    Returns:
+        Metric names (record keys), each a column of ``df``.
+    """
+    names = df.attrs.get(RECORDED_METRICS)
+    if names is None:  # a frame that lost its attrs: the built-in metrics and the installed users' ones
+        names = [m for m in METRICS if m in df.columns]
+        names += [c for c in df.columns if c not in METRICS and metric_spec(str(c)).source != "unknown"]
+    return [m for m in names if m in df.columns]
+
+
 def skipped_files(df: pd.DataFrame) -> list[tuple[str, str]]:
     """The record files left out of ``df`` (:func:`collect`, :func:`~.tradeoff.collect_tradeoff`).
 
@@ -285,10 +310,12 @@ def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
     keys = ["scene", "variation", "object", "method", "cell_dir"]
     df = df.sort_values(keys, na_position="last", kind="mergesort").reset_index(drop=True)
     fixed = [c for c in BASE_COLUMNS if c in df.columns]
-    metric_cols = [m for m in METRICS if m in df.columns]
+    seen = list(dict.fromkeys(k for rec in records for k in (rec.get("metrics") or {})))
+    metric_cols = [m for m in METRICS if m in seen] + [m for m in seen if m not in METRICS]
     other = sorted(c for c in df.columns if c not in fixed and c not in metric_cols and c != "cell_dir")
     df = df[fixed + metric_cols + other + ["cell_dir"]]
     df.attrs[SKIPPED_FILES] = skipped
+    df.attrs[RECORDED_METRICS] = metric_cols
     return df
 
 

@@ -47,6 +47,7 @@ import pandas as pd
 
 from snell_bench.utils.io import atomic_write
 
+from .collect import recorded_metrics
 from .figures import PANORAMA_FILE, figure_rows
 from .spec import metric_spec
 from .tables import DEFAULT_IOR, ior_label, method_labels
@@ -92,7 +93,8 @@ ERROR_SCALES = (0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 1.0)
 """The |error| values (gray levels, 1 = full range) the colour scale's top may take."""
 
 CAPTION_METRICS = ("psnr", "mae", "lpips", "lpips_box", "clip", "image_reward", "psnr_true")
-"""The metrics a method tile's caption shows, in order, where any cell records them."""
+"""The metrics a method tile's caption shows first, in order, where any cell records them; every
+other recorded metric (users' metrics) follows."""
 
 _PHOTO = {"input", "reference", "image", "panorama"}
 
@@ -408,6 +410,7 @@ def gallery(
     methods = (["snellcaster"] if "snellcaster" in names else []) + [m for m in names if m != "snellcaster"]
     labels = method_labels(df)
     shown = [m for m in CAPTION_METRICS if m in df.columns]
+    shown += [m for m in recorded_metrics(df) if m not in shown]  # users' metrics (metrics.extra)
     written: list[Path] = []
     rows: list[GalleryRow] = []
     errors: list[tuple[MethodCell, str, np.ndarray]] = []  # (cell, protocol, its masked |error| values)

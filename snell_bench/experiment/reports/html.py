@@ -59,10 +59,10 @@ import pandas as pd
 
 from snell_bench.utils.io import write_text
 
-from .collect import cell_notes
+from .collect import cell_notes, recorded_metrics
 from .gallery import Gallery, error_lut
 from .plots import Plot
-from .spec import METRICS, MISSING
+from .spec import MISSING, metric_spec
 from .tables import DEFAULT_IOR, rank_marks
 from .tradeoff import PRESET_AXIS
 from .writers import _cell_text, _header, rank_scope
@@ -303,11 +303,10 @@ _TRADEOFF_COLUMNS = (
     ("sampling", "timings_s.sampling", "{:.2f}"),
     ("metrics", "timings_s.metrics", "{:.2f}"),
     ("total", "timings_s.total", "{:.2f}"),
-    ("PSNR", "psnr", "{:.2f}"),
-    ("PSNR (conv.)", "psnr_converged", "{:.2f}"),
-    ("PSNR (true)", "psnr_true", "{:.2f}"),
-    ("LPIPS", "lpips", "{:.3f}"),
-    ("MAE", "mae", "{:.4f}"),
+    *(
+        (metric_spec(m).label, m, metric_spec(m).format)
+        for m in ("psnr", "psnr_converged", "psnr_true", "lpips", "mae")
+    ),
     ("ref. self-noise", "reference_self_noise_db", "{:.2f}"),
 )
 
@@ -410,7 +409,7 @@ def write_grid_page(
     out_dir = Path(out_dir)
     written: list[Path] = []
     has_plotly = _write_plotly(out_dir, plots, written)
-    shown = [m for m in METRICS if m in df.columns]
+    shown = recorded_metrics(df)
     html = (
         environment()
         .get_template("grid.html.j2")

@@ -1,9 +1,9 @@
-"""What the report tables show: metric labels, directions and print formats, table layouts."""
+"""What the report tables show: table layouts; the metrics' labels, directions and print formats come
+from the metric registry (:mod:`snell_bench.metrics.registry`)."""
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from snell_bench.metrics.registry import BUILTIN_METRICS, MISSING, MetricSpec, metric_spec
 
 __all__ = [
     "Metric",
@@ -22,51 +22,12 @@ __all__ = [
     "metric_spec",
 ]
 
-MISSING = "—"
-"""How a missing value is shown in Markdown and LaTeX tables."""
+Metric = MetricSpec
+"""How a metric is labelled, compared and printed: :class:`~snell_bench.metrics.registry.MetricSpec`."""
 
-
-@dataclass(frozen=True)
-class Metric:
-    """How a metric is labelled, compared and printed.
-
-    Attributes:
-        name: the key in ``metrics.json`` (``"psnr"``).
-        label: the column header (``"PSNR"``).
-        higher_is_better: the direction that decides which value is marked best.
-        format: a :meth:`str.format` pattern for one value (``"{:.2f}"``).
-    """
-
-    name: str
-    label: str
-    higher_is_better: bool
-    format: str
-
-    @property
-    def arrow(self) -> str:
-        """The arrow of the direction: "↑" if higher is better, else "↓"."""
-        return "↑" if self.higher_is_better else "↓"
-
-    def fmt(self, value: float | None) -> str:
-        """The value as printed in a table (:data:`MISSING` for None and NaN)."""
-        if value is None or (isinstance(value, float) and math.isnan(value)):
-            return MISSING
-        return self.format.format(value)
-
-
-METRICS: dict[str, Metric] = {
-    m.name: m
-    for m in (
-        Metric("psnr", "PSNR", True, "{:.2f}"),
-        Metric("mae", "MAE", False, "{:.4f}"),
-        Metric("lpips", "LPIPS", False, "{:.3f}"),
-        Metric("lpips_box", "LPIPS (box)", False, "{:.3f}"),
-        Metric("clip", "CLIP", True, "{:.2f}"),
-        Metric("image_reward", "ImageReward", True, "{:.3f}"),
-        Metric("psnr_true", "PSNR (true)", True, "{:.2f}"),
-    )
-}
-"""The metrics of ``metrics.json``: label, direction and print format."""
+METRICS: dict[str, Metric] = {m.name: m for m in BUILTIN_METRICS}
+"""The built-in metrics of ``metrics.json`` (:data:`~snell_bench.metrics.registry.BUILTIN_METRICS`):
+label, direction and print format; a user's metric is found by :func:`metric_spec`."""
 
 MEASURES: dict[str, Metric] = {
     m.name: m
@@ -129,8 +90,3 @@ MODEL_DESCRIPTIONS = {
     "flux": "FLUX.1-dev",
 }
 """What each ``model`` value of ``metrics.json`` is, for provenance lines."""
-
-
-def metric_spec(name: str) -> Metric:
-    """The spec of ``name``; an unknown metric is labelled by its name, higher is better, 3 decimals."""
-    return METRICS.get(name) or Metric(name, name, True, "{:.3f}")

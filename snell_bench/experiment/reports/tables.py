@@ -23,7 +23,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 import pandas as pd
 
-from .collect import cell_notes, provenance_line, reference_noise_note
+from .collect import cell_notes, provenance_line, recorded_metrics, reference_noise_note
 from .spec import (
     ABLATION_METRICS,
     ABLATION_ROWS,
@@ -107,11 +107,12 @@ def _means(df: pd.DataFrame, methods: Sequence[str], metrics: Sequence[str]) -> 
 
 
 def with_recorded_metrics(df: pd.DataFrame, metrics: Sequence[str]) -> tuple[str, ...]:
-    """``metrics`` followed by those of :data:`OPTIONAL_METRICS` the cells record.
+    """``metrics`` followed by those of :data:`OPTIONAL_METRICS` the cells record, then every
+    other metric they record (users' metrics, ``metrics.extra``: :func:`~.collect.recorded_metrics`).
 
     ``lpips_box`` is added wherever any cell's ``metrics.json`` has the key (a column of "—" with
     its reason in the notes if it has no value anywhere); ``mae`` and ``psnr_true`` where any
-    ``ok`` cell has a value.
+    ``ok`` cell has a value; a user's metric wherever any cell records it (its reasons in the notes).
 
     Args:
         df: cells from ``collect``.
@@ -127,6 +128,7 @@ def with_recorded_metrics(df: pd.DataFrame, metrics: Sequence[str]) -> tuple[str
             continue
         if m == "lpips_box" or ok[m].notna().any():
             extra.append(m)
+    extra += [m for m in recorded_metrics(df) if m not in METRICS and m not in metrics and m not in extra]
     return tuple(metrics) + tuple(extra)
 
 
@@ -626,7 +628,10 @@ def column_metric(table: pd.DataFrame, col) -> Metric | None:
         return None
     if table.attrs.get("metric"):
         return metric_spec(table.attrs["metric"])
-    return METRICS.get(col)
+    if col in METRICS:
+        return METRICS[col]
+    spec = metric_spec(str(col))  # a user's metric, installed here (metrics.extra)
+    return None if spec.source == "unknown" else spec
 
 
 def rank_marks(table: pd.DataFrame) -> dict[tuple[int, int], int]:

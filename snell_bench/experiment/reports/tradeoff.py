@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from snell_bench.metrics.registry import BUILTIN_METRICS
 from snell_bench.utils.io import write_json
 
 from .records import TRADEOFF_RECORD, load_record, non_finite
@@ -35,6 +36,7 @@ __all__ = [
     "TOTAL_STAGES",
     "TOTAL_NOTE",
     "RECORD_METRICS",
+    "CONVERGED_METRICS",
     "PRESET_AXIS",
     "SPP_KEY",
     "pareto_front",
@@ -57,8 +59,15 @@ TOTAL_NOTE = (
     "(procedural-only evaluation) and generator (building the model once) are not included"
 )
 
-#: The metrics a setting records (CLIP and ImageReward are not part of this sweep).
-RECORD_METRICS = ("psnr", "mae", "lpips", "psnr_true", "psnr_converged", "mae_converged", "lpips_converged")
+#: The metrics a setting also scores against the converged reference (``<metric>_converged``).
+CONVERGED_METRICS = ("psnr", "mae", "lpips")
+
+#: The metrics a setting records: the built-in metrics of the reference and the true render (CLIP
+#: and ImageReward, of the prompt, are not part of this sweep), then :data:`CONVERGED_METRICS`
+#: against the converged reference; users' metrics (``metrics.extra``) follow where recorded.
+RECORD_METRICS = tuple(m.name for m in BUILTIN_METRICS if "prompt" not in m.needs and "paper" in m.protocols) + tuple(
+    f"{m}_converged" for m in CONVERGED_METRICS
+)
 
 #: The axis of the settings that apply a whole preset (``preset:<name>``).
 PRESET_AXIS = "preset"
@@ -287,7 +296,8 @@ def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
             row[f"sampler_s.{k}"] = _float(v)
         for k, v in (r.get("model_calls") or {}).items():
             row[f"model_calls.{k}"] = v
-        for k in RECORD_METRICS:
+        extra = [k for k in (r.get("metrics") or {}) if k not in RECORD_METRICS]  # users' metrics
+        for k in (*RECORD_METRICS, *extra):
             row[k] = float("nan") if k in bad else _float((r.get("metrics") or {}).get(k))
             row[f"missing.{k}"] = (
                 f"not finite in the record ({bad[k]})" if k in bad else (r.get("missing") or {}).get(k)

@@ -416,10 +416,7 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
         "sampling",
         "metrics",
         "total",
-        "PSNR",
-        "PSNR (conv.)",
-        "PSNR (true)",
-        "LPIPS",
+        *(metric_spec(m).label for m in _TRADEOFF_METRICS),
         "ref. self-noise",
         "n",
         "pareto",
@@ -427,16 +424,12 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
     rows = []
     for setting, r in table.iterrows():
         label = f"**{md_escape(setting)}**" if r["axis"] == PRESET_AXIS else md_escape(setting)
-        lp = _fmt(r["lpips"], "{:.3f}") if not math.isnan(r["lpips"]) else "missing"
         cells = [label] + [
             _fmt(r[f"timings_s.{k}"])
             for k in ("scene", "warps", "reference", "true_render", "generator", "sampling", "metrics", "total")
         ]
         cells += [
-            _fmt(r["psnr"]),
-            _fmt(r["psnr_converged"]),
-            _fmt(r["psnr_true"]),
-            lp,
+            *(_metric_text(m, r.get(m, float("nan")), "missing") for m in _TRADEOFF_METRICS),
             _fmt(r.get("reference_self_noise_db", float("nan"))),
             f"{int(r['n'])}/{int(r['n_scenes'])}",
             "★" if r["pareto"] else "",
@@ -574,6 +567,16 @@ def _is_spp_axis_row(r) -> bool:
         return False
 
 
+#: The metric columns of a sweep's tables, in order (labels and formats from the metric registry).
+_TRADEOFF_METRICS = ("psnr", "psnr_converged", "psnr_true", "lpips")
+
+
+def _metric_text(name: str, value, missing: str = MISSING) -> str:
+    """A sweep's metric value as its spec prints it (``missing`` for no value)."""
+    v = float("nan") if value is None else float(value)
+    return missing if math.isnan(v) else metric_spec(name).fmt(v)
+
+
 def stdout_table(table: pd.DataFrame) -> str:
     """The per-setting summary printed at the end of a sweep.
 
@@ -588,9 +591,7 @@ def stdout_table(table: pd.DataFrame) -> str:
         {
             "total s": table["timings_s.total"].map(lambda v: _fmt(v)),
             "sampling s": table["timings_s.sampling"].map(lambda v: _fmt(v)),
-            "PSNR": table["psnr"].map(lambda v: _fmt(v)),
-            "PSNR conv": table["psnr_converged"].map(lambda v: _fmt(v)),
-            "PSNR true": table["psnr_true"].map(lambda v: _fmt(v)),
+            **{metric_spec(m).label: table[m].map(lambda v, m=m: _metric_text(m, v)) for m in _TRADEOFF_METRICS[:3]},
             "n": [f"{int(a)}/{int(b)}" for a, b in zip(table["n"], table["n_scenes"])],
             "pareto": table["pareto"].map(lambda v: "*" if v else ""),
         },
