@@ -34,6 +34,7 @@ import hydra
 from omegaconf import DictConfig
 
 from snell_bench.config import register_configs
+from snell_bench.config.compose import searchpath_overrides
 from snell_bench.config.help import register_help
 
 register_configs()
@@ -187,7 +188,8 @@ def main(cfg: DictConfig) -> None:
     from snell_bench.experiment.cells import SettingsChanged
 
     hc = HydraConfig.get()
-    cfg.overrides = list(hc.overrides.task)  # a sweep composes its cells from them
+    # a sweep composes its cells from them, with the user's own config folders (hydra.searchpath)
+    cfg.overrides = list(hc.overrides.task) + searchpath_overrides(hc.overrides.hydra)
     multirun = hc.mode == RunMode.MULTIRUN
     try:
         status = run_job(cfg)

@@ -13,10 +13,11 @@ any folder is created). Nothing here imports a stage package except the ``prompt
 
 from snell_bench.config.checks import check_config, check_grid_entries, check_tradeoff_entries, max_levels, unknown_keys
 from snell_bench.config.choices import (
+    METHOD_ENTRY_POINTS,
+    METHOD_KINDS,
     DepthKind,
     InpaintMask,
     Job,
-    MethodKind,
     Normals,
     OnChange,
     PanoPrior,
@@ -55,8 +56,9 @@ __all__ = [
     "GridConfig",
     "InpaintMask",
     "Job",
+    "METHOD_ENTRY_POINTS",
+    "METHOD_KINDS",
     "MethodConfig",
-    "MethodKind",
     "MetricsConfig",
     "ModelConfig",
     "ModelsConfig",

@@ -31,6 +31,7 @@ import difflib
 import math
 import os
 import re
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +40,8 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import InterpolationResolutionError, OmegaConfBaseException
 
 from snell_bench.config.camera import MAX_FOV_DEG, fov_problem
-from snell_bench.config.choices import DTYPE_NAMES, Job, Source, dtype_name
+from snell_bench.config.choices import DTYPE_NAMES, METHOD_ENTRY_POINTS, METHOD_KINDS, Job, Source, dtype_name
+from snell_bench.config.compose import searchpath_overrides
 from snell_bench.config.errors import MAX_SEED, ConfigError, Problems, is_int, is_number
 from snell_bench.config.grid import axis_settings, check_names, check_unique, object_dir_name, parse_object_spec
 from snell_bench.config.materials import MATERIALS, ior_out_of_range, ior_range_problem, resolve_ior
@@ -395,7 +397,7 @@ def check_grid_entries(cfg: DictConfig) -> list[str]:
         ("object", "grid.objects", [parse_object_spec(o)[0] for o in g.objects]),
     ):
         try:
-            check_names(group, names, key)
+            check_names(group, names, key, _searchpath(cfg))
         except ValueError as e:
             out.append(str(e))
     for key, values, name in (
@@ -452,7 +454,7 @@ def check_tradeoff_entries(cfg: DictConfig) -> list[str]:
         ("preset", "tradeoff.presets", [str(x) for x in (t.presets or [])]),
     ):
         try:
-            check_names(group, names, key)
+            check_names(group, names, key, _searchpath(cfg))
         except ValueError as e:
             out.append(str(e))
     for key, values in (("tradeoff.scenes", scenes), ("tradeoff.presets", [str(x) for x in (t.presets or [])])):
@@ -511,6 +513,50 @@ def _axis_problems(name: str, spec: Any, ior_range) -> list[str]:
     return out
 
 
+def _searchpath(cfg: DictConfig) -> list[str]:
+    """The run's ``hydra.searchpath`` as an override: from its recorded ``overrides`` (a composed
+    config), else from its ``hydra`` node (the config Hydra's callbacks see)."""
+    found = searchpath_overrides(cfg.get("overrides") or [])
+    paths = OmegaConf.select(cfg, "hydra.searchpath", default=None) if "hydra" in cfg else None
+    if not found and paths:
+        found = ["hydra.searchpath=[" + ",".join(str(p) for p in paths) + "]"]
+    return found
+
+
+def _method(cfg: DictConfig, out: list[str]) -> None:
+    """``method.kind`` names a built-in kind or an installed plugin's (the ``snell_bench.methods``
+    entry points), unless ``method._target_`` names the class; ``method._target_`` imports. (The
+    class itself is checked when the grid is planned, :func:`snell_bench.methods.method_of`.)"""
+    kind, target = _get(cfg, "method.kind"), _get(cfg, "method._target_")
+    if target:
+        from hydra.utils import get_class
+
+        try:
+            get_class(str(target))
+        except Exception as e:  # noqa: BLE001 - an import error of the user's package, said with the key
+            first = str(e).splitlines()[0] if str(e) else type(e).__name__
+            out.append(
+                f"method._target_={target!r} cannot be imported ({first}); give the dotted path of a "
+                "snell_bench.methods.Method subclass in an installed package (my_pkg.methods.MyMethod)"
+            )
+        return
+    installed = sorted(ep.name for ep in entry_points(group=METHOD_ENTRY_POINTS))
+    if str(kind) not in (*METHOD_KINDS, *installed):
+        out.append(
+            f"method.kind={kind!r} is unknown; use one of {[*METHOD_KINDS, *installed]} (installed plugins add "
+            "theirs), or set method._target_ to a snell_bench.methods.Method subclass"
+        )
+
+
+def _metrics(cfg: DictConfig, out: list[str]) -> None:
+    """``metrics.extra`` lists names (installed metrics, the ``snell_bench.metrics`` entry points) or
+    dotted paths. (Each is loaded when the grid is planned.)"""
+    extra = _get(cfg, "metrics.extra") or []
+    for i, entry in enumerate(extra):
+        if not isinstance(entry, str) or not entry.strip():
+            out.append(f"metrics.extra[{i}]={entry!r}: name an installed metric or a dotted path (my_pkg.metrics:SSIM)")
+
+
 def check_config(cfg: DictConfig, *, grid: bool | None = None) -> DictConfig:
     """Raise :class:`ConfigError` listing every unknown key and unusable value of ``cfg``.
 
@@ -528,7 +574,7 @@ def check_config(cfg: DictConfig, *, grid: bool | None = None) -> DictConfig:
     problems = unknown_keys(cfg)
     if problems:  # a value check may trip over an unknown key's node
         raise ConfigError(problems)
-    for check in (_nodes, _sizes, _camera, _scene_models, _files, _sampler, _devices):
+    for check in (_nodes, _sizes, _camera, _scene_models, _files, _sampler, _devices, _method, _metrics):
         check(cfg, problems)
     job = _get(cfg, "job")
     if grid if grid is not None else job == Job.grid:

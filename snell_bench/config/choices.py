@@ -19,7 +19,8 @@ __all__ = [
     "DepthKind",
     "Normals",
     "PanoPrior",
-    "MethodKind",
+    "METHOD_KINDS",
+    "METHOD_ENTRY_POINTS",
     "PromptKind",
     "InpaintMask",
     "Protocol",
@@ -65,11 +66,12 @@ class Job(Choice):
     report = "report"
     plan = "plan"
     status = "status"
+    export = "export"
 
 
 #: Jobs whose output is an experiment folder under ``runs_dir`` (their logs go to
 #: ``runs/<experiment>/logs/``).
-SWEEP_JOBS = (Job.grid, Job.tradeoff, Job.report)
+SWEEP_JOBS = (Job.grid, Job.tradeoff, Job.report, Job.export)
 
 
 class Source(Choice):
@@ -109,13 +111,13 @@ class PanoPrior(Choice):
     observed = "observed"
 
 
-class MethodKind(Choice):
-    """What a method runs (``method.kind``)."""
+#: The built-in method kinds (``method.kind``), one module of :mod:`snell_bench.methods` each;
+#: installed plugins add theirs (the ``snell_bench.methods`` entry points), listed here so that
+#: checking a config does not import the methods.
+METHOD_KINDS = ("snellcaster", "t2i", "inpaint", "external", "images")
 
-    snellcaster = "snellcaster"
-    t2i = "t2i"
-    inpaint = "inpaint"
-    external = "external"
+#: The entry-point group of users' methods (``[project.entry-points."snell_bench.methods"]``).
+METHOD_ENTRY_POINTS = "snell_bench.methods"
 
 
 class PromptKind(Choice):

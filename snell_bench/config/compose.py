@@ -8,8 +8,11 @@ a stage package.
 
 from __future__ import annotations
 
+import functools
+import logging
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from importlib.metadata import entry_points
 from typing import Optional
 
 from hydra import compose as hydra_compose
@@ -18,7 +21,7 @@ from hydra.core.config_store import ConfigStore
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf
 
-from snell_bench.config.choices import SWEEP_JOBS
+from snell_bench.config.choices import METHOD_ENTRY_POINTS, METHOD_KINDS, SWEEP_JOBS
 from snell_bench.config.schema import (
     Config,
     DepthConfig,
@@ -29,7 +32,17 @@ from snell_bench.config.schema import (
     SegmentConfig,
 )
 
-__all__ = ["CONFIG_MODULE", "config_context", "compose", "group_options", "register_configs"]
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "CONFIG_MODULE",
+    "config_context",
+    "compose",
+    "group_options",
+    "plugin_methods",
+    "register_configs",
+    "searchpath_overrides",
+]
 
 CONFIG_MODULE = "snell_bench.conf"
 
@@ -67,10 +80,22 @@ def compose(overrides: Sequence[str] = (), config_name: str = "config") -> DictC
     return cfg
 
 
-def group_options(group: str) -> list[str]:
-    """The names a config group offers (``conf/<group>/*.yaml`` and registered nodes)."""
+def searchpath_overrides(overrides: Sequence[str]) -> list[str]:
+    """The ``hydra.searchpath=[...]`` overrides among ``overrides``: a user's own config folders
+    (``hydra.searchpath=[file://my_conf]``), which every composition of a run's cells needs."""
+    return [str(o) for o in overrides if str(o).lstrip("+").startswith("hydra.searchpath=")]
+
+
+def group_options(group: str, overrides: Sequence[str] = ()) -> list[str]:
+    """The names a config group offers (``conf/<group>/*.yaml``, registered nodes, installed
+    plugins' methods, and the group's files in the config folders of ``overrides``'
+    ``hydra.searchpath``)."""
     with config_context():
-        names = GlobalHydra.instance().config_loader().get_group_options(group)
+        names = (
+            GlobalHydra.instance()
+            .config_loader()
+            .get_group_options(group, config_name="config", overrides=searchpath_overrides(overrides))
+        )
     return sorted(n for n in names if not n.startswith("base_"))
 
 
@@ -96,6 +121,25 @@ def _run_dir(job: str, runs_dir: str, experiment: str, cell: str, now: str) -> s
     return f"{runs_dir}/{job}/{cell}"
 
 
+@functools.lru_cache(maxsize=1)
+def plugin_methods() -> dict[str, MethodConfig]:
+    """A method config for each method kind an installed package adds (an entry point of the group
+    ``snell_bench.methods``): ``name``, ``kind`` and ``label`` (the class's ``default_label``, else
+    the name), so that ``method=<name>`` and ``grid.methods=[..., <name>]`` select it with no YAML.
+    A plugin that does not load is left out with a warning (``method.kind`` names it when asked)."""
+    out = {}
+    for ep in entry_points(group=METHOD_ENTRY_POINTS):
+        if ep.name in METHOD_KINDS:
+            continue
+        try:
+            label = getattr(ep.load(), "default_label", "") or ep.name
+        except Exception as e:  # noqa: BLE001 - a broken plugin must not stop other runs
+            log.warning("the method plugin %s (%s) does not load: %s: %s", ep.name, ep.value, type(e).__name__, e)
+            continue
+        out[ep.name] = MethodConfig(name=ep.name, label=str(label), kind=ep.name)
+    return out
+
+
 def register_configs() -> None:
     """Register the schema with Hydra's ConfigStore and the ``prompts`` and ``run_dir`` resolvers
     (idempotent)."""
@@ -104,6 +148,8 @@ def register_configs() -> None:
     if not OmegaConf.has_resolver("prompts"):
         OmegaConf.register_new_resolver("prompts", _prompts)
     cs = ConfigStore.instance()
+    for name, node in plugin_methods().items():  # a method YAML of the same name on the search path wins
+        cs.store(group="method", name=name, node=node)
     cs.store(name="base_config", node=Config)
     cs.store(group="scene", name="base_scene", node=SceneConfig)
     cs.store(group="object", name="base_object", node=ObjectConfig)

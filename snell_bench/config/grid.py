@@ -44,12 +44,16 @@ def object_dir_name(spec: str) -> str:
     return f"{name}-ior{format(ior, '.10g') if isinstance(ior, float) else ior}"
 
 
-def check_names(group: str, names: Sequence[str], key: str) -> None:
-    """Raise ``ValueError`` naming ``key`` unless every name is an entry of the config group."""
-    options = group_options(group)
+def check_names(group: str, names: Sequence[str], key: str, overrides: Sequence[str] = ()) -> None:
+    """Raise ``ValueError`` naming ``key`` unless every name is an entry of the config group (with the
+    config folders of ``overrides``' ``hydra.searchpath``)."""
+    options = group_options(group, overrides)
     for n in names:
         if str(n) not in options:
-            raise ValueError(f"{key}: unknown {group} {str(n)!r}; choose from {options} (snell_bench/conf/{group}/)")
+            raise ValueError(
+                f"{key}: unknown {group} {str(n)!r}; choose from {options} (snell_bench/conf/{group}/, installed "
+                f"plugins, or a {group}/{n}.yaml in a config folder of your own: hydra.searchpath=[file://my_conf])"
+            )
 
 
 def check_unique(values: Sequence, key: str, name=str) -> None:

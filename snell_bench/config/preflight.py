@@ -104,8 +104,9 @@ def _scene_sources(cfg: DictConfig) -> set[str]:
     read, so that its cache folder is checked)."""
     sources = {str(OmegaConf.select(cfg, "scene.source"))}
     job = cfg.get("job")
-    names = OmegaConf.select(cfg, "grid.scenes") if job == Job.grid else OmegaConf.select(cfg, "tradeoff.scenes")
-    if job not in _RUNS_JOBS or not names:
+    grid = job in (Job.grid, Job.export)
+    names = OmegaConf.select(cfg, "grid.scenes") if grid else OmegaConf.select(cfg, "tradeoff.scenes")
+    if job not in (*_RUNS_JOBS, Job.export) or not names:
         return sources
     from hydra.core.global_hydra import GlobalHydra
 
@@ -141,7 +142,9 @@ def output_folders(cfg: DictConfig) -> list[tuple[str, Any, str]]:
         add("runs_dir", Path(str(cfg.runs_dir)) / name, cfg.runs_dir)
     if job in (Job.tradeoff, Job.report) or (job == Job.grid and OmegaConf.select(cfg, "grid.report") is not False):
         add("reports_dir", Path(str(cfg.reports_dir)) / name, cfg.reports_dir)
-    if job in (Job.preview, Job.generate, Job.grid):  # a sweep of the tradeoff traces without a cache
+    if job == Job.export:
+        add("export.dir", Path(str(cfg.export.dir)) / name, cfg.export.dir)
+    if job in (Job.preview, Job.generate, Job.grid, Job.export):  # a sweep of the tradeoff traces without a cache
         method_warps = OmegaConf.select(cfg, "method.warps") or {}
         key = "method.warps.cache_dir" if "cache_dir" in method_warps else "warps.cache_dir"
         add(key, OmegaConf.select(cfg, key))

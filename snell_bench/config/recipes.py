@@ -212,4 +212,5 @@ BEFORE_SWITCHES: dict[str, Any] = {
     "sampler.pano_to_main": "object",
     "sampler.dpa_domain": "<per band, low-pass in [0, 1]>",
     "reference.reflection": True,
+    "metrics.score_file": False,
 }

@@ -25,7 +25,6 @@ from snell_bench.config.choices import (
     DepthKind,
     InpaintMask,
     Job,
-    MethodKind,
     Normals,
     OnChange,
     PanoPrior,
@@ -49,6 +48,7 @@ __all__ = [
     "ModelConfig",
     "ModelsConfig",
     "MethodConfig",
+    "MethodCostConfig",
     "DepthConfig",
     "SegmentConfig",
     "MetricsConfig",
@@ -58,6 +58,7 @@ __all__ = [
     "GridConfig",
     "TradeoffConfig",
     "TrackerConfig",
+    "ExportConfig",
     "SamplerSettings",
     "CHECKED_NODES",
 ]
@@ -81,6 +82,10 @@ class SceneConfig:
     seed_offset: int = 0
     #: Whether the paper counts it among the indoor scenes (the ablation grid).
     indoor: bool = True
+    #: The licence of I⁻ and its depth, for the benchmark kit's card (``job=export``); ``null``: the
+    #: source's own (a procedural scene: snell_bench's MIT; a generated one: the model's terms; a
+    #: photo: unknown). Not a result setting.
+    licence: Optional[str] = None
     #: Image size of I⁻ (the paper uses 720 x 1280).
     width: int = 1280
     height: int = 720
@@ -194,6 +199,9 @@ class ObjectConfig:
     #: Mesh files: trace a mesh that stays open anyway (rays may leak through its holes); else an
     #: open mesh is an error.
     allow_open: bool = False
+    #: The licence of the mesh, for the benchmark kit's card (``job=export``); ``null``: a primitive
+    #: of snell_bench (MIT). Not a result setting.
+    licence: Optional[str] = None
     #: A material name (glass, water, acrylic, diamond, ...) or a number.
     ior: Any = "glass"
     #: ``[lowest, highest]`` IOR accepted for ``object.ior``: a transparent solid or liquid has an
@@ -386,15 +394,46 @@ class ModelsConfig:
 
 
 @dataclass
+class MethodCostConfig:
+    """What ``job=plan`` counts for a diffusers pipeline baseline (``kind: external``): its documented
+    figures at 720 x 1280 on an 80 GB GPU (docs/gpu.md). Not a result setting."""
+
+    #: Seconds per image at the pipeline's default steps; ``null``: not documented (no time planned).
+    seconds: Optional[float] = None
+    #: bfloat16 weights, GB (10⁹ bytes); ``null``: not known.
+    weights_gb: Optional[float] = None
+    #: The pipeline's default inference steps (``seconds`` scales by ``method.steps`` over these).
+    steps: Optional[int] = None
+
+    def __post_init__(self) -> None:
+        p = Problems("method.cost")
+        p.finite("seconds", self.seconds, positive=True, optional=True, fix="seconds per image, or null")
+        p.finite("weights_gb", self.weights_gb, positive=True, optional=True, fix="GB, or null")
+        if self.steps is not None:
+            p.int_at_least("steps", self.steps, 1, " (the pipeline's default steps)", 28)
+        p.raise_if_any()
+
+
+@dataclass
 class MethodConfig:
-    """A method: Snellcaster, an ablation, or a baseline (conf/method/)."""
+    """A method: Snellcaster, an ablation, a baseline, images made elsewhere, or a user's method
+    (conf/method/, a user's config folder on Hydra's search path, or an installed plugin)."""
 
     name: str = "snellcaster"
     #: Label in tables and figures.
     label: str = "Snellcaster"
-    #: ``snellcaster`` (the synchronized sampler), ``t2i`` (the generator alone from p), ``inpaint``
-    #: (fill the object region of I⁻; CPU stand-in without optics), ``external`` (another model).
-    kind: MethodKind = MethodKind.snellcaster
+    #: What the method runs, one module of :mod:`snell_bench.methods` each: ``snellcaster`` (the
+    #: synchronized sampler), ``t2i`` (the generator alone from p), ``inpaint`` (fill the object
+    #: region of I⁻; CPU stand-in without optics), ``external`` (another diffusers pipeline),
+    #: ``images`` (score images made anywhere, ``method.images``); or the name of an installed
+    #: plugin (the ``snell_bench.methods`` entry points).
+    kind: str = "snellcaster"
+    #: A user's method class (``my_pkg.methods.MyMethod``, a subclass of
+    #: :class:`snell_bench.methods.Method`), built with ``method.params`` as keyword arguments;
+    #: ``null``: the class of ``kind``.
+    _target_: Optional[str] = None
+    #: Keyword arguments of a user's method class (``_target_`` or a plugin's ``kind``).
+    params: dict = field(default_factory=dict)
     #: What it needs (``gpu``, ``weights``), for the reader: a method whose pipeline cannot load
     #: here (no CUDA and no ``model.device=cpu``, no weights) is skipped with the reason.
     requires: list = field(default_factory=list)
@@ -423,6 +462,20 @@ class MethodConfig:
     mask_dilate_px: int = 0
     #: Relight the image after sampling (the ``relight`` node; the model's ``relighter``).
     relight: bool = False
+    #: ``images``: a folder of one image per (scene, variation, object) group,
+    #: ``<folder>/<scene>-<variation>/<object>.png`` (or ``.jpg``), named by the benchmark kit's ids
+    #: (``job=export``); or a manifest file (``.csv``, ``.jsonl``, ``.parquet``) with the columns
+    #: ``id`` and ``images_column``, paths relative to its folder. Nothing outside that folder is
+    #: read. Not a result setting: a cell is known by its image's content.
+    images: Optional[str] = None
+    #: ``images``: the manifest's column of image paths.
+    images_column: str = "image"
+    #: ``images``: the benchmark kit the images were made from (``job=export``'s folder); where set,
+    #: its schema version and each group's inputs must be this run's (images made for another
+    #: camera, object or placement are refused).
+    kit: Optional[str] = None
+    #: What ``job=plan`` counts for an ``external`` pipeline (not a result setting).
+    cost: MethodCostConfig = field(default_factory=MethodCostConfig)
 
     def __post_init__(self) -> None:
         p = Problems("method")
@@ -430,6 +483,10 @@ class MethodConfig:
         if self.steps is not None:
             p.int_at_least("steps", self.steps, 1, " (null: the pipeline's default)", 28)
         p.finite("guidance", self.guidance, lo=0.0, optional=True, fix="null: the pipeline's default")
+        if not str(self.kind).strip():
+            p.append("method.kind='': name what the method runs, e.g. method.kind=snellcaster")
+        p.nonempty_or_null("images", self.images, "a folder of <scene>-<variation>/<object>.png or a manifest file")
+        p.nonempty_or_null("kit", self.kit, "the folder job=export wrote")
         p.raise_if_any()
 
 
@@ -510,6 +567,14 @@ class MetricsConfig:
     clip_weights: Optional[str] = None
     #: A python executable of a separate environment with image-reward installed.
     image_reward_python: Optional[str] = None
+    #: Users' metrics scored after the built-in ones and shown in every table: names of installed
+    #: metrics (the ``snell_bench.metrics`` entry points) or dotted paths to a
+    #: :class:`~snell_bench.metrics.registry.MetricSpec` (``my_pkg.metrics:SSIM``).
+    extra: list = field(default_factory=list)
+    #: Score each image as its file holds it: the 8-bit values ``image.png`` stores, for every
+    #: method and for images made anywhere (``method=images``), so a saved image re-scores to the
+    #: same number; false: the sampler's float image (what cells recorded before this key).
+    score_file: bool = True
 
     def __post_init__(self) -> None:
         p = Problems("metrics")
@@ -822,6 +887,28 @@ class PlanConfig:
 
 
 @dataclass
+class ExportConfig:
+    """``job=export``: the benchmark kit of an experiment's grid (``<dir>/<experiment_name>/``): per
+    (scene, variation, object) group the inputs a method needs and the truth it is scored against,
+    a manifest (Parquet and JSON Lines) and a dataset card (snell_bench/kit/)."""
+
+    #: Where kits are written: ``<dir>/<experiment_name>/``.
+    dir: str = "kits"
+    #: Also write each group's warps (π^R, π⁻¹, π^-R, π, their masks and the Fresnel reflectance),
+    #: for methods that want Snell's law for free (about 60 bytes a pixel).
+    warps: bool = False
+    #: Export every group again (else a group exported with the same settings, its files unchanged,
+    #: is kept; one exported with other settings is exported again).
+    recompute: bool = False
+
+    def __post_init__(self) -> None:
+        p = Problems("export")
+        if not isinstance(self.dir, str) or not self.dir.strip():
+            p.append(f"export.dir={self.dir!r}: must be a folder; e.g. export.dir=kits")
+        p.raise_if_any()
+
+
+@dataclass
 class Config:
     #: Which job ``python -m snell_bench`` runs.
     job: Job = Job.preview
@@ -842,6 +929,8 @@ class Config:
     grid: GridConfig = field(default_factory=GridConfig)
     tradeoff: TradeoffConfig = field(default_factory=TradeoffConfig)
     plan: PlanConfig = field(default_factory=PlanConfig)
+    #: ``job=export``: the benchmark kit.
+    export: ExportConfig = field(default_factory=ExportConfig)
     #: Where each finished cell is also logged (conf/tracker/: none, mlflow, tensorboard, wandb).
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     #: The recipe (conf/recipe/) the switches come from: ``paper`` (what the paper's text says) or
@@ -876,4 +965,5 @@ CHECKED_NODES = (
     "grid",
     "tradeoff",
     "tracker",
+    "export",
 )

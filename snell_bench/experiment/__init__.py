@@ -1,6 +1,6 @@
 """Jobs run by ``python -m snell_bench``: the refraction preview, generation, the experiment grid,
-the speed/accuracy sweep, the report, the plan of a grid (what it will do here, before doing it) and
-its status across the jobs working on it.
+the speed/accuracy sweep, the report, the plan of a grid (what it will do here, before doing it),
+its status across the jobs working on it, and the benchmark kit of its groups (``job=export``).
 
 :func:`run_job` returns the job's exit status: 0, or 3 when cells of a sweep failed (unless
 ``grid.allow_failures`` / ``tradeoff.allow_failures``; :data:`~.cells.CELLS_FAILED_EXIT`). A job
@@ -95,6 +95,12 @@ def _status(cfg: DictConfig) -> None:
     run_status(cfg)
 
 
+def _export(cfg: DictConfig) -> int:
+    from snell_bench.experiment.export import run_export
+
+    return int(run_export(cfg)["exit_status"])
+
+
 JOBS = {
     Job.preview: _preview,
     Job.generate: _generate,
@@ -103,6 +109,7 @@ JOBS = {
     Job.report: _report,
     Job.plan: _plan,
     Job.status: _status,
+    Job.export: _export,
 }
 
 

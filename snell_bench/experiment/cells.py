@@ -313,6 +313,7 @@ def run_cells(
     lock: str = "auto",
     lease_ttl_s: float = DEFAULT_TTL_S,
     lock_key: str = "grid.lock",
+    stale: Callable[[Cell, dict], str | None] | None = None,
 ) -> dict:
     """Run ``cells`` (see the module docs) and write ``root/summary.json``.
 
@@ -341,6 +342,9 @@ def run_cells(
             process elsewhere is broken this long after its last renewal.
         lock_key: the config key of ``lock`` named in its errors (``lease_ttl_s``'s is
             ``<its parent>.lease_ttl_s``).
+        stale: why a finished cell whose files and settings are unchanged no longer holds (an input it
+            read has changed: :meth:`snell_bench.methods.Method.stale`), or None; such a cell is
+            computed again, with a warning naming the reason.
 
     Returns:
         The summary: ``cells``, counts of ``ok``, ``failed``, ``skipped``, ``cached`` (finished
@@ -366,7 +370,7 @@ def run_cells(
             return "todo"
         if record.get("status") not in DONE:
             return "todo"
-        problem = files_problem(cell.folder, record)
+        problem = files_problem(cell.folder, record) or (stale(cell, record) if stale is not None else None)
         if problem is not None:
             if warn:
                 log.warning("cell %s: %s; computing it again", cell.name, problem)

@@ -47,7 +47,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from snell_bench.config import ConfigError, MethodKind, OnChange, SamplerSettings, Source, check_grid_entries, compose
+from snell_bench.config import ConfigError, OnChange, Source, check_grid_entries, compose
 from snell_bench.experiment.cells import (
     DONE,
     Cell,
@@ -68,9 +68,27 @@ from snell_bench.experiment.plan import (
     settings_hash,
 )
 from snell_bench.experiment.reports.records import GRID_RECORD
+from snell_bench.kit.schema import kit_id
+from snell_bench.methods import method_of
+from snell_bench.methods.cost import (
+    CPU_LABEL,
+    README_BASIS,
+    README_LABEL,
+    Basis,
+    Estimate,
+    ModelNeed,
+    device_of,
+    diffusers_folder,
+    example,
+    find_weights,
+    lookup,
+    model_calls,
+    relight_estimate,
+    secs,
+    together_gb,
+)
 from snell_bench.pipeline import apply_method
 from snell_bench.pipeline.cell import node_key
-from snell_bench.sampler.authors_calls import authors_model_calls
 
 __all__ = [
     "Basis",
@@ -94,84 +112,6 @@ __all__ = [
 RECORD = "metrics.json"
 
 # ---------------------------------------------------------------------------- the bases of the estimates
-#: The label of the documented figures (docs/gpu.md).
-README_LABEL = "estimate: documented basis (docs/gpu.md: the paper's 126 s per pair on an A100, scaled to an 80 GB GPU), not a measurement"
-
-
-@dataclass(frozen=True)
-class Basis:
-    """Seconds and GB the estimates start from, at the settings they were taken at.
-
-    Attributes:
-        label: where the figures come from (printed with the plan).
-        measured: a measurement (``plan.bench``) rather than the documented basis (docs/gpu.md).
-        pair_s: one Snellcaster image + panorama pair, ``(low, high)`` seconds.
-        pair_calls: its model calls ``(main, pano)``.
-        size: ``(height, width, pano_height)`` of the pair, the t2i image and the pipelines.
-        t2i_s, t2i_steps: the generator alone.
-        fill_s, fill_steps: FLUX Fill.
-        kontext_s, kontext_steps: FLUX Kontext, per relighting candidate.
-        memory_gb: bfloat16 weights of ``flux_dev``, ``fill``, ``kontext`` and the part of each
-            that is FLUX.1-dev's text encoders and VAE, ``shared_text_vae``.
-        peak_gb: measured peak GPU memory per stage (``pair``, ``t2i``, ``fill``, ``kontext``).
-    """
-
-    label: str
-    measured: bool
-    pair_s: tuple[float, float]
-    pair_calls: tuple[int, int]
-    size: tuple[int, int, int]
-    t2i_s: tuple[float, float]
-    t2i_steps: int
-    fill_s: tuple[float, float]
-    fill_steps: int
-    kontext_s: tuple[float, float]
-    kontext_steps: int
-    memory_gb: dict[str, float]
-    peak_gb: dict[str, float] = field(default_factory=dict)
-
-
-#: The model calls per view of the authors' loop at the paper's setting (T = 20, time travel x3 in
-#: [0.2 T, 0.8 T)): 56 main-view + 56 panorama (:func:`~snell_bench.sampler.authors_calls.authors_model_calls`).
-AUTHORS_PAIR_CALLS = (authors_model_calls(SamplerSettings())["main"], authors_model_calls(SamplerSettings())["pano"])
-
-#: The documented basis (docs/gpu.md): the authors' 56 main-view + 56 panorama model calls at
-#: 720 x 1280 with a 1024 x 2048 panorama, t2i at 20 steps, Fill at 30, Kontext at its 28 per candidate.
-README_BASIS = Basis(
-    label=README_LABEL,
-    measured=False,
-    pair_s=(50.0, 75.0),
-    pair_calls=AUTHORS_PAIR_CALLS,
-    size=(720, 1280, 1024),
-    t2i_s=(10.0, 10.0),
-    t2i_steps=20,
-    fill_s=(15.0, 15.0),
-    fill_steps=30,
-    kontext_s=(20.0, 20.0),
-    kontext_steps=28,
-    memory_gb={"flux_dev": 34.0, "fill": 34.0, "kontext": 34.0, "shared_text_vae": 10.0},
-)
-
-#: The pipeline baselines (docs/gpu.md): ``method.name -> (label, seconds per cell
-#: or None, bf16 weights GB, the pipeline's default steps)`` at 720 x 1280.
-PIPELINES: dict[str, tuple[str, float | None, float, int]] = {
-    "flux2_dev": ("FLUX.2-dev", None, 112.0, 50),
-    "qwen_image": ("Qwen-Image", 60.0, 58.0, 50),
-    "sd35_large": ("SD3.5-Large", 15.0, 27.0, 28),
-}
-
-#: The documented CPU measurements (docs/presets.md) of the full method per image with the mixture stand-in on 2 cores
-#: (warps, sampling, reference and metrics; "Presets and the speed/accuracy trade"), by
-#: ``(height, width, pano_height, steps)``.
-CPU_PRESETS: dict[tuple[int, int, int, int], tuple[str, float]] = {
-    (360, 640, 256, 8): ("fast", 5.2),
-    (360, 640, 512, 20): ("balanced", 18.4),
-    (720, 1280, 1024, 20): ("paper", 88.4),
-}
-
-#: The label of :data:`CPU_PRESETS`.
-CPU_LABEL = "the documented CPU measurement of the CPU stand-ins (mixture, 2 cores), not a GPU figure"
-
 #: GB of other models' weights (docs/gpu.md): MoGe-2 and SAM 3.
 OTHER_GB = {"moge2": 1.3, "sam3": 3.4}
 
@@ -255,16 +195,6 @@ def load_bench(path: str | os.PathLike) -> Basis:
         memory_gb={k: float(v[f"memory_gb.{k}"]) for k in ("flux_dev", "fill", "kontext", "shared_text_vae")},
         peak_gb={k: float(v[f"{k}.peak_memory_gb"]) for k in ("pair", "t2i", "fill", "kontext")},
     )
-
-
-# ---------------------------------------------------------------------------- model calls of the sampler
-def model_calls(s: SamplerSettings) -> dict[str, int]:
-    """The velocity evaluations per branch, ``{"main": n, "pano": n}``, that the sampler makes with
-    settings ``s`` (:func:`~snell_bench.sampler.expected_model_calls`; the adaptive decisions, which
-    may drop the panorama for a scene, are not known before the warps: this is their upper bound)."""
-    from snell_bench.sampler import expected_model_calls
-
-    return expected_model_calls(s)
 
 
 # ---------------------------------------------------------------------------- the models of a cell
@@ -374,7 +304,7 @@ class CellState:
 
     ``state``: ``done`` (``ok``), ``skipped`` (recorded as skipped: done, not run again), ``changed``
     (finished with other settings: ``diff`` names them), ``files`` (a listed file is missing or
-    changed: computed again), ``failed`` (recorded as failed: computed again), ``new`` (no record),
+    changed, or an input the method read has: computed again), ``failed`` (recorded as failed: computed again), ``new`` (no record),
     ``recompute`` (``grid.recompute=true``)."""
 
     scene: str
@@ -420,6 +350,10 @@ def _state(ident: tuple, folder: Path, parts: GridParts, recompute: bool) -> Cel
     if record.get("status") not in DONE:
         return CellState(*ident, folder, "failed", str(record.get("reason") or record.get("status")))
     problem = files_problem(folder, record)
+    if problem is None:  # an input the method read has changed (a submitted image): as the runner decides
+        c = parts.method(ident[3])
+        group = kit_id(ident[0], ident[1], object_dir_name(ident[2]))
+        problem = method_of(c).stale(c, record, folder, group)
     if problem is not None:
         return CellState(*ident, folder, "files", problem)
     settings = parts.settings(*ident)
@@ -453,72 +387,6 @@ def local_device() -> DeviceInfo:
 
 
 # ---------------------------------------------------------------------------- models and their weights
-@dataclass
-class ModelNeed:
-    """One model the grid loads and what it needs here.
-
-    Attributes:
-        kind: the pool's kind (``generator``, ``fill``, ``relighter``, ``pipeline``, ``depth``,
-            ``segmenter``), or ``lora``, ``lpips``, ``clip``, ``image_reward``.
-        name: what it is (``FLUX.1-dev``, ``analytic (CPU stand-in)``).
-        source: the configured model id, folder or file.
-        weights: ``found``, ``missing``, ``random`` (``model.random_init``), ``none`` (built in
-            code, or a CPU stand-in) or ``unchecked`` (a builder this plan does not know).
-        where: the file or folder found, or why none is needed or what is missing.
-        key: the config key that points at its weights.
-        fix: the setting that makes a missing one found.
-        device: ``cuda``, ``cpu`` or ``cuda if available``.
-        needs_gpu: it runs on CUDA (``model.device`` null or ``cuda``).
-        memory_gb: its bfloat16 weights, GB; ``None``: not known.
-        family: ``flux`` for FLUX.1-dev, Fill and Kontext (sharing text encoders and VAE).
-        methods: the grid's methods that need it; cells / cells_left: how many.
-    """
-
-    kind: str
-    name: str
-    source: str = ""
-    weights: str = "none"
-    where: str = ""
-    key: str = ""
-    fix: str = ""
-    device: str = "cpu"
-    needs_gpu: bool = False
-    memory_gb: float | None = None
-    family: str = ""
-    methods: list[str] = field(default_factory=list)
-    cells: int = 0
-    cells_left: int = 0
-
-
-def _example(key: str, source: str) -> str:
-    return f"{key}=/data/{Path(str(source).rstrip('/')).name or 'weights'}"
-
-
-def _why(error: Exception) -> str:
-    """What a resolver's error says is missing (its first clause, without the fix it goes on to give)."""
-    text = str(error).split("\n")[0]
-    for cut in (": set ", "; set ", ". Set ", ". "):
-        text = text.split(cut)[0]
-    return text.split("not found: ", 1)[-1][:240]
-
-
-def _lookup(find: Callable[[], Any]) -> tuple[str, str]:
-    """``("found", path)`` or ``("missing", why)`` of a resolver that raises when weights are missing."""
-    from snell_bench.metrics.functional import MetricUnavailable
-    from snell_bench.models.errors import WeightsNotFoundError
-
-    try:
-        return "found", str(find())
-    except (WeightsNotFoundError, MetricUnavailable, OSError, ValueError, ImportError) as e:
-        return "missing", _why(e)
-
-
-def _diffusers_folder(source: str) -> str:
-    from snell_bench.models.flux import resolve_weights_folder
-
-    return resolve_weights_folder(source)
-
-
 def _transformers_folder(source: str) -> str:
     """A transformers model's folder (with ``config.json``) from a folder or the Hugging Face cache."""
     from snell_bench.models.errors import WeightsNotFoundError
@@ -543,17 +411,6 @@ def _moge_file(source: str) -> str:
     from snell_bench.models.moge import _moge_checkpoint
 
     return _moge_checkpoint(source)
-
-
-def _device_of(value: Any, default_cuda: bool) -> tuple[str, bool]:
-    """``(device, needs_gpu)`` of a ``device`` setting: null/auto is CUDA for the FLUX models and the
-    pipelines (required), CUDA when available for the segmenter and the depth estimator."""
-    text = "" if value is None else str(value)
-    if text.startswith("cuda"):
-        return text, True
-    if text in ("", "auto"):
-        return ("cuda", True) if default_cuda else ("cuda if available", False)
-    return text, False
 
 
 #: ``_target_`` of the builders that need no weights: CPU stand-ins, tiny random models, a mask file.
@@ -602,87 +459,68 @@ def describe_model(kind: str, key: str, c: DictConfig, basis: Basis) -> list[Mod
         known = _builder(kind, c.model.generator, str(c.model.name))
         if known is not None:
             return [known]
-        device, gpu = _device_of(c.model.device, True)
+        device, gpu = device_of(c.model.device, True)
         need = ModelNeed(kind, "FLUX.1-dev", str(c.model.path), key="model.path", device=device, needs_gpu=gpu)
         need.memory_gb, need.family = mem["flux_dev"], "flux"
-        return [_weights(need, random, lambda: _diffusers_folder(str(c.model.path)))]
+        return [find_weights(need, random, lambda: diffusers_folder(str(c.model.path)))]
     if kind == "fill":
         node = c.model.fill
         known = _builder(kind, node, f"{c.model.name} fill")
         if known is not None:
             return [known]
-        device, gpu = _device_of(node.get("device"), True)
+        device, gpu = device_of(node.get("device"), True)
         source = str(node.model_id)
         need = ModelNeed(kind, "FLUX.1-Fill-dev", source, key="model.fill.model_id", device=device, needs_gpu=gpu)
         need.memory_gb, need.family = mem["fill"], "flux"
-        return [_weights(need, random, lambda: _diffusers_folder(source))]
+        return [find_weights(need, random, lambda: diffusers_folder(source))]
     if kind == "relighter":
         node = c.model.relighter
         known = _builder(kind, node, f"{c.model.name} relighter")
         if known is not None:
             return [known]
-        device, gpu = _device_of(node.get("device"), True)
+        device, gpu = device_of(node.get("device"), True)
         source = str(node.model_id)
         need = ModelNeed(
             kind, "FLUX.1-Kontext-dev", source, key="model.relighter.model_id", device=device, needs_gpu=gpu
         )
         need.memory_gb, need.family = mem["kontext"], "flux"
-        out = [_weights(need, random, lambda: _diffusers_folder(source))]
+        out = [find_weights(need, random, lambda: diffusers_folder(source))]
         lora = node.get("lora")
         if lora:
             from snell_bench.relight.kontext import resolve_lora
 
-            state, where = _lookup(lambda: resolve_lora(str(lora))[0])
-            fix = f"set {_example('relight.lora', str(lora))} (a .safetensors file or a folder), or relight.lora=null"
+            state, where = lookup(lambda: resolve_lora(str(lora))[0])
+            fix = f"set {example('relight.lora', str(lora))} (a .safetensors file or a folder), or relight.lora=null"
             out.append(ModelNeed("lora", "relighting LoRA", str(lora), state, where, "relight.lora", fix, device, gpu))
         return out
     if kind == "pipeline":
-        name = str(c.method.name)
-        label, _, gb, _ = PIPELINES.get(name, (f"{name} pipeline", None, None, 0))
-        source = str(c.method.model_id)
-        device, gpu = _device_of(c.model.device, True)
-        need = ModelNeed(kind, label, source, key="method.model_id", device=device, needs_gpu=gpu, memory_gb=gb)
-        need = _weights(need, False, lambda: _diffusers_folder(source))
-        if need.weights == "missing":
-            need.fix = (
-                f"set {_example('method.model_id', source)} in snell_bench/conf/method/{name}.yaml (on the command "
-                f"line it would set every method's), or put {source} in the Hugging Face cache"
-            )
-        return [need]
+        described = method_of(c).describe(kind, key, c, basis)
+        if described is not None:
+            return described
     if kind == "depth":
         node = c.depth.estimator
         known = _builder(kind, node, str(c.depth.name))
         if known is not None:
             return [known]
-        device, gpu = _device_of(c.depth.device, False)
+        device, gpu = device_of(c.depth.device, False)
         source = str(c.depth.path)
         name = str(c.depth.name)
         find = (lambda: _moge_file(source)) if name == "moge2" else (lambda: _transformers_folder(source))
         need = ModelNeed(kind, name, source, key="depth.path", device=device, needs_gpu=gpu)
         need.memory_gb = OTHER_GB.get(name)
-        return [_weights(need, False, find)]
+        return [find_weights(need, False, find)]
     if kind == "segmenter":
         node = c.segment.segmenter
         known = _builder(kind, node, str(c.segment.name))
         if known is not None:
             return [known]
-        device, gpu = _device_of(c.segment.device, False)
+        device, gpu = device_of(c.segment.device, False)
         source = str(c.segment.path)
         name = str(c.segment.name)
         need = ModelNeed(kind, "SAM 3" if name == "sam3" else name, source, key="segment.path", device=device)
         need.needs_gpu, need.memory_gb = gpu, OTHER_GB.get(name)
-        return [_weights(need, False, lambda: _transformers_folder(source))]
+        return [find_weights(need, False, lambda: _transformers_folder(source))]
     return [ModelNeed(kind, key[:40], weights="unchecked", where="not known to job=plan")]
-
-
-def _weights(need: ModelNeed, random: bool, find: Callable[[], Any]) -> ModelNeed:
-    if random:
-        need.weights, need.where = "random", "model.random_init=true: random weights, real shapes, meaningless pixels"
-        return need
-    need.weights, need.where = _lookup(find)
-    if need.weights == "missing":
-        need.fix = f"set {_example(need.key, need.source)}, or put {need.source} in the Hugging Face cache"
-    return need
 
 
 def metric_models(metrics: DictConfig) -> list[ModelNeed]:
@@ -697,9 +535,9 @@ def metric_models(metrics: DictConfig) -> list[ModelNeed]:
     clip = metrics.get("clip_weights")
     python = metrics.get("image_reward_python")
     found = [
-        _lookup(lambda: MaskedLPIPS._resolve_weights(lpips, file_name, tv_name, False)),
-        _lookup(lambda: resolve_clip_checkpoint(clip) if clip else _default_clip_checkpoint()),
-        _lookup(lambda: ImageRewardScorer(python).python),
+        lookup(lambda: MaskedLPIPS._resolve_weights(lpips, file_name, tv_name, False)),
+        lookup(lambda: resolve_clip_checkpoint(clip) if clip else _default_clip_checkpoint()),
+        lookup(lambda: ImageRewardScorer(python).python),
     ]
     rows = [
         ("lpips", "LPIPS (VGG16)", lpips, "metrics.lpips_weights", f"metrics.lpips_weights=/data/{file_name}"),
@@ -719,8 +557,8 @@ def metric_models(metrics: DictConfig) -> list[ModelNeed]:
         ),
     ]
     out = []
-    for (kind, name, source, key, example), (state, where) in zip(rows, found):
-        fix = f"set {example} (else the metric is reported as missing)" if state == "missing" else ""
+    for (kind, name, source, key, shown), (state, where) in zip(rows, found):
+        fix = f"set {shown} (else the metric is reported as missing)" if state == "missing" else ""
         out.append(ModelNeed(kind, name, str(source or ""), state, where, key, fix, "cpu", False, None))
     return out
 
@@ -752,149 +590,13 @@ def _default_clip_checkpoint() -> str:
 
 
 # ---------------------------------------------------------------------------- time and memory of a cell
-@dataclass(frozen=True)
-class Estimate:
-    """Time and GPU memory of one cell.
-
-    Attributes:
-        seconds: ``(low, high)`` seconds; ``None``: no basis for it.
-        weights_gb: GPU weights its models hold together, GB (shared text encoders counted once).
-        peak_gb: measured peak GPU memory of its stages (``plan.bench``), or ``None``.
-        basis: ``bench``, ``README``, ``CPU`` (the documented CPU measurement) or ``none``.
-        note: how the basis was scaled, or why there is none.
-    """
-
-    seconds: tuple[float, float] | None
-    weights_gb: float
-    peak_gb: float | None
-    basis: str
-    note: str
-
-
-def _scaled(s: tuple[float, float], ratio: float) -> tuple[float, float]:
-    return (s[0] * ratio, s[1] * ratio)
-
-
-def _add(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float]:
-    return (a[0] + b[0], a[1] + b[1])
-
-
-def together_gb(models: Sequence[ModelNeed], basis: Basis) -> float:
-    """GB of the weights of ``models`` held at once: FLUX.1-dev's text encoders and VAE, which
-    Fill and Kontext share, counted once."""
-    total = sum(m.memory_gb or 0.0 for m in models)
-    flux = sum(1 for m in models if m.family == "flux")
-    return total - basis.memory_gb["shared_text_vae"] * max(flux - 1, 0)
-
-
 def estimate_cell(scene_cfg: DictConfig, method_cfg: DictConfig, models: Sequence[ModelNeed], basis: Basis) -> Estimate:
     """Time and GPU memory of a cell of the scene of ``scene_cfg`` and the method of ``method_cfg``
-    (their parts, :class:`GridParts`), the models it needs described in ``models``.
-
-    Convention: the synchronized sampler (``snellcaster``, ``t2i``, the inpainting stand-in) scales
-    the basis's pair (or t2i) by the cell's model calls weighted by their pixels; FLUX Fill by
-    steps x pixels; relighting adds ``relight.candidates`` x Kontext's time per candidate
-    (steps x pixels); a pipeline baseline takes the documented figure x pixels (x steps when
-    ``method.steps`` is set). A generator that is not FLUX.1-dev on CUDA has no GPU basis: the
-    documented CPU measurement where the cell is the full method at a preset's settings, else none."""
-    H, W = int(scene_cfg.scene.height), int(scene_cfg.scene.width)
-    Hb, Wb, Pb = basis.size
-    pixels = H * W / (Hb * Wb)
-    c = method_cfg
-    kind = MethodKind.of(c.method.kind, "method.kind")
-    gpu = [m for m in models if m.needs_gpu]
-    weights = together_gb(gpu, basis)
-    by_kind = {m.kind: m for m in models}
-    peak = None
-    src = "bench" if basis.measured else "README"
-    if kind is MethodKind.external:
-        name = str(c.method.name)
-        label, seconds, _, default_steps = PIPELINES.get(name, (name, None, None, 0))
-        pipe = by_kind.get("pipeline")
-        if seconds is None or pipe is None or not pipe.needs_gpu:
-            why = (
-                "on the CPU (model.device=cpu): no basis"
-                if pipe is not None and not pipe.needs_gpu
-                else "no time in the documented basis (docs/gpu.md)"
-            )
-            return Estimate(None, weights, None, "none", f"{label}: {why}")
-        steps = default_steps if c.method.steps is None else int(c.method.steps)
-        ratio = pixels * steps / default_steps
-        note = f"README: {label} {seconds:g} s at 720x1280, {default_steps} steps" + _ratio_note(ratio)
-        return Estimate(_scaled((seconds, seconds), ratio), weights, None, "README", note)
-    if kind is MethodKind.inpaint and c.model.get("fill"):
-        fill = by_kind.get("fill")
-        if fill is None or not fill.needs_gpu:
-            return Estimate(None, weights, None, "none", "FLUX Fill off the GPU: no basis")
-        steps = basis.fill_steps if c.method.steps is None else int(c.method.steps)
-        ratio = pixels * steps / basis.fill_steps
-        note = f"Fill {basis.fill_s[0]:g} s at {basis.fill_steps} steps" + _ratio_note(ratio)
-        return Estimate(_scaled(basis.fill_s, ratio), weights, basis.peak_gb.get("fill"), src, note)
-    gen = by_kind.get("generator")
-    settings = OmegaConf.to_object(c.sampler)
-    assert isinstance(settings, SamplerSettings)
-    calls = model_calls(settings)
-    if gen is not None and gen.family == "flux" and not gen.needs_gpu:
-        return Estimate(None, weights, None, "none", f"FLUX.1-dev on {gen.device} (model.device): no basis")
-    if gen is None or not gen.needs_gpu:
-        return _cpu_estimate(scene_cfg, c, settings, kind, weights)
-    P = int(c.warps.pano_height)
-    work = calls["main"] * H * W + calls["pano"] * 2 * P * P
-    if settings.sync == "snellcaster":
-        base, (bm, bp) = basis.pair_s, basis.pair_calls
-        ratio = work / (bm * Hb * Wb + bp * 2 * Pb * Pb)
-        note = f"pair {_secs(base)} for {bm}+{bp} calls; {calls['main']}+{calls['pano']} calls" + _ratio_note(ratio)
-        peak = basis.peak_gb.get("pair")
-    else:
-        base = basis.t2i_s
-        ratio = work / (basis.t2i_steps * Hb * Wb)
-        note = f"t2i {_secs(base)} for {basis.t2i_steps} calls; {calls['main']} calls" + _ratio_note(ratio)
-        peak = basis.peak_gb.get("t2i")
-    seconds = _scaled(base, ratio)
-    relighter = by_kind.get("relighter")
-    if c.method.relight and relighter is not None:
-        n = int(c.relight.candidates)
-        if relighter.needs_gpu:
-            steps = basis.kontext_steps if c.relight.steps is None else int(c.relight.steps)
-            r = pixels * steps / basis.kontext_steps
-            seconds = _add(seconds, _scaled(basis.kontext_s, n * r))
-            note += f"; + {n} x Kontext {_secs(_scaled(basis.kontext_s, r))}"
-            if basis.peak_gb.get("kontext") is not None and peak is not None:
-                peak = max(peak, basis.peak_gb["kontext"])
-        else:
-            note += f"; + {n} relighting candidates on the CPU (not estimated)"
-    return Estimate(seconds, weights, peak, src, note)
-
-
-def _cpu_estimate(scene_cfg, c, settings: SamplerSettings, kind: MethodKind, weights: float) -> Estimate:
-    key = (int(scene_cfg.scene.height), int(scene_cfg.scene.width), int(c.warps.pano_height), settings.steps)
-    full = kind is MethodKind.snellcaster and not c.method.relight and settings.sync == "snellcaster"
-    name = str(c.model.name)
-    if full and key in CPU_PRESETS:
-        preset, seconds = CPU_PRESETS[key]
-        note = (
-            f"CPU stand-in ({name}): the {preset} preset's full method per image (warps, sampling, reference, metrics)"
-        )
-        return Estimate((seconds, seconds), weights, None, "CPU", note)
-    return Estimate(None, weights, None, "none", f"CPU stand-in ({name}): time basis unknown (CPU)")
-
-
-def _ratio_note(ratio: float) -> str:
-    return "" if abs(ratio - 1) < 1e-9 else f"; x{ratio:.2f} (linear in model calls x pixels)"
-
-
-def _secs(s: tuple[float, float] | None) -> str:
-    """``(low, high)`` seconds as ``43–65 s``, ``1.7–2.1 min`` or ``3.6–5.4 h`` (one unit, the high's)."""
-    if s is None:
-        return "—"
-    lo, hi = s
-    div, unit = (3600, "h") if hi >= 3600 else (60, "min") if hi >= 120 else (1, "s")
-
-    def one(x: float) -> str:
-        x /= div
-        return f"{x:.0f}" if x >= 10 else f"{x:.1f}"
-
-    return f"{one(hi)} {unit}" if one(lo) == one(hi) else f"{one(lo)}–{one(hi)} {unit}"
+    (their parts, :class:`GridParts`), the models it needs described in ``models``: what the
+    method's kind says it costs (:meth:`snell_bench.methods.Method.cost`), with relighting added
+    (:func:`~snell_bench.methods.cost.relight_estimate`)."""
+    est = method_of(method_cfg).cost(scene_cfg, method_cfg, models, basis)
+    return relight_estimate(est, scene_cfg, method_cfg, models, basis)
 
 
 # ---------------------------------------------------------------------------- the plan
@@ -989,7 +691,9 @@ def make_plan(
                     described[(kind, key)] = describe_model(kind, key, src, basis)
                 found += [m for m in described[(kind, key)] if all(m is not f for f in found)]
             c = parts.method(method)
-            if c.model.from_scene and _samples(c):  # the group's own generator (not the pool's): listed too
+            if c.model.from_scene and method_of(c).uses_generator(
+                c
+            ):  # the group's own generator (not the pool's): listed too
                 key = ("generator", "from_scene " + node_key(c.model))
                 if key not in described:
                     described[key] = describe_model("generator", key[1], c, basis)
@@ -1044,12 +748,6 @@ def make_plan(
         warnings=warnings,
         compositions=parts.compositions,
     )
-
-
-def _samples(c: DictConfig) -> bool:
-    """The method samples with the generator (not a pipeline, not FLUX Fill)."""
-    kind = MethodKind.of(c.method.kind, "method.kind")
-    return kind in (MethodKind.snellcaster, MethodKind.t2i) or (kind is MethodKind.inpaint and not c.model.get("fill"))
 
 
 def _method_time(method: str, kind: str, rows: list[tuple[Estimate, int]]) -> MethodTime:
@@ -1249,9 +947,9 @@ def format_plan(plan: Plan) -> str:
         {
             "method": t.method,
             "kind": t.kind,
-            "per cell": _secs(t.per_cell),
+            "per cell": secs(t.per_cell),
             "cells left": t.cells_left,
-            "total": _secs(t.total) if t.cells_left else "0",
+            "total": secs(t.total) if t.cells_left else "0",
             "GPU GB": f"{t.weights_gb:.0f}" if t.weights_gb else "0",
             "peak GB": "—" if t.peak_gb is None else f"{t.peak_gb:.0f}",
             "basis": t.basis,
@@ -1274,7 +972,7 @@ def format_plan(plan: Plan) -> str:
     if known:
         total = (sum(t.total[0] for t in known), sum(t.total[1] for t in known))
         bases = " + ".join(dict.fromkeys(t.basis for t in known))
-        line += f"; {sum(t.cells_left for t in known)} estimated: {_secs(total)} ({bases})"
+        line += f"; {sum(t.cells_left for t in known)} estimated: {secs(total)} ({bases})"
     if unknown:
         line += "; not estimated: " + ", ".join(f"{t.method} ({t.cells_left} cells)" for t in unknown)
     out.append(line)

@@ -40,9 +40,10 @@ from typing import TYPE_CHECKING
 import torch
 from omegaconf import DictConfig
 
-from snell_bench.config import MethodKind, Source
+from snell_bench.config import Source
 from snell_bench.experiment.cells import Cell, claim
 from snell_bench.experiment.files import inputs_file, keep_inputs, read_inputs, save_inputs
+from snell_bench.methods import method_of
 from snell_bench.pipeline import CellInputs, CellResult, ModelPool, prepare_inputs, sample_stage
 from snell_bench.pipeline.cell import node_key
 from snell_bench.pipeline.inputs import generate_i_minus
@@ -60,16 +61,9 @@ UNRELIT_FILE = ".unrelit.pt"
 
 def cell_models(c: DictConfig) -> list[tuple[str, str]]:
     """``(kind, key)`` of the shared models one cell's method loads (stages 6-7b), in the order it
-    uses them; a generator built from the scene (``model.from_scene``) is the group's own and is
-    not listed."""
-    kind = MethodKind(c.method.kind)
-    out = []
-    if kind is MethodKind.external:
-        out.append(("pipeline", str(c.method.model_id)))
-    elif kind is MethodKind.inpaint and c.model.get("fill"):
-        out.append(("fill", node_key(c.model.fill)))
-    elif not c.model.from_scene:
-        out.append(("generator", node_key(c.model)))
+    uses them: what its kind says (:meth:`snell_bench.methods.Method.models`; a generator built
+    from the scene is the group's own and is not listed), then the relighter (``method.relight``)."""
+    out = list(method_of(c).models(c))
     if c.method.relight and c.model.get("relighter"):
         out.append(("relighter", node_key(c.model.relighter)))
     return out

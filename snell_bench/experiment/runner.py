@@ -71,6 +71,9 @@ from snell_bench.experiment.prefetch import Prefetcher, settings_of
 from snell_bench.experiment.reports.collect import recipe_and_protocol
 from snell_bench.experiment.reports.records import GRID_RECORD
 from snell_bench.experiment.tracking import log_cell, make_tracker
+from snell_bench.kit.schema import kit_id
+from snell_bench.methods import method_of
+from snell_bench.metrics.registry import metrics_for
 from snell_bench.pipeline import (
     ModelPool,
     apply_method,
@@ -83,7 +86,16 @@ from snell_bench.utils.tensors import bchw_to_hwc
 
 log = logging.getLogger(__name__)
 
-__all__ = ["run_grid", "plan_grid", "cell_overrides", "check_same_settings", "shard_cells", "job_id"]
+__all__ = [
+    "run_grid",
+    "plan_grid",
+    "cell_overrides",
+    "check_same_settings",
+    "shard_cells",
+    "job_id",
+    "group_of",
+    "stale_cell",
+]
 
 #: The panorama branch's image in a cell's folder (methods with the panorama branch).
 PANORAMA_FILE = "panorama.png"
@@ -105,12 +117,20 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
     if problems:
         raise ConfigError(problems)
     root = Path(cfg.runs_dir) / str(cfg.experiment_name)
-    cells = []
+    cells, problems = [], []
     for scene, variation, obj_spec in itertools.product(g.scenes, g.variations, g.objects):
-        group = root / f"{scene}-{variation}" / object_dir_name(obj_spec)
+        group_id = kit_id(str(scene), int(variation), object_dir_name(obj_spec))
+        group = root / group_id
         for m in g.methods:
             raw = compose_cell(cfg, cell_overrides(scene, variation, obj_spec, m), method=False)
             c = apply_method(raw)
+            try:
+                method = method_of(c)  # the kind (or _target_) loads, its params fit
+                problems += [f"cell {group_id}/{m}: {p}" for p in method.check(c, group_id)]
+                metrics_for(str(c.metrics.protocol), c.metrics.extra)  # users' metrics load
+            except ValueError as e:
+                problems.append(f"cell {group_id}/{m}: {e}")
+                continue
             record = {
                 "experiment": str(cfg.experiment_name),
                 "scene": str(scene),
@@ -118,7 +138,8 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
                 "object": object_dir_name(obj_spec),
                 "object_spec": str(obj_spec),
                 "method": str(m),
-                "method_label": str(c.method.label),
+                "method_label": method.row_label(c),
+                "method_kind": str(c.method.kind),
                 "model": str(c.model.name),
                 "scene_source": str(c.scene.source),
                 **scene_pipeline_record(c),
@@ -135,6 +156,8 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
                     extra={"inputs_config": raw},
                 )
             )
+    if problems:
+        raise ConfigError(list(dict.fromkeys(problems)))
     return cells
 
 
@@ -173,6 +196,7 @@ def run_cell(
     else:
         inputs, files = order.inputs(cell)
         sampled = order.take_unrelit(cell)
+    inputs.group = group_of(cell)
     for name, path in files.items():
         link_or_copy(path, cell.folder / name)
     if sampled is None:
@@ -299,6 +323,18 @@ def shard_cells(cells: list[Cell], shards: int, shard: int) -> list[Cell]:
     return mine
 
 
+def group_of(cell: Cell) -> str:
+    """The kit id of a grid cell's group, ``<scene>-<variation>/<object>`` (:func:`~snell_bench.kit.kit_id`)."""
+    r = cell.record
+    return kit_id(str(r["scene"]), int(r["variation"]), str(r["object"]))
+
+
+def stale_cell(cell: Cell, record: dict) -> str | None:
+    """Why a finished grid cell no longer holds though its files and settings are unchanged: its
+    method's word (:meth:`snell_bench.methods.Method.stale`, e.g. a submitted image changed)."""
+    return method_of(cell.config).stale(cell.config, record, cell.folder, group_of(cell))
+
+
 def job_id() -> str:
     """This job's identity: ``<array job>_<task>`` (or the job id) under Slurm, stable when Slurm
     requeues it; ``<host>-<pid>`` elsewhere."""
@@ -383,6 +419,7 @@ def run_grid(cfg: DictConfig) -> dict:
             lock=str(g.lock),
             lease_ttl_s=float(g.lease_ttl_s),
             lock_key="grid.lock",
+            stale=stale_cell,
         )
         finished = True
     finally:

@@ -63,6 +63,9 @@ class CellInputs:
     timings: dict = field(default_factory=dict)
     #: the models these inputs were prepared with (a generator that made I⁻ is reused by the methods)
     pool: ModelPool = field(default_factory=ModelPool, repr=False, compare=False)
+    #: the group's id, ``<scene>-<variation>/<object>`` (the grid's folder and the benchmark kit's id;
+    #: set by the grid, empty elsewhere)
+    group: str = ""
 
 
 @dataclass

@@ -1,9 +1,11 @@
 """Stages 6-7b: one method's image on shared inputs.
 
 6. the generator, built from ``model.generator`` (:func:`build_generator`), from the model pool;
-7. sampling with the method's settings (``method.kind``, :data:`METHODS`): the synchronized sampler
-   (``snellcaster``), the generator alone (``t2i``), FLUX Fill or its CPU stand-in (``inpaint``),
-   or another text-to-image pipeline (``external``);
+7. sampling with the method's settings: what the method's kind runs (:func:`sample_method`, the
+   registry of :mod:`snell_bench.methods`: the synchronized sampler, the generator alone, FLUX Fill
+   or its CPU stand-in, another text-to-image pipeline, images made elsewhere, a user's method),
+   with the helpers the kinds share (:func:`cell_generator`, :func:`baseline_prompt`,
+   :func:`inpaint_mask`);
 7b. relighting (``method.relight``): N candidates from the model's relighter, the one closest to
    the un-relit image inside the object kept (:func:`relight_image`).
 
@@ -16,13 +18,12 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import torch
 from omegaconf import DictConfig, OmegaConf
 from scipy.ndimage import binary_dilation
 
-from snell_bench.config import InpaintMask, MethodKind, PromptKind, SamplerSettings
+from snell_bench.config import InpaintMask, PromptKind
+from snell_bench.methods.registry import method_of
 from snell_bench.models.errors import DeviceNotAvailableError, WeightsNotFoundError
-from snell_bench.models.external import generate_external, inpaint_external, load_pipeline
 from snell_bench.models.sizes import node_weights_bytes
 from snell_bench.optics.warps import WarpSet
 from snell_bench.pipeline.cell import (
@@ -38,12 +39,13 @@ from snell_bench.pipeline.cell import (
 )
 from snell_bench.pipeline.inputs import generator_of
 from snell_bench.relight import candidate_seeds, relight
-from snell_bench.sampler.snellcaster import sample
 from snell_bench.scene.sources import panorama_prior
 from snell_bench.utils.timing import Timer
 
 __all__ = [
+    "architecture",
     "baseline_prompt",
+    "cell_generator",
     "generator_scope",
     "build_generator",
     "inpaint_mask",
@@ -76,7 +78,7 @@ def generator_scope(inputs: CellInputs) -> tuple:
     return ("inputs", id(inputs))
 
 
-def _generator(cfg: DictConfig, inputs: CellInputs) -> tuple[Any, float]:
+def cell_generator(cfg: DictConfig, inputs: CellInputs) -> tuple[Any, float]:
     """The generator of the cell from the inputs' pool. One built from the scene lives as long as
     the inputs (its scope); any other is shared by every cell of the sweep."""
     pool = inputs.pool
@@ -138,7 +140,7 @@ def baseline_prompt(cfg: DictConfig) -> str:
     return full.replace(old, new, 1)
 
 
-def _architecture(cfg: DictConfig) -> str:
+def architecture(cfg: DictConfig) -> str:
     """``method.architecture`` of an external baseline, which a model's ``pipelines`` builder needs."""
     if not cfg.method.get("architecture"):
         raise ValueError(
@@ -148,113 +150,11 @@ def _architecture(cfg: DictConfig) -> str:
     return str(cfg.method.architecture)
 
 
-def _pipeline_call(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
-    """A baseline that is a diffusers pipeline: another text-to-image model (``external``, from
-    ``method.model_id``) or FLUX Fill (``inpaint``, from ``model.fill``), with the method's steps,
-    guidance and prompt, seeded with the cell's seed, on ``model.device``."""
-    pool = inputs.pool
-    external = MethodKind(cfg.method.kind) is MethodKind.external
-    text = baseline_prompt(cfg)
-    steps = None if cfg.method.steps is None else int(cfg.method.steps)
-    guidance = None if cfg.method.guidance is None else float(cfg.method.guidance)
-    device, dtype = cfg.model.device, cfg.model.dtype
-    try:
-        if external and cfg.model.get("pipelines"):  # the model's stand-ins (tiny random pipelines)
-            pipe, t.seconds["generator"] = pool.get(
-                "pipeline",
-                f"{node_key(cfg.model.pipelines)}:{cfg.method.architecture}",
-                lambda: build(cfg.model.pipelines, kind=_architecture(cfg)),
-                label=f"{cfg.model.name} {cfg.method.architecture}",
-            )
-        elif external:
-            key = node_key(OmegaConf.create({"model_id": cfg.method.model_id, "device": device, "dtype": dtype}))
-            pipe, t.seconds["generator"] = pool.get(
-                "pipeline",
-                key,
-                lambda: load_pipeline(cfg.method.model_id, device=device, dtype=dtype, memory_gb=cfg.models.memory_gb),
-                label=str(cfg.method.model_id),
-            )
-        else:
-            pipe, t.seconds["generator"] = pool.get(
-                "fill",
-                node_key(cfg.model.fill),
-                lambda: build(cfg.model.fill),
-                label=f"{cfg.model.name} fill",
-                size=lambda: node_weights_bytes(cfg.model.fill),
-            )
-        with t("sampling"):
-            if external:
-                img, used = generate_external(
-                    pipe,
-                    text,
-                    warps.camera.shape,
-                    seed=cell_seed(cfg),
-                    steps=steps,
-                    guidance=guidance,
-                    return_settings=True,
-                    cfg=bool(cfg.method.get("cfg", True)),
-                )
-            else:
-                img, used = inpaint_external(
-                    pipe,
-                    text,
-                    inputs.i_minus,
-                    inpaint_mask(cfg, warps),
-                    seed=cell_seed(cfg),
-                    steps=steps,
-                    guidance=guidance,
-                    return_settings=True,
-                )
-    except (WeightsNotFoundError, DeviceNotAvailableError) as e:
-        raise Skip(f"{cfg.method.label} cannot run here: {e}") from None
-    return CellResult(image=img, warps=warps, stats={"pipeline": {**used.as_dict(), "prompt": text}})
-
-
-def _synchronized(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
-    """The sampler of :mod:`snell_bench.sampler.snellcaster` with the ``sampler`` node: the
-    synchronized sampler (``snellcaster``), the generator alone (``t2i``, ``sampler.sync=none``),
-    or the CPU stand-in of ``inpaint`` (the generator's image pasted into the region)."""
-    gen, t.seconds["generator"] = _generator(cfg, inputs)
-    settings = OmegaConf.to_object(cfg.sampler)
-    assert isinstance(settings, SamplerSettings)
-    prompt = full_prompt(cfg)
-    kind = MethodKind(cfg.method.kind)
-    inpaint = kind is MethodKind.inpaint
-    if kind is not MethodKind.snellcaster:  # a baseline: its prompt and steps (baselines node)
-        prompt = baseline_prompt(cfg)
-        if cfg.method.steps is not None:
-            settings.steps = int(cfg.method.steps)
-    with t("sampling"):
-        res = sample(gen, warps, inputs.i_minus, prompt, str(cfg.scene.pano_prompt), settings, seed=cell_seed(cfg))
-    img = res.image
-    if inpaint:
-        img = torch.where(torch.from_numpy(inpaint_mask(cfg, warps))[None, None], img, inputs.i_minus)
-    stats = {
-        "model_calls": res.model_calls,
-        "sampler_timings_s": {k: round(v, 3) for k, v in res.timings.items()},
-        "decisions": res.decisions,
-    }
-    return CellResult(image=img, panorama=res.panorama, stats=stats, dumps=res.dumps, warps=warps)
-
-
-def _inpaint(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
-    """FLUX Fill from ``model.fill``, or without one the generator's CPU stand-in."""
-    return (_pipeline_call if cfg.model.get("fill") else _synchronized)(cfg, inputs, warps, t)
-
-
-#: ``method.kind`` -> stage 7.
-METHODS = {
-    MethodKind.snellcaster: _synchronized,
-    MethodKind.t2i: _synchronized,
-    MethodKind.inpaint: _inpaint,
-    MethodKind.external: _pipeline_call,
-}
-
-
 def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
-    """Stage 7: the method's image (``method.kind``, :data:`METHODS`). Raises :class:`Skip` for a
-    method that cannot run here (no weights, no device)."""
-    return METHODS[MethodKind.of(cfg.method.kind, "method.kind")](cfg, inputs, warps, t)
+    """Stage 7: the method's image: :meth:`~snell_bench.methods.Method.run` of the kind
+    ``method.kind`` (or ``method._target_``) names (:func:`~snell_bench.methods.method_of`).
+    Raises :class:`Skip` for a method that cannot run here (no weights, no device, no image)."""
+    return method_of(cfg).run(cfg, inputs, warps, t)
 
 
 # ---------------------------------------------------------------------------- 7b. relighting

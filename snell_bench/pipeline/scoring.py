@@ -13,7 +13,7 @@ from snell_bench.pipeline.cell import CellInputs, CellResult, node_key, plain, p
 from snell_bench.pipeline.inputs import trace_warps
 from snell_bench.pipeline.methods import relight_image, sample_method
 from snell_bench.pipeline.pool import ModelPool
-from snell_bench.utils.io import save_png
+from snell_bench.utils.io import save_png, saved_pixels
 from snell_bench.utils.tensors import bchw_to_hwc
 from snell_bench.utils.timing import Timer
 
@@ -56,13 +56,18 @@ def score(
     """Stage 8: masked metrics of ``image`` against the reference (``reference``: another
     ReferenceRender to score against, e.g. a converged one) and PSNR against the true render, under
     ``metrics.protocol``: ``{"metrics": {name: float | None}, "missing": {name: reason}, "protocol":
-    ...}`` with ``lpips_box`` under ``authors`` only. Under ``authors`` the in-memory image and
-    reference are scored as their 8-bit PNGs (``save_png``'s rounding), so the numbers equal those of
-    the files written next to ``metrics.json``; ``metrics.files=jpeg`` scores the JPEG files the
-    authors' evaluation reads instead; CLIP and ImageReward see :func:`clip_prompt`."""
+    ...}`` with ``lpips_box`` under ``authors`` only. With ``metrics.score_file`` (the default) the
+    image is scored as its 8-bit PNG holds it (:func:`~snell_bench.utils.io.saved_pixels`), so
+    re-scoring the saved ``image.png`` (``method=images``, :func:`snell_bench.kit.score_image`)
+    gives the same numbers; under ``authors`` the reference too is scored as its 8-bit PNG;
+    ``metrics.files=jpeg`` scores the JPEG files the authors' evaluation reads instead; CLIP and
+    ImageReward see :func:`clip_prompt`; users' metrics (``metrics.extra``) follow the built-in ones."""
     ref = inputs.reference if reference is None else reference
+    pixels = bchw_to_hwc(image)
+    if cfg.metrics.get("score_file", True):  # as image.png holds it: every method and any saved image alike
+        pixels = saved_pixels(pixels)
     return score_cell(
-        bchw_to_hwc(image),
+        pixels,
         None if ref is None else ref.image,
         None if ref is None else ref.mask,
         clip_prompt(cfg),
@@ -75,6 +80,7 @@ def score(
         files=str(cfg.metrics.get("files", "png")),
         lpips_box_range=str(cfg.metrics.get("lpips_box_range", "signed")),
         reference_is_jpeg=getattr(ref, "file_format", None) == "jpeg",
+        extra=tuple(str(m) for m in (cfg.metrics.get("extra") or ())),
     )
 
 
@@ -88,8 +94,26 @@ def sample_stage(cfg: DictConfig, inputs: CellInputs) -> CellResult:
         with t("warps"):
             warps = trace_warps(inputs.scene, inputs.obj, cfg.warps)
     result = sample_method(cfg, inputs, warps, t)
+    _check_result(cfg, result, warps)
+    if result.warps is None:  # a user's method need not hand its warps back
+        result.warps = warps
     result.timings = {**t.seconds, **result.timings}
     return result
+
+
+def _check_result(cfg: DictConfig, result, warps) -> None:
+    """A method's result is a :class:`~snell_bench.pipeline.CellResult` whose image is ``(1, 3, H,
+    W)`` float of the scene's camera (a user's method is told what it returned instead)."""
+    where = f"method={cfg.method.name} (kind {cfg.method.kind})"
+    image = getattr(result, "image", None)
+    if not isinstance(image, torch.Tensor):
+        raise TypeError(f"{where} returned {type(result).__name__}, not a CellResult with an image tensor")
+    shape = (1, 3, warps.camera.height, warps.camera.width)
+    if tuple(image.shape) != shape or not image.is_floating_point():
+        raise ValueError(
+            f"{where} returned an image of shape {tuple(image.shape)} and dtype {image.dtype}; expected {shape} "
+            "float (sRGB in [0, 1])"
+        )
 
 
 def finish_method(

@@ -377,6 +377,9 @@ class GlassObject:
         placed: whether ``mesh`` is in camera coordinates.
         up: the scene's up direction in camera coordinates, set by placement (``None`` if unknown).
         crease_angle_deg: faces meeting at a sharper angle than this do not share shading normals.
+        pose: ``(4, 4)`` float64, the transform that took the canonical object (as its constructor
+            built it) to ``mesh`` (:meth:`transformed` composes it; camera from object once placed),
+            or None for a mesh given already placed.
     """
 
     mesh: trimesh.Trimesh
@@ -385,6 +388,7 @@ class GlassObject:
     placed: bool = False
     up: np.ndarray | None = None
     crease_angle_deg: float = 30.0
+    pose: np.ndarray | None = field(default=None, repr=False, compare=False)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -546,8 +550,11 @@ class GlassObject:
     def transformed(self, matrix: np.ndarray, *, up=None) -> GlassObject:
         """Apply a 4x4 rigid or similarity transform; the result is a placed object."""
         m = self.mesh.copy()
-        m.apply_transform(np.asarray(matrix, dtype=np.float64))
-        return replace(self, mesh=m, placed=True, up=up if up is not None else self.up, _cache={})
+        matrix = np.asarray(matrix, dtype=np.float64)
+        m.apply_transform(matrix)
+        before = np.eye(4) if self.pose is None and not self.placed else self.pose
+        pose = None if before is None else matrix @ before
+        return replace(self, mesh=m, placed=True, up=up if up is not None else self.up, pose=pose, _cache={})
 
     # ------------------------------------------------------------------ geometry
     @property

@@ -26,6 +26,9 @@ __all__ = [
     "write_json",
     "save_npy",
     "save_png",
+    "to_uint8",
+    "from_uint8",
+    "saved_pixels",
     "link_or_copy",
     "json_default",
     "json_safe",
@@ -122,12 +125,40 @@ def save_npy(path: str | os.PathLike, arr: np.ndarray) -> Path:
     return atomic_write_bytes(path, buf.getvalue())
 
 
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    """A float image in [0, 1] as the 8-bit values :func:`save_png` writes: ``clip(rint(255 x), 0,
+    255)`` in float64 (``rint``: round half to even), as ``uint8``; the layout is kept.
+
+    Examples:
+        >>> to_uint8(np.array([0.0, 0.5, 1.2, 0.998])).tolist()
+        [0, 128, 255, 254]
+    """
+    return np.clip(np.rint(np.asarray(image, np.float64) * 255.0), 0, 255).astype(np.uint8)
+
+
+def from_uint8(pixels: np.ndarray) -> np.ndarray:
+    """8-bit pixels as the float32 image they decode to, ``value / 255``: the one conversion every
+    scorer of a saved image uses (:func:`saved_pixels`, the images a submission holds).
+
+    Examples:
+        >>> from_uint8(np.array([0, 128, 255], np.uint8)).tolist() == [0.0, np.float32(128 / 255), 1.0]
+        True
+    """
+    return np.asarray(pixels, np.uint8).astype(np.float32) / np.float32(255)
+
+
+def saved_pixels(image: np.ndarray) -> np.ndarray:
+    """A float image as its PNG (:func:`save_png`) holds it, read back: ``from_uint8(to_uint8(image))``,
+    float32, the layout kept. Applied twice it changes nothing."""
+    return from_uint8(to_uint8(image))
+
+
 def save_png(path: str | os.PathLike, image: np.ndarray) -> Path:
     """Save a float image in [0, 1], ``(H, W)`` or ``(H, W, 3)``, as an 8-bit PNG atomically
-    (values rounded to the nearest of 0..255 and clipped)."""
+    (values rounded to the nearest of 0..255 and clipped: :func:`to_uint8`)."""
     from PIL import Image
 
-    arr = np.clip(np.rint(np.asarray(image, np.float64) * 255.0), 0, 255).astype(np.uint8)
+    arr = to_uint8(image)
     return atomic_write(path, lambda f: Image.fromarray(arr).save(f, format="PNG"))
 
 

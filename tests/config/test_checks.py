@@ -170,7 +170,6 @@ def test_tradeoff_entries_are_checked(overrides, expected):
         ("job=nope", "tradeoff"),
         ("metrics.protocol=ours", "authors"),
         ("metrics.clip_text=both", "object"),
-        ("method.kind=magic", "external"),
         ("method.prompt=both", "object"),
         ("warps.normals=smooth", "interpolated"),
     ],
@@ -183,13 +182,27 @@ def test_a_value_outside_its_choices_fails_when_composed(override, choice):
     assert override in text and "expected one of" in text and choice in text, text
 
 
+def test_a_method_kind_names_a_registered_kind_or_a_target():
+    """method.kind is a registry name (built-in kinds, installed plugins), not a closed enum: an
+    unknown one is found when checked, naming the kinds and method._target_."""
+    with pytest.raises(ConfigError) as e:
+        check_config(compose(["method.kind=magic"]))
+    text = str(e.value)
+    assert "method.kind='magic' is unknown" in text and "images" in text and "method._target_" in text
+    with pytest.raises(ConfigError, match=r"method._target_='no_such_pkg.Thing' cannot be imported"):
+        check_config(compose(["method._target_=no_such_pkg.Thing"]))
+    check_config(compose(["method=images", "method.images=/tmp"]))  # a built-in kind
+
+
 def test_the_choices_are_the_stages_own():
     """Each enum lists exactly what the stage that reads it accepts."""
-    from snell_bench.config import PanoPrior, Protocol, RefSampler
+    from snell_bench.config import METHOD_KINDS, PanoPrior, Protocol, RefSampler
+    from snell_bench.methods import BUILTIN
     from snell_bench.metrics.functional import PROTOCOLS
     from snell_bench.render.pieces import SAMPLERS
     from snell_bench.scene.sources import PANO_PRIORS
 
     assert set(RefSampler.values()) == set(SAMPLERS)
+    assert tuple(BUILTIN) == METHOD_KINDS
     assert set(Protocol.values()) == set(PROTOCOLS)
     assert set(PanoPrior.values()) == set(PANO_PRIORS)

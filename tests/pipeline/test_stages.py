@@ -124,15 +124,21 @@ def test_an_external_baseline_runs_from_a_local_folder_on_the_cpu(tmp_path, inpu
 
 def test_scores_against_the_reference_and_the_true_render(inputs):
     from snell_bench.metrics import load_scorers, masked_psnr
+    from snell_bench.utils.io import saved_pixels
 
     cfg = pipeline.apply_method(compose(TINY))
     res = pipeline.run_method(cfg, inputs, scorers=load_scorers(cfg.metrics))
-    img = res.image[0].permute(1, 2, 0).numpy()
+    img = saved_pixels(res.image[0].permute(1, 2, 0).numpy())  # the 8-bit values image.png holds
     m = res.scores["metrics"]
-    assert m["psnr"] == pytest.approx(masked_psnr(img, inputs.reference.image, inputs.reference.mask))
-    assert m["psnr_true"] == pytest.approx(masked_psnr(img, inputs.true_render, inputs.warps.object_mask))
+    assert m["psnr"] == masked_psnr(img, inputs.reference.image, inputs.reference.mask)
+    assert m["psnr_true"] == masked_psnr(img, inputs.true_render, inputs.warps.object_mask)
     assert m["lpips"] is None and "lpips_weights" in res.scores["missing"]["lpips"]
     assert "metrics" in res.timings
+    # metrics.score_file=false: the sampler's float image, as cells recorded before the key existed
+    floats = pipeline.apply_method(compose([*TINY, "metrics.score_file=false"]))
+    res = pipeline.run_method(floats, inputs, scorers=load_scorers(floats.metrics))
+    img = res.image[0].permute(1, 2, 0).numpy()
+    assert res.scores["metrics"]["psnr"] == masked_psnr(img, inputs.reference.image, inputs.reference.mask)
 
 
 def test_full_prompt_names_the_object():

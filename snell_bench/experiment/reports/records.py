@@ -92,6 +92,8 @@ GRID_RECORD: dict[str, Any] = {
         **_COMMON_PROPERTIES,
         "object_spec": _STR,
         "method_label": _STR,
+        "method_kind": _STR,
+        "images": _OBJECT,
         "recipe": _OPT_STR,
         "random_weights": {"type": "boolean"},
         "warps": _OBJECT,
