@@ -9,13 +9,18 @@ where the hook does not run; indented, for a tab or an admonition, the part is i
 - ``<!-- snell:config-groups -->``: every config group of ``snell_bench/conf/`` with its options,
   what each is (the comment at the top of its file) and the keys it sets;
 - ``<!-- snell:config-group NAME -->``: one group (``tracker``, ``hydra/launcher``, ...);
+- ``<!-- snell:metrics -->``: every metric of the registry (built-in and installed), its label,
+  direction, format and what it needs;
+- ``<!-- snell:method-kinds -->``: every method kind of the registry and its class;
+- ``<!-- snell:kit-fields -->``: the benchmark kit's fields and schema version;
 - ``<!-- snell:results EXPERIMENT TABLE -->``: a table of ``reports/EXPERIMENT/`` from its committed
   snapshot in ``docs/results/data/EXPERIMENT/`` (``tools/docs_results.py`` makes it), with the
   report's provenance line, its notes and the commands that regenerate it; a clear note where the
   snapshot is missing.
 
-An unknown marker fails the build. Nothing here imports torch or the stage packages: the schema is
-read from the source (``ast``), the groups from their YAML files, the tables with pandas.
+An unknown marker fails the build. The schema is read from the source (``ast``), the groups from
+their YAML files, the tables with pandas; the registries (metrics, method kinds, the kit's fields)
+are imported from snell_bench itself, so what the docs list is what the code registers.
 """
 
 from __future__ import annotations
@@ -45,6 +50,9 @@ __all__ = [
     "config_groups",
     "config_node",
     "config_schema",
+    "kit_fields_table",
+    "method_kinds_table",
+    "metrics_table",
     "on_page_markdown",
     "read_schema",
     "results_table",
@@ -465,29 +473,83 @@ def config_groups() -> str:
 
 
 def _metric_specs() -> dict[str, tuple[str, bool, str]]:
-    """Column key -> (label, higher is better, format), from the reports' own spec where it loads."""
-    try:
-        spec = _load_path("snell_docs_reports_spec", ROOT / "snell_bench" / "experiment" / "reports" / "spec.py")
-    except Exception:  # noqa: BLE001 - the tables still render, labelled by their keys
-        return {}
-    out = {m.name: (f"{m.label} {m.arrow}", m.higher_is_better, m.format) for m in spec.METRICS.values()}
-    out.update({m.name: (m.label, None, m.format) for m in spec.MEASURES.values()})
+    """Column key -> (label, higher is better, format), from the metric registry and the reports'
+    measures (:mod:`snell_bench.metrics.registry`, :mod:`snell_bench.experiment.reports.spec`)."""
+    from snell_bench.experiment.reports.spec import MEASURES
+    from snell_bench.metrics.registry import BUILTIN_METRICS
+
+    out = {m.name: (f"{m.label} {m.arrow}", m.higher_is_better, m.format) for m in BUILTIN_METRICS}
+    out.update({m.name: (m.label, None, m.format) for m in MEASURES.values()})
     return out
 
 
-_TRADEOFF_COLUMNS = {
-    "timings_s.warps": ("warps (s)", None, "{:.1f}"),
-    "timings_s.sampling": ("sampling (s)", None, "{:.1f}"),
-    "timings_s.reference": ("reference (s)", None, "{:.1f}"),
-    "timings_s.metrics": ("metrics (s)", None, "{:.2f}"),
-    "timings_s.total": ("total (s) ↓", False, "{:.1f}"),
-    "psnr": ("PSNR ↑", True, "{:.2f}"),
-    "psnr_converged": ("PSNR (conv.) ↑", True, "{:.2f}"),
-    "psnr_true": ("PSNR (true) ↑", True, "{:.2f}"),
-    "lpips": ("LPIPS ↓", False, "{:.3f}"),
-    "reference_self_noise_db": ("ref. self-noise (dB)", None, "{:.1f}"),
-    "reference_psnr_vs_max_spp": ("ref. vs max spp (dB)", None, "{:.1f}"),
-}
+def _tradeoff_columns() -> dict[str, tuple[str, bool | None, str]]:
+    """The sweep table's columns: stage times, the metrics (labels and formats from the registry),
+    the reference's figures."""
+    from snell_bench.metrics.registry import metric_spec
+
+    metrics = {}
+    for name in ("psnr", "psnr_converged", "psnr_true", "lpips"):
+        m = metric_spec(name)
+        metrics[name] = (f"{m.label} {m.arrow}", m.higher_is_better, m.format)
+    return {
+        "timings_s.warps": ("warps (s)", None, "{:.1f}"),
+        "timings_s.sampling": ("sampling (s)", None, "{:.1f}"),
+        "timings_s.reference": ("reference (s)", None, "{:.1f}"),
+        "timings_s.metrics": ("metrics (s)", None, "{:.2f}"),
+        "timings_s.total": ("total (s) ↓", False, "{:.1f}"),
+        **metrics,
+        "reference_self_noise_db": ("ref. self-noise (dB)", None, "{:.1f}"),
+        "reference_psnr_vs_max_spp": ("ref. vs max spp (dB)", None, "{:.1f}"),
+    }
+
+
+# ------------------------------------------------------------------------------------------------
+# The registries: metrics, method kinds, the benchmark kit's fields
+# ------------------------------------------------------------------------------------------------
+
+
+def metrics_table() -> str:
+    """Every metric of the registry (built-in, and users' metrics installed here): its key, label,
+    direction, format, what it needs, the protocols that report it and what it is."""
+    from snell_bench.metrics.registry import BUILTIN_METRICS, installed_metrics, load_metric
+
+    specs = list(BUILTIN_METRICS) + [load_metric(n) for n in installed_metrics()]
+    rows = [
+        [
+            _code(m.name),
+            m.label,
+            m.arrow,
+            _code(m.format),
+            ", ".join(m.needs),
+            ", ".join(m.protocols),
+            m.description,
+        ]
+        for m in specs
+    ]
+    return _table(["key", "label", "better", "format", "needs", "protocols", "what it is"], rows)
+
+
+def method_kinds_table() -> str:
+    """Every method kind of the registry (built-in, and installed plugins): ``method.kind``, its
+    class and what it runs."""
+    from snell_bench.methods import method_class, method_kinds
+
+    rows = []
+    for kind in method_kinds():
+        cls = method_class(kind)
+        rows.append([_code(kind), _code(f"{cls.__module__}.{cls.__qualname__}"), cls.description])
+    return _table(["method.kind", "class", "what it runs"], rows)
+
+
+def kit_fields_table() -> str:
+    """The benchmark kit's fields (``snell_bench.kit.schema.FIELDS``) and its schema version."""
+    from snell_bench.kit.schema import FIELDS, KIT_VERSION
+
+    rows = [[_code(f.name), f.type + (", nullable" if f.optional else ""), f.unit, f.description] for f in FIELDS]
+    return f"Schema version **{KIT_VERSION}**.\n\n" + _table(
+        ["field", "type", "unit / convention", "description"], rows
+    )
 
 
 def _fmt(value: Any, fmt: str) -> str:
@@ -602,7 +664,7 @@ def results_table(experiment: str, table: str, page_dir: str) -> str:
     info = meta.get("tables", {}).get(table, {})
     frame = pd.read_csv(csv)
     if table == "tradeoff_settings":
-        specs = {**_TRADEOFF_COLUMNS, "n": ("n (scenes)", None, "{}"), "pareto": ("Pareto", None, "{}")}
+        specs = {**_tradeoff_columns(), "n": ("n (scenes)", None, "{}"), "pareto": ("Pareto", None, "{}")}
         frame["n"] = frame["n"].astype(str)
         frame["pareto"] = frame["pareto"].fillna("").astype(str)
         keys = [k for k in ("axis", "setting") if k in frame.columns]
@@ -649,6 +711,12 @@ def _expand(kind: str, args: list[str], page_dir: str) -> str:
         return config_group(args[0])
     if kind == "results" and len(args) == 2:
         return results_table(args[0], args[1], page_dir)
+    if kind == "metrics" and not args:
+        return metrics_table()
+    if kind == "method-kinds" and not args:
+        return method_kinds_table()
+    if kind == "kit-fields" and not args:
+        return kit_fields_table()
     raise PluginError(f"unknown marker snell:{kind} {' '.join(args)} (see tools/docs_hooks.py)")
 
 
