@@ -36,7 +36,6 @@ method; a sweep setting: scene x setting). :func:`run_cells` runs a list of them
 from __future__ import annotations
 
 import functools
-import hashlib
 import logging
 import traceback
 from collections import Counter
@@ -54,7 +53,7 @@ from snell_bench.experiment.locks import CLAIM_NAMES, DEFAULT_TTL_S, LOCK_NAME, 
 from snell_bench.experiment.plan import ABSENT, flatten, result_settings, settings_diff, settings_hash
 from snell_bench.experiment.reports.records import load_record
 from snell_bench.pipeline import Skip
-from snell_bench.utils.io import write_json, write_text
+from snell_bench.utils.io import file_sha256, write_json, write_text
 
 log = logging.getLogger(__name__)
 
@@ -168,14 +167,6 @@ def read_record(path: Path, schema: dict | None = None) -> dict | None:
 
 
 # ---------------------------------------------------------------------------- files of a cell
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def cell_files(folder: Path, record_name: str) -> dict[str, dict]:
     """``{relative path: {"bytes": size, "sha256": hash}}`` of every file of a cell folder (hidden
     files, such as the lock and temporaries, and the record itself left out)."""
@@ -183,7 +174,7 @@ def cell_files(folder: Path, record_name: str) -> dict[str, dict]:
     for path in sorted(folder.rglob("*")):
         rel = path.relative_to(folder)
         if path.is_file() and rel.as_posix() != record_name and not any(p.startswith(".") for p in rel.parts):
-            out[rel.as_posix()] = {"bytes": path.stat().st_size, "sha256": _sha256(path)}
+            out[rel.as_posix()] = {"bytes": path.stat().st_size, "sha256": file_sha256(path)}
     return out
 
 
@@ -194,7 +185,7 @@ def files_problem(folder: Path, record: dict) -> str | None:
         path = folder / rel
         if not path.is_file():
             return f"{rel} is missing"
-        if path.stat().st_size != want.get("bytes") or _sha256(path) != want.get("sha256"):
+        if path.stat().st_size != want.get("bytes") or file_sha256(path) != want.get("sha256"):
             return f"{rel} has changed since the cell finished"
     return None
 

@@ -48,7 +48,15 @@ from snell_bench.kit.schema import (
 )
 from snell_bench.pipeline.cell import cell_seed, full_prompt, object_phrase
 from snell_bench.pipeline.scoring import clip_prompt
-from snell_bench.utils.io import atomic_write, atomic_write_bytes, save_npy, save_png, write_json, write_text
+from snell_bench.utils.io import (
+    atomic_write,
+    atomic_write_bytes,
+    file_sha256,
+    save_npy,
+    save_png,
+    write_json,
+    write_text,
+)
 
 log = logging.getLogger(__name__)
 
@@ -233,8 +241,6 @@ def _arrow_schema():
 def write_manifest(root: Path, rows: list[dict]) -> dict[str, str]:
     """``manifest.parquet`` (the types of :data:`~snell_bench.kit.schema.FIELDS`) and
     ``manifest.jsonl``; returns ``{file name: SHA-256}``."""
-    import hashlib
-
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -242,7 +248,7 @@ def write_manifest(root: Path, rows: list[dict]) -> dict[str, str]:
     atomic_write(root / MANIFEST, lambda f: pq.write_table(table, f))
     text = "".join(json.dumps(r, ensure_ascii=False, allow_nan=False) + "\n" for r in rows)
     write_text(root / MANIFEST_JSONL, text)
-    return {name: hashlib.sha256((root / name).read_bytes()).hexdigest() for name in (MANIFEST, MANIFEST_JSONL)}
+    return {name: file_sha256(root / name) for name in (MANIFEST, MANIFEST_JSONL)}
 
 
 def _created_by() -> str:

@@ -18,7 +18,6 @@ unfinished again (:meth:`Images.stale`).
 from __future__ import annotations
 
 import functools
-import hashlib
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -31,23 +30,14 @@ from snell_bench.methods.base import Method
 from snell_bench.methods.cost import Basis, Estimate, ModelNeed
 from snell_bench.optics.warps import WarpSet
 from snell_bench.pipeline.cell import CellInputs, CellResult, Skip
-from snell_bench.utils.io import from_uint8, to_uint8
+from snell_bench.utils.io import file_sha256, from_uint8, to_uint8
 from snell_bench.utils.tensors import hwc_to_bchw
 from snell_bench.utils.timing import Timer
 
-__all__ = ["Images", "DEFAULT_LABEL", "file_sha256"]
+__all__ = ["Images", "DEFAULT_LABEL", "group_of", "kit_problems"]
 
 #: ``conf/method/images.yaml``'s label: the rows are then labelled by the submission's folder.
 DEFAULT_LABEL = "Images"
-
-
-def file_sha256(path: Path) -> str:
-    """The SHA-256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _source(cfg: DictConfig) -> tuple[Path, dict[str, Path]]:

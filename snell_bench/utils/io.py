@@ -33,6 +33,7 @@ __all__ = [
     "json_default",
     "json_safe",
     "json_hash",
+    "file_sha256",
     "umask_mode",
 ]
 
@@ -103,6 +104,15 @@ def json_safe(obj: Any) -> Any:
     if isinstance(obj, float) and not np.isfinite(obj):
         return None
     return obj
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file's bytes (hex), read in 1 MiB blocks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def json_hash(obj: Any, length: int = 16) -> str:

@@ -2,7 +2,6 @@
 _target_, an installed plugin by its entry point."""
 
 import importlib
-import sys
 
 import numpy as np
 import pytest
@@ -118,30 +117,25 @@ def test_an_installed_plugin_is_a_kind_and_a_method_config(tmp_path, monkeypatch
     """An entry point of snell_bench.methods, as a pip-installed package declares it: method=<name>
     composes with no YAML of its own."""
     from hydra.core.config_store import ConfigStore
+    from plugins import installed_plugin
 
     from snell_bench.methods import registry
 
     compose_module = importlib.import_module("snell_bench.config.compose")  # the module, not its function
-
-    (tmp_path / "plug_method.py").write_text(
-        "from snell_bench.methods import Method\nclass Plugged(Method):\n    default_label = 'Plugged in'\n"
-    )
-    dist = tmp_path / "plug_method-0.1.dist-info"
-    dist.mkdir()
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: plug-method\nVersion: 0.1\n")
-    (dist / "entry_points.txt").write_text("[snell_bench.methods]\nplugged = plug_method:Plugged\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    importlib.invalidate_caches()
-    caches = (registry._entry_points, registry.method_class, compose_module.plugin_methods)
-    for c in caches:
-        c.cache_clear()
+    source = "from snell_bench.methods import Method\nclass Plugged(Method):\n    default_label = 'Plugged in'\n"
+    caches = [registry._entry_points, registry.method_class, compose_module.plugin_methods]
     try:
-        assert "plugged" in method_kinds()
-        cfg = compose(["method=plugged"])
-        assert cfg.method.kind == "plugged" and cfg.method.label == "Plugged in"
-        assert type(method_of(cfg)).__name__ == "Plugged"
+        with installed_plugin(
+            tmp_path,
+            monkeypatch,
+            "plug_method",
+            source,
+            {"snell_bench.methods": "plugged = plug_method:Plugged"},
+            caches,
+        ):
+            assert "plugged" in method_kinds()
+            cfg = compose(["method=plugged"])
+            assert cfg.method.kind == "plugged" and cfg.method.label == "Plugged in"
+            assert type(method_of(cfg)).__name__ == "Plugged"
     finally:
         ConfigStore.instance().repo["method"].pop("plugged.yaml", None)
-        sys.modules.pop("plug_method", None)
-        for c in caches:
-            c.cache_clear()

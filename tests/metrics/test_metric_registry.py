@@ -109,30 +109,19 @@ def test_a_metric_needing_the_true_render_is_left_out_without_one(pair):
 
 def test_an_installed_metric_is_found_by_its_entry_point(tmp_path, monkeypatch):
     """An entry point of snell_bench.metrics, as a pip-installed plugin declares it."""
-    import importlib
-    import sys
+    from plugins import installed_plugin
 
     from snell_bench.metrics import registry
 
-    pkg = tmp_path / "plug_metrics.py"
-    pkg.write_text(
+    source = (
         "from snell_bench.metrics import MetricSpec\n"
         "SPEC = MetricSpec('tmp_name', 'Plugged', False, '{:.1f}', lambda x: 1.5)\n"
     )
-    dist = tmp_path / "plug_metrics-0.1.dist-info"
-    dist.mkdir()
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: plug-metrics\nVersion: 0.1\n")
-    (dist / "entry_points.txt").write_text("[snell_bench.metrics]\nplugged = plug_metrics:SPEC\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    importlib.invalidate_caches()
-    registry._entry_points.cache_clear()
-    registry.load_metric.cache_clear()
-    try:
+    caches = [registry._entry_points, registry.load_metric]
+    with installed_plugin(
+        tmp_path, monkeypatch, "plug_metrics", source, {"snell_bench.metrics": "plugged = plug_metrics:SPEC"}, caches
+    ):
         assert "plugged" in registry.installed_metrics()
         spec = load_metric("plugged")
         assert spec.name == "plugged" and spec.label == "Plugged" and "entry point" in spec.source
         assert metric_spec("plugged").label == "Plugged"
-    finally:
-        sys.modules.pop("plug_metrics", None)
-        registry._entry_points.cache_clear()
-        registry.load_metric.cache_clear()
