@@ -8,7 +8,9 @@ Layout of a kit (``job=export``, ``<export.dir>/<experiment>/``)::
     kit.json             the schema version, the experiment, the scoring settings, counts and checksums
     manifest.parquet     one row per (scene, variation, object) group: the fields of :data:`FIELDS`
     manifest.jsonl       the same rows as JSON Lines (no pandas needed)
-    <scene>-<variation>/<object>/   the group's files (each named in its row, relative to the kit)
+    summary.json         the counts of the export's last run (exported, kept, failed)
+    <scene>-<variation>/<object>/   the group's files (each named in its row, relative to the kit),
+                         its config.yaml (the settings it was made with) and entry.json (its record)
 
 A group's id is ``<scene>-<variation>/<object>`` (:func:`kit_id`), the same as its folder in the
 run and in the kit; an image made for it is ``<id>.png`` in a submission folder
