@@ -518,12 +518,12 @@ def metrics_table() -> str:
     rows = [
         [
             _code(m.name),
-            m.label,
+            _plain(m.label),
             m.arrow,
             _code(m.format),
             ", ".join(m.needs),
             ", ".join(m.protocols),
-            m.description,
+            _plain(m.description),
         ]
         for m in specs
     ]
@@ -538,7 +538,7 @@ def method_kinds_table() -> str:
     rows = []
     for kind in method_kinds():
         cls = method_class(kind)
-        rows.append([_code(kind), _code(f"{cls.__module__}.{cls.__qualname__}"), cls.description])
+        rows.append([_code(kind), _code(f"{cls.__module__}.{cls.__qualname__}"), _plain(cls.description)])
     return _table(["method.kind", "class", "what it runs"], rows)
 
 
@@ -546,7 +546,10 @@ def kit_fields_table() -> str:
     """The benchmark kit's fields (``snell_bench.kit.schema.FIELDS``) and its schema version."""
     from snell_bench.kit.schema import FIELDS, KIT_VERSION
 
-    rows = [[_code(f.name), f.type + (", nullable" if f.optional else ""), f.unit, f.description] for f in FIELDS]
+    rows = [
+        [_code(f.name), f.type + (", nullable" if f.optional else ""), _plain(f.unit), _plain(f.description)]
+        for f in FIELDS
+    ]
     return f"Schema version **{KIT_VERSION}**.\n\n" + _table(
         ["field", "type", "unit / convention", "description"], rows
     )
