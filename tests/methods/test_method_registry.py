@@ -111,6 +111,21 @@ def test_a_users_method_runs_in_the_grid_beside_snellcaster(tmp_path):
     img = np.asarray(Image.open(cell / "image.png"))
     inside = np.asarray(Image.open(cell / "mask.png")) > 127
     assert (img[inside] == 128).all()  # 0.5 as 8 bits
+    # job=plan and job=status know it as the runner does: done, with no time basis of its own
+    from snell_bench.experiment.estimate import format_plan, make_plan
+    from snell_bench.experiment.status import grid_status
+
+    plan = make_plan(compose(over))
+    assert [c.state for c in plan.cells] == ["done"]
+    assert "Flat" in format_plan(plan) and "no time basis" in format_plan(plan)
+    assert grid_status(compose(over)).counts["done"] == 1
+    # its params are settings: a finished cell of other params is named, then recomputed on request
+    from snell_bench.experiment.cells import SettingsChanged
+
+    other = [o if o != "+method.params.level=0.5" else "+method.params.level=0.25" for o in over]
+    with pytest.raises(SettingsChanged, match=r"method.params.level: 0.5 -> 0.25"):
+        run_grid(compose(other))
+    assert run_grid(compose([*other, "grid.on_change=recompute"]))["ok"] == 1
 
 
 def test_an_installed_plugin_is_a_kind_and_a_method_config(tmp_path, monkeypatch):
