@@ -31,7 +31,6 @@ import difflib
 import math
 import os
 import re
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
@@ -40,8 +39,8 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import InterpolationResolutionError, OmegaConfBaseException
 
 from snell_bench.config.camera import MAX_FOV_DEG, fov_problem
-from snell_bench.config.choices import DTYPE_NAMES, METHOD_ENTRY_POINTS, METHOD_KINDS, Job, Source, dtype_name
-from snell_bench.config.compose import searchpath_overrides
+from snell_bench.config.choices import DTYPE_NAMES, METHOD_KINDS, Job, Source, dtype_name
+from snell_bench.config.compose import plugin_methods, searchpath_overrides
 from snell_bench.config.errors import MAX_SEED, ConfigError, Problems, is_int, is_number
 from snell_bench.config.grid import axis_settings, check_names, check_unique, object_dir_name, parse_object_spec
 from snell_bench.config.materials import MATERIALS, ior_out_of_range, ior_range_problem, resolve_ior
@@ -540,7 +539,7 @@ def _method(cfg: DictConfig, out: list[str]) -> None:
                 "snell_bench.methods.Method subclass in an installed package (my_pkg.methods.MyMethod)"
             )
         return
-    installed = sorted(ep.name for ep in entry_points(group=METHOD_ENTRY_POINTS))
+    installed = sorted(plugin_methods())  # the installed plugins' kinds (read once per process)
     if str(kind) not in (*METHOD_KINDS, *installed):
         out.append(
             f"method.kind={kind!r} is unknown; use one of {[*METHOD_KINDS, *installed]} (installed plugins add "
