@@ -12,6 +12,7 @@ The result is what a grid cell of the same image records under ``metrics`` and `
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -28,6 +29,17 @@ __all__ = ["score_image", "NO_REFERENCE"]
 
 #: The reason a kit row without a reference gives its reference metrics, where it records none.
 NO_REFERENCE = "the kit has no reference for this group"
+
+
+#: The scoring settings that choose the weight-backed scorers (``metrics.<key>``).
+_WEIGHT_KEYS = ("lpips_weights", "clip_weights", "image_reward_python")
+
+
+@functools.lru_cache(maxsize=4)
+def _scorers(*weights: Any):
+    """The scorers of these weights, built once per process: a notebook scoring a kit row by row
+    loads LPIPS and CLIP once, not per image."""
+    return load_scorers(dict(zip(_WEIGHT_KEYS, weights)))
 
 
 def _pixels(image: Any, size: tuple[int, int]) -> tuple[np.ndarray, Path | None]:
@@ -70,7 +82,7 @@ def score_image(
             inside it only.
         scorers: the weight-backed scorers (:func:`~snell_bench.metrics.load_scorers`); None: built
             from the kit's scoring settings (LPIPS, CLIP, ImageReward missing with the reason where
-            their weights are not set).
+            their weights are not set), built once per process for the same weights.
         scoring: settings that replace the kit's (``protocol``, ``files``, ``lpips_box_range``,
             ``score_file``, ``extra``, and the weights' keys of ``metrics``).
 
@@ -95,7 +107,7 @@ def score_image(
     reference, mask = kit.array(row, "reference_float"), kit.array(row, "metric_mask")
     true, object_mask = kit.array(row, "true_render_float"), kit.array(row, "object_mask")
     if scorers is None:
-        scorers = load_scorers(s)
+        scorers = _scorers(*(s.get(k) for k in _WEIGHT_KEYS))
     return score_cell(
         pixels,
         reference,
