@@ -106,14 +106,16 @@ docs-serve: $(DOCS_STAMP)
 test-slow: setup setup-cycles system-deps-slurm system-deps-browser
 	HF_HUB_OFFLINE=1 $(PY) -m pytest -q -m slow
 
-# import contracts (pyproject.toml [tool.importlinter]) and import cycles between modules: both
-# run, and lint fails if either fails
+# import contracts (pyproject.toml [tool.importlinter]), import cycles between modules, and the
+# sizes of modules (500 lines) and functions (80; tools/size_exceptions.txt may shrink, never grow):
+# all run, and lint fails if any fails
 lint: setup
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	status=0; \
 	$(VENV)/bin/lint-imports --no-cache || status=1; \
 	$(PY) tools/check_imports.py snell_bench || status=1; \
+	$(PY) tools/check_size.py snell_bench || status=1; \
 	exit $$status
 
 format: setup
