@@ -748,17 +748,16 @@ class GridConfig:
     shards: int = 1
     #: Which shard this job is (0 .. shards - 1); ``null``: every group.
     shard: Optional[int] = None
-    #: How a process claims a cell before computing it: ``flock`` (``fcntl.flock`` on
-    #: ``<cell>/.lock``; the kernel frees the lock of a dead process), ``lease`` (a lease file
-    #: ``<cell>/.lease`` renewed every ``lease_ttl_s / 3`` s and broken once not renewed for
-    #: ``lease_ttl_s``, by the file system's clock: for Lustre without ``flock``, NFS with
-    #: ``local_lock``, BeeGFS) or ``auto`` (``lease`` where flock raises or the mount keeps it
+    #: How a process claims a cell before computing it: ``flock`` (filelock's ``fcntl.flock`` on
+    #: ``<cell>/.lock``; the kernel frees the lock of a dead process), ``lease`` (flufl.lock's
+    #: hard-link lease ``<cell>/.lease``, renewed every ``lease_ttl_s / 3`` s and broken 10 s after
+    #: it expires: for Lustre without ``flock``, NFS with ``local_lock``, BeeGFS) or ``auto`` (``lease`` where flock raises or the mount keeps it
     #: local to one machine, else ``flock``; snell_bench/experiment/locks.py). Every job sharing a
     #: run folder must claim the same way. Not a result setting.
     lock: str = "auto"
     #: Seconds a lease lives without renewal: a cell whose process died on another machine is
-    #: free again this long after (at once on the same machine). Keep it well above the file
-    #: system's timestamp granularity (1 s on some NFS servers), e.g. >= 30.
+    #: free again this long (plus 10 s) after its last renewal (at once on the same machine).
+    #: Leases are stamped to the second: keep it >= 3, e.g. >= 30.
     lease_ttl_s: float = 120.0
     #: Exit with status 0 even when cells failed (for sweeps that expect some to fail); else the
     #: run's exit status is non-zero when any cell failed.

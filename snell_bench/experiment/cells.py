@@ -16,8 +16,8 @@ method; a sweep setting: scene x setting). :func:`run_cells` runs a list of them
 - a process claims a cell (:func:`~snell_bench.experiment.locks.claim`) before computing it, so
   sweeps running at once into one folder compute each cell once: with ``fcntl.flock`` on
   ``.lock`` (the kernel frees the lock of a process that dies) or, where flock is missing or holds
-  on one machine only, with a lease file ``.lease`` renewed by a heartbeat and broken once it
-  expires (``lock``: ``auto``, ``flock`` or ``lease``; :mod:`snell_bench.experiment.locks`);
+  on one machine only, with a lease ``.lease`` (flufl.lock) renewed by a heartbeat and broken once
+  it expires (``lock``: ``auto``, ``flock`` or ``lease``; :mod:`snell_bench.experiment.locks`);
 - ``fn(cell, shared)`` computes one cell and returns its record's fields; it raises
   :class:`~snell_bench.pipeline.Skip` for a method that cannot run here (``skipped`` with the
   reason) and any other exception for a failure (``failed`` with the reason and traceback); the
@@ -266,9 +266,9 @@ def changed_settings(cell: Cell, record: dict, current: dict, current_hash: str)
 def _remove_leftovers(folder: Path) -> None:
     """Remove the temporaries (``.<name>.<random>.tmp`` / ``.link``) a killed process left in a
     cell folder this process has claimed: no other writer can be using them. The claim files
-    (``.lock``, ``.lease``) stay."""
+    (``.lock``, ``.lease``, ``.lease|...``) stay."""
     for path in folder.glob(".*"):
-        if path.name not in CLAIM_NAMES and path.suffix in (".tmp", ".link") and path.is_file():
+        if not path.name.startswith(CLAIM_NAMES) and path.suffix in (".tmp", ".link") and path.is_file():
             log.info("removing %s, left by an interrupted run", path)
             path.unlink(missing_ok=True)
 

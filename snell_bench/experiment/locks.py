@@ -1,43 +1,23 @@
-"""Claiming a cell folder for one process: ``flock`` locks or lease files, behind :func:`claim`.
+"""Claiming a cell folder for one process: ``flock`` (filelock) or an NFS-safe lease (flufl.lock).
 
 Two kinds of claim, chosen by ``grid.lock``:
 
-- ``flock``: ``fcntl.flock`` (exclusive, non-blocking) on ``<folder>/.lock``. The kernel drops
-  the lock when its process dies, so a lock left by a killed sweep is free at once. Needs a file
-  system whose ``flock`` works across all the machines that share the folder.
-- ``lease``: a lease file ``<folder>/.lease`` that only plain file operations manage, for file
-  systems where ``flock`` raises (Lustre mounted without ``flock``) or holds on one machine only
-  (NFS with ``local_lock``, Lustre with ``localflock``).
-
-  - Format: two lines, ``<pid> <host>`` (the owner, as in ``.lock``) and a JSON object
-    ``{"host", "pid", "pidns", "token", "ttl_s", "written", "expires"}``: ``token`` is 32 random
-    hex digits naming this claim, ``ttl_s`` the lease's lifetime, ``written`` and ``expires``
-    the writer's clock at the last renewal (Unix seconds; for people, never compared).
-  - Creation: the content goes to a temporary file first, which is then hard-linked to
-    ``.lease`` (``link`` fails when the name exists, so exactly one claimant wins, and nobody
-    ever reads a half-written lease). This is also the creation NFS has always made atomic: a
-    ``link`` whose reply was lost and retried reports "exists" although it worked, so "exists"
-    with a link count of 2 on the temporary counts as won. On a file system without hard links
-    the lease is created with ``O_CREAT | O_EXCL`` (atomic on NFS v3 and later); a contender
-    that reads it half written treats it as held.
-  - Heartbeat: a thread renews the lease every ``ttl_s / 3`` seconds: it reads the file, checks
-    the token is still its own, writes the new content to a temporary and renames it over
-    ``.lease``. A lease found taken (another token) or missing, or not renewed for ``ttl_s``
-    because of errors, is lost: the heartbeat stops and logs it (the cell may then be computed
-    twice; its record is written atomically either way).
-  - Expiry: a lease is stale when its file's modification time is more than the ``ttl_s`` it
-    records older than the modification time of a probe file the contender writes into the same
-    folder just then. Both times are stamped by the file system (the NFS server's clock; on
-    Lustre the writing clients' clocks, which a cluster keeps within a second by NTP), so the
-    contender's own clock never enters and skew between the machines cancels. A lease written by
-    a process on this machine (same host name and PID namespace) whose process no longer exists
-    is stale at once.
-  - Breaking: a contender renames a stale ``.lease`` to a unique name, reads what it moved and
-    compares it (inode, modification time, content) with what it judged stale; the same: it
-    deletes it and creates its own; not the same (renewed or replaced meanwhile): it links it
-    back and leaves the cell to its owner.
-  - Release: the lease is removed the same way, only while it still holds this claim's token.
-
+- ``flock``: :class:`filelock.UnixFileLock` (``fcntl.flock``, exclusive, non-blocking) on
+  ``<folder>/.lock``. The kernel drops the lock when its process dies, so a lock left by a killed
+  sweep is free at once. The file stays in place (so that every claimant locks the same inode);
+  while held it holds its owner's ``<pid> <host>`` line, which ``job=status`` shows, and it is
+  emptied on release. Needs a file system whose ``flock`` works across all the machines that
+  share the folder.
+- ``lease``: :class:`flufl.lock.Lock` on ``<folder>/.lease``, for file systems where ``flock``
+  raises (Lustre mounted without ``flock``) or holds on one machine only (NFS with
+  ``local_lock``, Lustre with ``localflock``). The claim is a hard link from a claim file
+  ``.lease|<host>|<pid>|<n>`` (which the lease file's text names) to ``.lease``: ``link`` is the
+  creation NFS makes atomic. Its lifetime is ``grid.lease_ttl_s``, stamped as the lease file's
+  modification time and renewed every ``ttl / 3`` seconds by a heartbeat thread; a lease found
+  taken or removed while held is lost (logged: the cell may then be computed twice; its record
+  is written atomically either way). A contender breaks a lease expired by more than flufl's
+  clock slop (10 s, the skew allowed between the machines' clocks), or at once when its owner is
+  a process of this machine that no longer exists.
 - ``auto`` (the default): per file system (device of the folder), once per process: ``lease``
   when ``flock`` on a probe file raises (``ENOLCK``, ``EOPNOTSUPP``, ``ENOSYS``, ``EINVAL``, ...)
   or when ``/proc/mounts`` says the folder's mount has a ``flock`` that other machines do not
@@ -45,15 +25,13 @@ Two kinds of claim, chosen by ``grid.lock``:
   ``flock``, BeeGFS); else ``flock``.
 
 Every process working in one folder must claim the same kind (``auto`` picks the same one on
-every machine that mounts the file system alike). Temporaries are named ``.<hex>.lease-*.tmp``:
-a killed process's are removed as leftovers by the next process that computes the cell.
+every machine that mounts the file system alike).
 """
 
 from __future__ import annotations
 
 import errno
 import fcntl
-import json
 import logging
 import math
 import os
@@ -66,9 +44,11 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from datetime import datetime, timedelta
 from pathlib import Path
 
-from snell_bench.utils.io import umask_mode
+import filelock
+from flufl.lock import Lock, LockState, NotLockedError, TimeOutError
 
 log = logging.getLogger(__name__)
 
@@ -91,21 +71,12 @@ __all__ = [
 
 KINDS = ("auto", "flock", "lease")
 LOCK_NAME = ".lock"  #: the ``flock`` kind's file
-LEASE_NAME = ".lease"  #: the ``lease`` kind's file
+LEASE_NAME = ".lease"  #: the ``lease`` kind's file (its claim files are ``.lease|...``)
 CLAIM_NAMES = (LOCK_NAME, LEASE_NAME)
 DEFAULT_TTL_S = 120.0
 
 HOST = socket.gethostname()
-
-
-def _pid_namespace() -> str:
-    try:
-        return os.readlink("/proc/self/ns/pid")
-    except OSError:
-        return ""
-
-
-PIDNS = _pid_namespace()
+CLOCK_SLOP = timedelta(seconds=10)  #: flufl.lock's: a lease is broken this long after it expired
 
 
 class LockUnsupported(RuntimeError):
@@ -246,7 +217,7 @@ def choose_lock(kind: str, folder: str | os.PathLike, *, key: str = "grid.lock")
 def claim(folder: str | os.PathLike, kind: str = "auto", ttl_s: float = DEFAULT_TTL_S) -> Iterator[bool]:
     """Claim ``folder`` for the block: ``True`` when this process has it, ``False`` when another
     one holds it. ``kind``: ``flock``, ``lease`` or ``auto`` (:func:`choose_lock`); ``ttl_s``:
-    a lease's lifetime without renewal. The claim file is removed when the block ends."""
+    a lease's lifetime without renewal."""
     folder = Path(folder)
     kind = choose_lock(kind, folder)
     if kind == "flock":
@@ -282,92 +253,25 @@ def hold(
 
 @contextmanager
 def _flock(folder: Path) -> Iterator[bool]:
-    """Hold ``folder/.lock`` (``fcntl.flock``, exclusive, non-blocking) for the block. The kernel
-    drops the lock when its process dies, so a lock left by a killed sweep is free again."""
-    path = folder / LOCK_NAME
-    while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, umask_mode())
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            yield False
-            return
-        except BaseException:
-            os.close(fd)
-            raise
-        try:  # the file may have been removed (and another made) while we waited: lock the one at path
-            same = os.fstat(fd).st_ino == os.stat(path).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            break
-        os.close(fd)
+    """Hold ``folder/.lock`` for the block (filelock's flock, non-blocking), with the owner's line in it."""
+    lock = filelock.UnixFileLock(str(folder / LOCK_NAME), timeout=0, thread_local=False)
     try:
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()} {HOST}\n".encode())
+        lock.acquire()
+    except filelock.Timeout:
+        yield False
+        return
+    owner = folder / LOCK_NAME
+    try:
+        owner.write_text(f"{os.getpid()} {HOST}\n")
         yield True
     finally:
         try:
-            os.unlink(path)
+            owner.write_text("")
         finally:
-            os.close(fd)
+            lock.release()
 
 
 # ---------------------------------------------------------------------------- leases
-@dataclass(frozen=True)
-class _Seen:
-    """A lease file as read: its bytes, inode and modification time."""
-
-    data: bytes
-    ino: int
-    mtime_ns: int
-
-    def record(self) -> dict | None:
-        try:
-            rec = json.loads(self.data.decode().strip().splitlines()[-1])
-        except (ValueError, IndexError):
-            return None
-        return rec if isinstance(rec, dict) else None
-
-
-def _read(path: Path) -> _Seen | None:
-    """The file at ``path`` (opened, so NFS revalidates its attributes), or ``None`` when missing."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except FileNotFoundError:
-        return None
-    try:
-        st = os.fstat(fd)
-        data = os.read(fd, 1 << 16)
-    finally:
-        os.close(fd)
-    return _Seen(data, st.st_ino, st.st_mtime_ns)
-
-
-def _temporary(folder: Path, what: str) -> Path:
-    return folder / f".{secrets.token_hex(8)}.lease-{what}.tmp"
-
-
-def _write_new(path: Path, data: bytes) -> None:
-    """Write ``data`` to a file ``path`` that must not exist yet."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, umask_mode())
-    try:
-        os.write(fd, data)
-    finally:
-        os.close(fd)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError, ValueError):
-        return True
-    return True
-
-
 class Lease:
     """One claim of a lease file (see the module docs): :meth:`acquire`, then :meth:`release`.
 
@@ -378,149 +282,70 @@ class Lease:
 
     def __init__(self, path: str | os.PathLike, ttl_s: float = DEFAULT_TTL_S) -> None:
         self.path = Path(path)
-        self.folder = self.path.parent
         self.ttl_s = float(ttl_s)
-        self.token = secrets.token_hex(16)
+        self.lock = Lock(str(self.path), lifetime=timedelta(seconds=self.ttl_s))
         self.lost: str | None = None  #: why the lease stopped being ours while held, or None
         self._stop = threading.Event()
         self._heartbeat: threading.Thread | None = None
 
-    def content(self) -> bytes:
-        """The lease file's text for this claim now."""
-        now = time.time()
-        rec = {
-            "host": HOST,
-            "pid": os.getpid(),
-            "pidns": PIDNS,
-            "token": self.token,
-            "ttl_s": self.ttl_s,
-            "written": round(now, 3),
-            "expires": round(now + self.ttl_s, 3),
-        }
-        return f"{os.getpid()} {HOST}\n{json.dumps(rec)}\n".encode()
-
-    # ------------------------------------------------------------------------ taking it
     def acquire(self) -> bool:
-        """Create the lease, breaking a stale one first; ``False`` when another process holds it."""
-        for _ in range(4):
-            if self._create():
-                self._heartbeat = threading.Thread(target=self._renew_loop, name="lease-heartbeat", daemon=True)
-                self._heartbeat.start()
-                return True
-            seen = _read(self.path)
-            if seen is None:
-                continue  # released meanwhile
-            why = self.stale(seen)
+        """Take the lease, breaking a stale one first; ``False`` when another process holds it."""
+        for _ in range(3):
+            try:
+                self.lock.lock(timeout=timedelta(0))
+                break
+            except TimeOutError:
+                pass
+            why = self._stale()
             if why is None:
+                if self.path.exists():
+                    return False
+                continue  # released meanwhile
+            if why == "gone":  # make it expired, so that flufl's lock() breaks it
+                os.utime(self.path, (0, 0))
+            try:  # lock() breaks an expired lease once its timeout allows a second round
+                self.lock.lock(timeout=timedelta(seconds=0.05))
+            except TimeOutError:
                 return False
-            if self._take_aside(seen):
-                log.info("broke the lease %s: %s", self.path, why)
-        return False
-
-    def _create(self) -> bool:
-        tmp = _temporary(self.folder, "new")
-        try:
-            _write_new(tmp, self.content())
-        except FileNotFoundError:
-            return False  # removed as a leftover by the cell's holder: the cell is held
-        try:
-            os.link(tmp, self.path)
-            return True
-        except FileExistsError:
-            try:  # NFS: a retried link that had worked reports "exists"
-                return os.stat(tmp).st_nlink == 2
-            except FileNotFoundError:
-                return False
-        except FileNotFoundError:
+            log.info("broke the lease %s (%s)", self.path, why)
+            break
+        else:
             return False
-        except OSError as e:
-            if e.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.ENOSYS, errno.EMLINK, errno.EXDEV):
-                raise
-        finally:
-            tmp.unlink(missing_ok=True)
-        try:  # no hard links here: an exclusive create
-            _write_new(self.path, self.content())
-        except FileExistsError:
-            return False
+        self._heartbeat = threading.Thread(target=self._renew_loop, name="lease-heartbeat", daemon=True)
+        self._heartbeat.start()
         return True
 
-    def stale(self, seen: _Seen) -> str | None:
-        """Why the lease ``seen`` may be broken (see the module docs), or ``None``: it is held."""
-        rec = seen.record() or {}
-        if rec.get("host") == HOST and rec.get("pidns", "") == PIDNS and isinstance(rec.get("pid"), int):
-            if not _alive(rec["pid"]):
-                return f"its process {rec['pid']} on this machine is gone"
+    def _stale(self) -> str | None:
+        """Why the lease there may be broken (``gone``: its owner was a process of this machine that
+        no longer exists; ``expired``), or ``None``. Only a lease whose claim file is of this folder
+        and name is ever broken (breaking deletes the claim file it names)."""
         try:
-            ttl = check_ttl(rec.get("ttl_s", self.ttl_s))
-        except ValueError:
-            ttl = self.ttl_s
-        now = self._file_system_now_ns()
-        if now is None:
-            return None
-        age = (now - seen.mtime_ns) / 1e9
-        if age > ttl:
-            return f"not renewed for {age:.1f} s (ttl {ttl:g} s)"
-        return None
+            _host, _pid, name = self.lock.details
+            if name != self.lock.lockfile:
+                return None
+            if self.lock.state is LockState.stale:
+                return "gone"
+            return "expired" if self.lock.expiration + CLOCK_SLOP < datetime.now() else None
+        except (NotLockedError, OSError):
+            return None  # released meanwhile, or not a lease flufl wrote
 
-    def _file_system_now_ns(self) -> int | None:
-        """The file system's clock now: the modification time of a probe file written in the folder."""
-        probe = _temporary(self.folder, "probe")
-        try:
-            _write_new(probe, b"\n")
-            return os.stat(probe).st_mtime_ns
-        except OSError:
-            return None
-        finally:
-            probe.unlink(missing_ok=True)
-
-    def _take_aside(self, seen: _Seen) -> bool:
-        """Move the lease ``seen`` away and delete it, atomically: ``True`` when exactly that
-        file was removed; ``False`` when the file there had changed (it is put back)."""
-        aside = _temporary(self.folder, "broken")
-        try:
-            os.rename(self.path, aside)
-        except FileNotFoundError:
-            return False
-        try:
-            moved = _read(aside)
-            if moved == seen:
-                return True
-            try:  # another lease than the one judged: put it back (never over a newer one)
-                os.link(aside, self.path)
-            except FileExistsError:
-                log.warning("a lease of %s was replaced while being broken; its owner loses it", self.path)
-            except OSError:
-                if not self.path.exists():
-                    os.rename(aside, self.path)
-            return False
-        finally:
-            aside.unlink(missing_ok=True)
-
-    # ------------------------------------------------------------------------ holding it
     def _renew_loop(self) -> None:
         interval = self.ttl_s / 3
         last_ok = time.monotonic()
         while not self._stop.wait(interval):
             try:
-                seen = _read(self.path)
-                if seen is None or (seen.record() or {}).get("token") != self.token:
-                    owner = "" if seen is None else f" (now {seen.data.decode(errors='replace').splitlines()[0]})"
-                    self.lost = "the lease was removed" if seen is None else f"the lease was taken{owner}"
-                    break
-                tmp = _temporary(self.folder, "renew")
-                try:
-                    _write_new(tmp, self.content())
-                    os.replace(tmp, self.path)
-                finally:
-                    tmp.unlink(missing_ok=True)
+                self.lock.refresh(timedelta(seconds=self.ttl_s))
                 last_ok = time.monotonic()
+            except NotLockedError:
+                self.lost = "the lease was taken or removed"
+                break
             except OSError as e:
                 if time.monotonic() - last_ok > self.ttl_s:
                     self.lost = f"not renewed for {self.ttl_s:g} s ({type(e).__name__}: {e})"
                     break
                 log.debug("renewing %s failed (%s); trying again", self.path, e)
         if self.lost is not None:
-            log.warning("lost the claim of %s: %s; another process may compute it too", self.folder, self.lost)
+            log.warning("lost the claim of %s: %s; another process may compute it too", self.path.parent, self.lost)
 
     def release(self) -> None:
         """Stop renewing and remove the lease if it is still this claim's."""
@@ -528,6 +353,4 @@ class Lease:
         if self._heartbeat is not None:
             self._heartbeat.join()
             self._heartbeat = None
-        seen = _read(self.path)
-        if seen is not None and (seen.record() or {}).get("token") == self.token:
-            self._take_aside(seen)
+        self.lock.unlock(unconditionally=True)

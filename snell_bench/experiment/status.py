@@ -5,7 +5,7 @@ Convention:
     - A cell is ``done`` (recorded ``ok`` or ``skipped``, its files unchanged, its settings the
       run's: the runner's own test, :func:`~snell_bench.experiment.estimate.cell_states`),
       ``failed`` (recorded as failed), ``running`` (no finished record and a claim file in its
-      folder: a ``.lock`` or ``.lease*`` a process holds, with its owner), ``changed`` (finished
+      folder: a ``.lock`` holding its owner's line or a ``.lease``, with its owner), ``changed`` (finished
       with other settings, or its files changed since) or ``left``.
     - A claim file left by a killed process reads as ``running`` until the next claimant removes
       it; its owner (host and pid) is shown so it can be checked.
@@ -23,12 +23,10 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from snell_bench.experiment.estimate import GridParts, cell_states
+from snell_bench.experiment.locks import CLAIM_NAMES
 from snell_bench.experiment.runner import shard_cells
 
 __all__ = ["GridStatus", "grid_status", "format_status", "run_status"]
-
-#: Names of the files a process holds while it computes a cell (flock lock or lease).
-CLAIM_PREFIXES = (".lock", ".lease")
 
 
 @dataclass
@@ -45,14 +43,18 @@ class GridStatus:
 
 
 def _claim_owner(folder: Path) -> str | None:
-    if not folder.is_dir():
-        return None
-    for path in sorted(folder.iterdir()):
-        if path.name.startswith(CLAIM_PREFIXES):
-            try:
-                return path.read_text().strip().splitlines()[0] or path.name
-            except (OSError, IndexError):
-                return path.name
+    """``<pid> <host>`` of the process that claims ``folder`` (a ``.lock`` holding its owner's
+    line, or a ``.lease`` naming its claim file ``.lease|<host>|<pid>|<n>``), or ``None``."""
+    for name in CLAIM_NAMES:
+        try:
+            text = (folder / name).read_text(errors="replace").strip()
+        except OSError:
+            continue
+        parts = text.rsplit("|", 3)
+        if len(parts) == 4:
+            return f"{parts[2]} {parts[1]}"
+        if text:
+            return text.splitlines()[0]
     return None
 
 

@@ -1,9 +1,9 @@
 """Claiming a cell: flock locks and lease files exclude other claimants (threads and processes),
-leases are renewed while held, broken once their owner is gone, removed only by their owner;
+leases are renewed while held, broken once their owner is gone or they expired past the clock
+slop, and only when they name a claim file of their own folder; removed only by their owner;
 ``auto`` takes leases where flock raises or is local to one machine."""
 
 import errno
-import json
 import os
 import signal
 import subprocess
@@ -59,16 +59,27 @@ def dotfiles(folder):
     return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
 
 
-def lease_file(folder, *, host, pid, ttl_s, age_s=0.0, expires_in_s=None):
-    """A lease as another process would have written it, last renewed ``age_s`` ago (file time),
-    recording an expiry ``expires_in_s`` from now on its writer's clock."""
-    now = time.time()
-    rec = {"host": host, "pid": pid, "pidns": locks.PIDNS, "token": "f" * 32, "ttl_s": ttl_s}
-    rec["expires"] = now + (ttl_s - age_s if expires_in_s is None else expires_in_s)
+def lease_file(folder, *, host, pid, expires_in_s):
+    """A lease as flufl.lock writes it for another process (``pid`` on ``host``): a claim file linked
+    to ``.lease``, naming itself, whose modification time is the lease's expiry."""
     path = folder / LEASE_NAME
-    path.write_text(f"{pid} {host}\n{json.dumps(rec)}\n")
-    os.utime(path, (now - age_s, now - age_s))
+    for p in folder.iterdir():
+        if p.name.startswith(LEASE_NAME):
+            p.unlink()
+    claimfile = folder / f"{LEASE_NAME}|{host}|{pid}|12345"
+    claimfile.write_text(f"{path}|{host}|{pid}|12345")
+    os.link(claimfile, path)
+    t = time.time() + expires_in_s
+    os.utime(path, (t, t))
     return path
+
+
+def owner(folder, kind):
+    """The owner line a claim file shows (``job=status`` reads the same)."""
+    if kind == "flock":
+        return (folder / LOCK_NAME).read_text().strip()
+    _path, host, pid, _n = (folder / LEASE_NAME).read_text().split("|")
+    return f"{pid} {host}"
 
 
 def test_a_held_claim_refuses_a_thread_and_another_process_and_is_free_after(tmp_path):
@@ -77,13 +88,17 @@ def test_a_held_claim_refuses_a_thread_and_another_process_and_is_free_after(tmp
         f.mkdir()
     with claim(folders["flock"], kind="flock") as a, claim(folders["lease"], kind="lease") as b:
         assert a and b
-        assert dotfiles(folders["flock"]) == [LOCK_NAME] and dotfiles(folders["lease"]) == [LEASE_NAME]
+        assert dotfiles(folders["flock"]) == [LOCK_NAME] and dotfiles(folders["lease"])[0] == LEASE_NAME
+        assert dotfiles(folders["lease"])[1].startswith(f"{LEASE_NAME}|")  # the claim file, linked
+        assert owner(folders["flock"], "flock").split()[0] == str(os.getpid())
+        assert owner(folders["lease"], "lease").split()[0] == str(os.getpid())
         assert not in_thread(folders["flock"], "flock") and not in_thread(folders["lease"], "lease")
         proc = child("try", *[(f, kind) for kind, f in folders.items()])
         out, _ = proc.communicate(timeout=60)
         assert out.split() == ["busy", "busy"]
+    assert dotfiles(folders["flock"]) == [LOCK_NAME] and owner(folders["flock"], "flock") == ""  # emptied
+    assert dotfiles(folders["lease"]) == []  # removed
     for kind, f in folders.items():
-        assert dotfiles(f) == []  # released: nothing left
         assert in_thread(f, kind)
 
 
@@ -92,47 +107,47 @@ def test_a_lease_of_a_killed_process_on_this_machine_is_taken_at_once(tmp_path):
     try:
         assert proc.stdout.readline().strip() == "held"
         assert not in_thread(tmp_path, "lease")  # its owner lives
-        owner = (tmp_path / LEASE_NAME).read_text().splitlines()[0]
-        assert owner.split()[0] == str(proc.pid)
+        assert owner(tmp_path, "lease").split()[0] == str(proc.pid)
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
-    assert dotfiles(tmp_path) == [LEASE_NAME]  # a killed process leaves its lease
+    assert len(dotfiles(tmp_path)) == 2  # a killed process leaves its lease and claim file
     with claim(tmp_path, kind="lease", ttl_s=30) as mine:  # far from expired, but its process is gone
-        assert mine
-        assert json.loads((tmp_path / LEASE_NAME).read_text().splitlines()[1])["pid"] == os.getpid()
+        assert mine and owner(tmp_path, "lease").split()[0] == str(os.getpid())
     assert dotfiles(tmp_path) == []
 
 
-def test_an_expired_lease_is_judged_by_its_file_time_not_by_the_writers_clock(tmp_path):
-    # another machine (its pid cannot be checked here); ttl 5 s
-    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
-    dead_pid = int(gone.stdout)
-    # renewed 1 s ago by the file's time, though its writer's clock says it expired an hour ago: held
-    lease_file(tmp_path, host="node-elsewhere", pid=dead_pid, ttl_s=5, age_s=1, expires_in_s=-3600)
+def test_a_lease_is_broken_once_expired_by_more_than_the_clock_slop(tmp_path):
+    # another machine (its pid cannot be checked here)
+    lease_file(tmp_path, host="node-elsewhere", pid=4242, expires_in_s=60)
     assert not in_thread(tmp_path, "lease")
-    assert (tmp_path / LEASE_NAME).read_text().startswith(f"{dead_pid} node-elsewhere")
-    # not renewed for 60 s by the file's time, though its writer's clock (an hour ahead) says it runs: broken
-    lease_file(tmp_path, host="node-elsewhere", pid=dead_pid, ttl_s=5, age_s=60, expires_in_s=3600)
+    lease_file(tmp_path, host="node-elsewhere", pid=4242, expires_in_s=-5)  # expired, within the slop
+    assert not in_thread(tmp_path, "lease") and owner(tmp_path, "lease") == "4242 node-elsewhere"
+    lease_file(tmp_path, host="node-elsewhere", pid=4242, expires_in_s=-60)
     with claim(tmp_path, kind="lease") as mine:
-        assert mine and "node-elsewhere" not in (tmp_path / LEASE_NAME).read_text()
-    assert dotfiles(tmp_path) == []
-    # on this machine: a pid that no longer exists frees the lease at once, a live one keeps it
-    lease_file(tmp_path, host=locks.HOST, pid=os.getppid(), ttl_s=5)
-    assert not in_thread(tmp_path, "lease")
-    lease_file(tmp_path, host=locks.HOST, pid=dead_pid, ttl_s=5)
-    assert in_thread(tmp_path, "lease") and dotfiles(tmp_path) == []
+        assert mine and owner(tmp_path, "lease").split()[0] == str(os.getpid())
+    assert dotfiles(tmp_path) == []  # the old claim file went with the lease it named
+
+
+def test_a_lease_naming_a_file_elsewhere_is_never_broken(tmp_path):
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    (tmp_path / "cell").mkdir()
+    path = tmp_path / "cell" / LEASE_NAME
+    path.write_text(f"{victim}|node-elsewhere|4242|1")  # breaking deletes the claim file a lease names
+    os.utime(path, (0, 0))
+    assert not in_thread(tmp_path / "cell", "lease")
+    assert victim.read_text() == "keep me"
 
 
 def test_a_held_lease_is_renewed_past_its_ttl(tmp_path):
-    lease = Lease(tmp_path / LEASE_NAME, ttl_s=0.5)
+    lease = Lease(tmp_path / LEASE_NAME, ttl_s=1.0)
     assert lease.acquire()
     try:
-        first = os.stat(tmp_path / LEASE_NAME).st_mtime_ns
-        time.sleep(1.5)  # three lifetimes
-        assert not in_thread(tmp_path, "lease", ttl_s=0.5)
-        rec = json.loads((tmp_path / LEASE_NAME).read_text().splitlines()[1])
-        assert rec["token"] == lease.token and os.stat(tmp_path / LEASE_NAME).st_mtime_ns > first
+        first = os.stat(tmp_path / LEASE_NAME).st_mtime
+        time.sleep(2.5)  # past its lifetime
+        assert os.stat(tmp_path / LEASE_NAME).st_mtime > first  # renewed: its expiry moved on
+        assert not in_thread(tmp_path, "lease", ttl_s=1.0)
         assert lease.lost is None
     finally:
         lease.release()
@@ -142,34 +157,11 @@ def test_a_held_lease_is_renewed_past_its_ttl(tmp_path):
 def test_release_removes_only_its_own_lease_and_a_taken_lease_is_reported_lost(tmp_path):
     lease = Lease(tmp_path / LEASE_NAME, ttl_s=0.3)
     assert lease.acquire()
-    theirs = lease_file(tmp_path, host="node-elsewhere", pid=4242, ttl_s=30)  # another claimant took it
-    text = theirs.read_text()
+    theirs = lease_file(tmp_path, host="node-elsewhere", pid=4242, expires_in_s=30)  # another claimant took it
     time.sleep(0.45)  # the heartbeat finds it
-    assert lease.lost and "taken" in lease.lost and "4242 node-elsewhere" in lease.lost
+    assert lease.lost and "taken" in lease.lost
     lease.release()
-    assert theirs.read_text() == text and dotfiles(tmp_path) == [LEASE_NAME]
-
-
-def test_breaking_puts_back_a_lease_renewed_since_it_was_judged_stale(tmp_path):
-    path = lease_file(tmp_path, host="node-elsewhere", pid=4242, ttl_s=5, age_s=60)
-    contender = Lease(path, ttl_s=5)
-    seen = locks._read(path)
-    assert "not renewed for" in contender.stale(seen)
-    lease_file(tmp_path, host="node-elsewhere", pid=4242, ttl_s=5)  # its owner renews it just then
-    renewed = path.read_text()
-    assert not contender._take_aside(seen)
-    assert path.read_text() == renewed and dotfiles(tmp_path) == [LEASE_NAME]
-    assert not in_thread(tmp_path, "lease")
-
-
-def test_leases_without_hard_links_are_created_exclusively(tmp_path, monkeypatch):
-    def no_link(src, dst):
-        raise OSError(errno.EPERM, "Operation not permitted")
-
-    monkeypatch.setattr(locks.os, "link", no_link)
-    with claim(tmp_path, kind="lease") as mine:
-        assert mine and dotfiles(tmp_path) == [LEASE_NAME] and not in_thread(tmp_path, "lease")
-    assert dotfiles(tmp_path) == [] and in_thread(tmp_path, "lease")
+    assert owner(tmp_path, "lease") == "4242 node-elsewhere" and theirs.exists()
 
 
 @pytest.fixture
@@ -191,7 +183,7 @@ def test_auto_takes_flock_where_it_works_and_leases_where_it_raises(tmp_path, mo
     with pytest.raises(LockUnsupported, match=r"grid.lock=flock: flock does not work .*set grid.lock=lease"):
         choose_lock("flock", tmp_path)
     with claim(tmp_path) as mine:
-        assert mine and dotfiles(tmp_path) == [LEASE_NAME]
+        assert mine and dotfiles(tmp_path)[0] == LEASE_NAME
     calls = []
     with pytest.raises(LockUnsupported):  # forced flock stops the run before any cell
         run_cells(cells_in(tmp_path, ["a"]), lambda c, s: calls.append(c) or {}, root=tmp_path, lock="flock")
@@ -237,7 +229,7 @@ def cells_in(root, names):
 
 
 @pytest.mark.parametrize("kind", ["flock", "lease", "auto"])
-def test_run_cells_claims_with_each_kind_and_leaves_no_claim_file(tmp_path, kind):
+def test_run_cells_claims_with_each_kind_and_leaves_no_claim(tmp_path, kind):
     (tmp_path / "a").mkdir()
     (tmp_path / "a" / ".image.png.k3j2.tmp").write_bytes(b"partial")  # a killed run's temporary
     held = {}
@@ -248,9 +240,12 @@ def test_run_cells_claims_with_each_kind_and_leaves_no_claim_file(tmp_path, kind
 
     summary = run_cells(cells_in(tmp_path, ["a", "b"]), fn, root=tmp_path, lock=kind, lease_ttl_s=5)
     assert summary["ok"] == 2 and summary["failed"] == 0
-    want = {"flock": LOCK_NAME, "lease": LEASE_NAME}[choose_lock(kind, tmp_path)]
-    assert held == {"a": [want], "b": [want]}  # the claim file stays while the cell is computed
-    assert not [p for p in tmp_path.rglob(".*")]
+    chosen = choose_lock(kind, tmp_path)
+    want = {"flock": LOCK_NAME, "lease": LEASE_NAME}[chosen]
+    assert all(names[0] == want for names in held.values()) and set(held) == {"a", "b"}  # held while computed
+    left = [p for p in tmp_path.rglob(".*")]
+    # what stays: the flock kind's emptied lock files (every claimant locks the same inode)
+    assert all(p.name == LOCK_NAME and p.read_text() == "" for p in left) and (chosen == "flock") == bool(left)
 
 
 def test_a_bad_lock_setting_names_its_key_and_the_fix(tmp_path):
@@ -278,4 +273,4 @@ def test_hold_waits_for_the_claim_and_then_holds_it(tmp_path, kind):
         order.append("first releases")
     t.join(10)
     assert order == ["first releases", "waiter holds"]
-    assert dotfiles(tmp_path) == []
+    assert dotfiles(tmp_path) == ([LOCK_NAME] if kind == "flock" else [])
