@@ -51,7 +51,9 @@ import os
 import socket
 from pathlib import Path
 
+import submitit
 from omegaconf import DictConfig, OmegaConf
+from submitit.slurm.slurm import SlurmJobEnvironment
 
 from snell_bench import pipeline
 from snell_bench.config import ConfigError, check_grid_entries, compose
@@ -336,13 +338,16 @@ def stale_cell(cell: Cell, record: dict) -> str | None:
 
 
 def job_id() -> str:
-    """This job's identity: ``<array job>_<task>`` (or the job id) under Slurm, stable when Slurm
-    requeues it; ``<host>-<pid>`` elsewhere."""
-    env = os.environ
-    if env.get("SLURM_ARRAY_JOB_ID") and env.get("SLURM_ARRAY_TASK_ID"):
-        return f"{env['SLURM_ARRAY_JOB_ID']}_{env['SLURM_ARRAY_TASK_ID']}"
-    if env.get("SLURM_JOB_ID"):
-        return env["SLURM_JOB_ID"]
+    """This job's identity, as submitit names it (:class:`submitit.JobEnvironment`): ``<array
+    job>_<task>`` (or the job id) under Slurm, stable when Slurm requeues it, whether submitit
+    launched the job or a hand-written ``sbatch`` did; submitit's local job id under its local
+    executor; ``<host>-<pid>`` elsewhere."""
+    try:
+        return str(submitit.JobEnvironment().job_id)
+    except RuntimeError:  # not launched by submitit
+        pass
+    if os.environ.get("SLURM_JOB_ID"):
+        return str(SlurmJobEnvironment().job_id)
     return f"{socket.gethostname()}-{os.getpid()}"
 
 
@@ -357,7 +362,8 @@ def _remove_handovers(cells: list[Cell]) -> None:
 
 def _count_start(folder: Path) -> int:
     """This job's starts so far, this one included (``starts`` in its jobs folder: a job requeued
-    after preemption or a time limit keeps its id and counts up)."""
+    after preemption or a time limit keeps its id and counts up; Slurm's own
+    ``SLURM_RESTART_COUNT`` does not reach every job step)."""
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "starts"
     try:

@@ -54,11 +54,15 @@ def _reports_equal(a: Path, b: Path) -> list[str]:
 
 
 def _stray(root: Path) -> list[str]:
-    bad = (".lock", ".lease")
+    """Files a finished grid must not hold: claims (a flock's .lock stays, emptied), temporaries, hand-overs."""
+
+    def claimed(p: Path) -> bool:
+        return p.name.startswith(".lease") or (p.name == ".lock" and p.read_text() != "")
+
     return sorted(
         p.relative_to(root).as_posix()
         for p in root.rglob("*")
-        if p.is_file() and (p.name.startswith(bad) or p.suffix in (".tmp", ".link") or p.name.startswith("sampling-"))
+        if p.is_file() and (claimed(p) or p.suffix in (".tmp", ".link") or p.name.startswith("sampling-"))
     )
 
 
@@ -87,7 +91,7 @@ def test_a_task_requeued_in_the_middle_of_a_cell_finishes_the_grid(slurm_environ
     def requeue_when_a_cell_runs():
         deadline = time.time() + 300
         while time.time() < deadline and not requeued:
-            for lock in root.rglob(".lock"):
+            for lock in (p for p in root.rglob(".lock") if p.read_text().strip()):  # a cell being computed
                 jobs = slurm_environ.run(["squeue", "-h", "-t", "R", "-o", "%i"]).stdout.split()
                 if jobs:
                     slurm_environ.requeue(jobs[0])

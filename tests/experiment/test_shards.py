@@ -50,10 +50,21 @@ def test_bad_shards_name_the_key():
         check_config(compose(["grid.lock=nfs"]))
 
 
-def test_job_id_under_slurm_and_elsewhere(monkeypatch):
-    for k in ("SLURM_ARRAY_JOB_ID", "SLURM_ARRAY_TASK_ID", "SLURM_JOB_ID"):
+def test_job_id_under_slurm_under_submitit_and_elsewhere(monkeypatch):
+    for k in (
+        "SLURM_ARRAY_JOB_ID",
+        "SLURM_ARRAY_TASK_ID",
+        "SLURM_JOB_ID",
+        "SUBMITIT_LOCAL_JOB_ID",
+        "SUBMITIT_EXECUTOR",
+    ):
         monkeypatch.delenv(k, raising=False)
     assert job_id().endswith(f"-{os.getpid()}")
+    monkeypatch.setenv("SUBMITIT_LOCAL_JOB_ID", "4321")  # submitit's local executor
+    monkeypatch.setenv("SUBMITIT_EXECUTOR", "local")
+    assert job_id() == "4321"
+    monkeypatch.delenv("SUBMITIT_LOCAL_JOB_ID")
+    monkeypatch.delenv("SUBMITIT_EXECUTOR")
     monkeypatch.setenv("SLURM_JOB_ID", "77")
     assert job_id() == "77"
     monkeypatch.setenv("SLURM_ARRAY_JOB_ID", "70")
@@ -69,6 +80,7 @@ def test_two_shards_compute_every_cell_once_and_the_last_one_reports(tmp_path, m
     every = plan_grid(make_cfg(tmp_path, grid))
     summaries = []
     for k, task in enumerate(("0", "1")):
+        monkeypatch.setenv("SLURM_JOB_ID", f"90{task}")  # Slurm sets all three for an array task
         monkeypatch.setenv("SLURM_ARRAY_JOB_ID", "900")
         monkeypatch.setenv("SLURM_ARRAY_TASK_ID", task)
         st = grid_status(make_cfg(tmp_path, [*grid, "grid.shards=2"]))
