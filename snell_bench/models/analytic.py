@@ -39,10 +39,12 @@ from snell_bench.models.base import Condition, LatentGeometry, check_schedule
 from snell_bench.sampler.schedule import flux_sigmas, linear_sigmas
 from snell_bench.utils.tensors import as_tensor, hwc_to_bchw
 
-__all__ = ["AnalyticGenerator", "glass_blob_prior"]
+__all__ = ["AnalyticGenerator", "as_rgb_batch", "gaussian_blur", "glass_blob_prior"]
 
 
-def _as_image(x) -> torch.Tensor:
+def as_rgb_batch(x) -> torch.Tensor:
+    """``x`` (an RGB image ``(H, W, 3)``, ``(3, H, W)`` or ``(B, 3, H, W)``, array or tensor) as a
+    contiguous float32 ``(B, 3, H, W)`` tensor; a :class:`ValueError` naming the shape otherwise."""
     t = as_tensor(x, dtype=torch.float32)
     if t.ndim == 3 and t.shape[-1] == 3:  # (H, W, 3) numpy layout
         t = hwc_to_bchw(t)
@@ -53,7 +55,7 @@ def _as_image(x) -> torch.Tensor:
     return t.contiguous()
 
 
-def _blur(img: torch.Tensor, sigma: float) -> torch.Tensor:
+def gaussian_blur(img: torch.Tensor, sigma: float) -> torch.Tensor:
     """Separable Gaussian blur of ``(B, C, H, W)`` with standard deviation ``sigma`` (pixels), a
     kernel of ``2 ceil(2.5 sigma) + 1`` taps, and the border replicated."""
     k = int(2 * math.ceil(2.5 * sigma) + 1)
@@ -84,7 +86,7 @@ def glass_blob_prior(i_minus, object_mask, *, blur_px: float | None = None) -> t
     Raises:
         ValueError: if the mask's size is not the image's.
     """
-    img = _as_image(i_minus)
+    img = as_rgb_batch(i_minus)
     mask = as_tensor(object_mask, dtype=torch.bool)
     if mask.shape != img.shape[-2:]:
         raise ValueError(f"object mask {tuple(mask.shape)} does not match the image {tuple(img.shape[-2:])}")
@@ -93,7 +95,7 @@ def glass_blob_prior(i_minus, object_mask, *, blur_px: float | None = None) -> t
     ys, xs = torch.nonzero(mask, as_tuple=True)
     cy, cx = ys.float().mean(), xs.float().mean()
     radius = max(float((ys.max() - ys.min() + 1).item()), float((xs.max() - xs.min() + 1).item())) / 2
-    blurred = _blur(img, blur_px if blur_px is not None else max(1.0, radius / 12))
+    blurred = gaussian_blur(img, blur_px if blur_px is not None else max(1.0, radius / 12))
     H, W = mask.shape
     yy, xx = torch.meshgrid(torch.arange(H).float(), torch.arange(W).float(), indexing="ij")
     r = torch.sqrt((yy - cy) ** 2 + (xx - cx) ** 2) / max(radius, 1.0)
@@ -169,7 +171,7 @@ class AnalyticGenerator:
 
     def set_prior(self, view: str, image, glass_mask=None) -> None:
         """The prior image of a view, and where (``glass_mask`` (H, W)) the model is unsure."""
-        img = _as_image(image)
+        img = as_rgb_batch(image)
         _, h, w = self.geometry.latent_shape(img.shape[-2], img.shape[-1])  # validates the size
         self._priors[view] = self.encode(img)
         std = torch.full((1, 1, h, w), self.prior_std)

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from snell_bench.models.analytic import AnalyticGenerator, _as_image, _blur, glass_blob_prior
+from snell_bench.models.analytic import AnalyticGenerator, as_rgb_batch, gaussian_blur, glass_blob_prior
 from snell_bench.models.base import Condition
 from snell_bench.utils.tensors import as_tensor
 
@@ -141,7 +141,7 @@ def glass_variants(i_minus, object_mask, names: Sequence[str] = GLASS_VARIANTS) 
     Raises:
         ValueError: for an unknown name or a mask of another size than the image.
     """
-    img = _as_image(i_minus)
+    img = as_rgb_batch(i_minus)
     mask = as_tensor(object_mask, dtype=torch.bool, device=img.device)
     if mask.shape != img.shape[-2:]:
         raise ValueError(f"object mask {tuple(mask.shape)} does not match the image {tuple(img.shape[-2:])}")
@@ -160,7 +160,7 @@ def glass_variants(i_minus, object_mask, names: Sequence[str] = GLASS_VARIANTS) 
         "dark": lambda: blob * torch.tensor([0.55, 0.66, 0.6], device=dev).view(1, 3, 1, 1),
         "flip": lambda: _columns(img, 2 * cx - xs),
         "shift": lambda: _columns(img, xs + 0.6 * radius),
-        "blur": lambda: _blur(img, max(1.0, radius / 4)),
+        "blur": lambda: gaussian_blur(img, max(1.0, radius / 4)),
         "specular": lambda: 0.45 * blob + 0.55,
         "clear": lambda: img,
         "lens": lambda: _lens(img, cy, cx, 2.0),
@@ -179,7 +179,7 @@ def panorama_variants(panorama, names: Sequence[str] = PANO_VARIANTS) -> dict[st
     Raises:
         ValueError: for an unknown name.
     """
-    img = _as_image(panorama)
+    img = as_rgb_batch(panorama)
     unknown = [n for n in names if n not in PANO_VARIANTS]
     if unknown:
         raise ValueError(f"unknown panorama variants {unknown}; use names from {PANO_VARIANTS}")
@@ -188,7 +188,7 @@ def panorama_variants(panorama, names: Sequence[str] = PANO_VARIANTS) -> dict[st
         "prior": lambda: img,
         "dark": lambda: img * torch.tensor([0.7, 0.78, 0.74], device=dev).view(1, 3, 1, 1),
         "shift": lambda: torch.roll(img, img.shape[-1] // 16, dims=-1),
-        "blur": lambda: _blur(img, max(1.0, img.shape[-2] / 64)),
+        "blur": lambda: gaussian_blur(img, max(1.0, img.shape[-2] / 64)),
         "broad": lambda: img,
     }
     return {n: make[n]().clamp(0, 1) for n in names}
@@ -333,7 +333,7 @@ class MixtureGenerator(AnalyticGenerator):
         ``prior_std``."""
         if not components:
             raise ValueError(f"view {view!r} needs at least one mixture component")
-        first = _as_image(components[0].image)
+        first = as_rgb_batch(components[0].image)
         size = tuple(first.shape[-2:])
         _, h, w = self.geometry.latent_shape(*size)  # validates the size
         if region is None:
@@ -346,7 +346,7 @@ class MixtureGenerator(AnalyticGenerator):
         mus, stds, logw = [], [], []
         base = self.encode(first)
         for c in components:
-            img = _as_image(c.image)
+            img = as_rgb_batch(c.image)
             if tuple(img.shape[-2:]) != size:
                 raise ValueError(f"view {view!r}: component of size {tuple(img.shape[-2:])}, expected {size}")
             if not (c.std > 0 and math.isfinite(c.std)):

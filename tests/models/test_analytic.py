@@ -132,7 +132,7 @@ def test_blur_is_a_replicate_padded_separable_gaussian(sigma):
 
     import torch.nn.functional as F
 
-    from snell_bench.models.analytic import _blur
+    from snell_bench.models.analytic import gaussian_blur
 
     img = prior(24, 40, 2)
     k = int(2 * math.ceil(2.5 * sigma) + 1)
@@ -142,9 +142,9 @@ def test_blur_is_a_replicate_padded_separable_gaussian(sigma):
     ref = F.conv2d(F.pad(img, (pad, pad, 0, 0), mode="replicate"), g.view(1, 1, 1, k).repeat(3, 1, 1, 1), groups=3)
     ref = F.conv2d(F.pad(ref, (0, 0, pad, pad), mode="replicate"), g.view(1, 1, k, 1).repeat(3, 1, 1, 1), groups=3)
     # the same two k-tap passes, through kornia's convolution: equal up to the order of the 2k terms
-    torch.testing.assert_close(_blur(img, sigma), ref, rtol=0, atol=reordering_tolerance(2 * k, ref))
+    torch.testing.assert_close(gaussian_blur(img, sigma), ref, rtol=0, atol=reordering_tolerance(2 * k, ref))
     # weights summing to 1 (to rounding) keep a constant, to the rounding of the two k-tap passes
-    assert float((_blur(torch.full_like(img, 0.3), sigma) - 0.3).abs().max()) <= reordering_tolerance(2 * k, 0.3)
+    assert float((gaussian_blur(torch.full_like(img, 0.3), sigma) - 0.3).abs().max()) <= reordering_tolerance(2 * k, 0.3)
 
 
 def test_image_and_mask_layouts_give_the_same_prior():
