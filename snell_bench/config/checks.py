@@ -73,6 +73,13 @@ def _is_structured(node: Any) -> bool:
     return isinstance(node, DictConfig) and dataclasses.is_dataclass(OmegaConf.get_type(node))
 
 
+def _child(node: DictConfig, key: Any) -> Any:
+    """``node[key]`` as written: ``None`` for a missing value or an interpolation (never resolved here)."""
+    if OmegaConf.is_missing(node, key) or OmegaConf.is_interpolation(node, key):
+        return None
+    return node[key]
+
+
 def _unknown(node: DictConfig, schema: DictConfig, prefix: str, out: list[str], root_schema: DictConfig) -> None:
     known = list(schema.keys())  # with MISSING values (``key in schema`` is False for those)
     for key in node.keys():
@@ -86,15 +93,15 @@ def _unknown(node: DictConfig, schema: DictConfig, prefix: str, out: list[str], 
             )
             out.append(f"{path}: no setting has this name ({hint}); remove it or fix its spelling")
             continue
-        sub_schema = schema._get_node(key)
+        sub_schema = _child(schema, key)
         if path in _OVERRIDE_NODES:
             target = root_schema[_OVERRIDE_NODES[path]]
-            value = node._get_node(key)
+            value = _child(node, key)
             if isinstance(value, DictConfig):
                 _unknown(value, target, f"{path}.", out, root_schema)
             continue
         if _is_structured(sub_schema):
-            value = node._get_node(key)
+            value = _child(node, key)
             if isinstance(value, DictConfig):
                 _unknown(value, sub_schema, f"{path}.", out, root_schema)
 

@@ -85,8 +85,8 @@ def result_settings(cfg: DictConfig) -> dict[str, Any]:
         if key in NOT_RESULT_KEYS:
             continue  # never resolved (``output_dir`` reads Hydra's runtime)
         try:
-            node = c._get_node(key)
-            values[key] = OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else c[key]
+            value = c[key]  # a subtree is resolved below, against the whole config
+            values[key] = OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
         except Exception:  # noqa: BLE001 - a value that cannot resolve fails its cell, which says why
             values[key] = plain[key]
     return {
