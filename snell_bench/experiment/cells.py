@@ -64,6 +64,8 @@ __all__ = [
     "record_done",
     "read_record",
     "changed_settings",
+    "State",
+    "cell_state",
     "claim",
     "LOCK_NAME",
     "cell_files",
@@ -262,6 +264,57 @@ def changed_settings(cell: Cell, record: dict, current: dict, current_hash: str)
     return ChangedCell(cell, diff) if diff else None
 
 
+# ---------------------------------------------------------------------------- a cell's state
+@dataclass(frozen=True)
+class State:
+    """What a run does with one cell (:func:`cell_state`): ``kind`` is ``new`` (no record),
+    ``recompute`` (asked for), ``damaged`` (the record file is not a cell record), ``failed``
+    (recorded as failed), ``files`` (a listed file is missing or changed, or an input the method
+    read has), ``changed`` (finished with other settings: ``diff`` names them), ``done`` (``ok``)
+    or ``skipped`` (recorded as skipped). The last two are done; the others are computed."""
+
+    kind: str
+    reason: str = ""
+    diff: dict = field(default_factory=dict)
+
+    @property
+    def done(self) -> bool:
+        return self.kind in ("done", "skipped")
+
+
+def cell_state(
+    cell: Cell,
+    current: Callable[[], tuple[dict, str]],
+    *,
+    record_name: str = "metrics.json",
+    schema: dict | None = None,
+    recompute: bool = False,
+    stale: Callable[[Cell, dict], str | None] | None = None,
+) -> State:
+    """The :class:`State` of ``cell``, decided from its folder alone: the one rule of the runner
+    (:func:`run_cells`), ``job=plan`` and ``job=status``. ``current()`` gives this run's result
+    settings of the cell and their hash (asked only for a finished cell); ``stale`` says why a
+    finished cell no longer holds though its files are unchanged (:meth:`snell_bench.methods.Method.stale`)."""
+    path = cell.folder / record_name
+    if recompute:
+        return State("recompute")
+    if not path.exists():
+        return State("new")
+    record, problem = load_record(path, schema)
+    if problem is not None:
+        return State("damaged", f"{path} is not a cell record ({problem})")
+    if record.get("status") not in DONE:
+        return State("failed", str(record.get("reason") or record.get("status")))
+    problem = files_problem(cell.folder, record) or (stale(cell, record) if stale is not None else None)
+    if problem is not None:
+        return State("files", problem)
+    changed = changed_settings(cell, record, *current())
+    if changed is not None:
+        return State("changed", diff=changed.diff)
+    status = str(record["status"])
+    return State("done" if status == "ok" else status, str(record.get("reason") or ""))
+
+
 # ---------------------------------------------------------------------------- claiming a cell
 def _remove_leftovers(folder: Path) -> None:
     """Remove the temporaries (``.<name>.<random>.tmp`` / ``.link``) a killed process left in a
@@ -351,22 +404,21 @@ def run_cells(
     def status(cell: Cell, warn: bool = True) -> str | ChangedCell:
         """``todo``, ``done``, or the :class:`ChangedCell` of a cell finished with other settings
         (``warn``: say why a recorded cell is computed again)."""
-        path = cell.folder / record_name
-        if recompute or not path.exists():
-            return "todo"
-        record, problem = load_record(path, schema)
-        if problem is not None:
-            if warn:
-                log.warning("cell %s: %s is not a cell record (%s); computing it again", cell.name, path, problem)
-            return "todo"
-        if record.get("status") not in DONE:
-            return "todo"
-        problem = files_problem(cell.folder, record) or (stale(cell, record) if stale is not None else None)
-        if problem is not None:
-            if warn:
-                log.warning("cell %s: %s; computing it again", cell.name, problem)
-            return "todo"
-        return changed_settings(cell, record, settings[id(cell)], hashes[id(cell)]) or "done"
+        st = cell_state(
+            cell,
+            lambda: (settings[id(cell)], hashes[id(cell)]),
+            record_name=record_name,
+            schema=schema,
+            recompute=recompute,
+            stale=stale,
+        )
+        if st.done:
+            return "done"
+        if st.kind == "changed":
+            return ChangedCell(cell, st.diff)
+        if warn and st.kind in ("damaged", "files"):
+            log.warning("cell %s: %s; computing it again", cell.name, st.reason)
+        return "todo"
 
     states = {id(c): status(c) for c in cells}
     changed = [s for s in states.values() if isinstance(s, ChangedCell)]

@@ -48,15 +48,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from snell_bench.config import ConfigError, OnChange, Source, check_grid_entries, compose
-from snell_bench.experiment.cells import (
-    DONE,
-    Cell,
-    ChangedCell,
-    SettingsChanged,
-    changed_settings,
-    files_problem,
-    read_record,
-)
+from snell_bench.experiment.cells import Cell, ChangedCell, SettingsChanged, cell_state
 from snell_bench.experiment.order import cell_models
 from snell_bench.experiment.plan import (
     NOT_RESULT_KEYS,
@@ -326,8 +318,8 @@ class CellState:
 
 
 def cell_states(cfg: DictConfig, parts: GridParts) -> list[CellState]:
-    """Every cell of ``cfg.grid`` in the runner's order, with its state (:class:`CellState`),
-    decided as :func:`snell_bench.experiment.cells.run_cells` decides it; nothing is written."""
+    """Every cell of ``cfg.grid`` in the runner's order, with its state (:class:`CellState`, by
+    :func:`snell_bench.experiment.cells.cell_state`, the runner's own rule); nothing is written."""
     g = cfg.grid
     root = Path(cfg.runs_dir) / str(cfg.experiment_name)
     out = []
@@ -342,27 +334,23 @@ def cell_states(cfg: DictConfig, parts: GridParts) -> list[CellState]:
 
 
 def _state(ident: tuple, folder: Path, parts: GridParts, recompute: bool) -> CellState:
-    record = read_record(folder / RECORD, GRID_RECORD)  # what the runner counts as a record
-    if recompute:
-        return CellState(*ident, folder, "recompute")
-    if record is None:
-        return CellState(*ident, folder, "new")
-    if record.get("status") not in DONE:
-        return CellState(*ident, folder, "failed", str(record.get("reason") or record.get("status")))
-    problem = files_problem(folder, record)
-    if problem is None:  # an input the method read has changed (a submitted image): as the runner decides
-        c = parts.method(ident[3])
-        group = kit_id(ident[0], ident[1], object_dir_name(ident[2]))
-        problem = method_of(c).stale(c, record, folder, group)
-    if problem is not None:
-        return CellState(*ident, folder, "files", problem)
-    settings = parts.settings(*ident)
-    cell = Cell(name=folder.name, folder=folder, config=None, record={})  # the identity changed_settings reads
-    changed = changed_settings(cell, record, settings, settings_hash(settings))
-    if changed is not None:
-        return CellState(*ident, folder, "changed", diff=changed.diff)
-    status = str(record["status"])
-    return CellState(*ident, folder, "done" if status == "ok" else status, str(record.get("reason") or ""))
+    c = parts.method(ident[3])
+    group = kit_id(ident[0], ident[1], object_dir_name(ident[2]))
+
+    def current() -> tuple[dict, str]:
+        settings = parts.settings(*ident)
+        return settings, settings_hash(settings)
+
+    cell = Cell(name=folder.name, folder=folder, config=None, record={})  # the identity the state reads
+    st = cell_state(
+        cell,
+        current,
+        record_name=RECORD,
+        schema=GRID_RECORD,
+        recompute=recompute,
+        stale=lambda cell, record: method_of(c).stale(c, record, folder, group),
+    )
+    return CellState(*ident, folder, "new" if st.kind == "damaged" else st.kind, st.reason, st.diff)
 
 
 # ---------------------------------------------------------------------------- devices
