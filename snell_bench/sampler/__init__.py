@@ -24,7 +24,11 @@ __all__ = [
 
 
 def __getattr__(name):  # the loop pulls in the imaging stack; load it on first use
-    if name in ("SampleResult", "expected_model_calls", "sample"):
+    if name == "expected_model_calls":  # the plan alone
+        from snell_bench.sampler.plan import expected_model_calls
+
+        return expected_model_calls
+    if name in ("SampleResult", "sample"):
         from snell_bench.sampler import snellcaster
 
         return getattr(snellcaster, name)

@@ -27,10 +27,14 @@ renoised back to its start (5g) and run again, ``tt_repeats_main`` times for the
 ``tt_repeats_pano`` times for the panorama; a branch that stops repeating early keeps its latest
 latent and lends its latest estimates to the other's blends, so every model call's output is used.
 
+The loop walks a plan of visits of the noise levels made from the settings alone before it starts
+(:mod:`snell_bench.sampler.plan`: predict 5a-5d, travel and return 5e and 5g, step 5f), each visit
+reading and updating both branches' state (:class:`_Branches`).
+
 Model calls per branch: one per step, plus in ``guided`` mode one per window step (from step
 ``tt_length`` on) for a branch that travelled (``R > 1``), plus in ``repaint`` mode ``R - 1`` per
 step of the blocks that start in the window (:attr:`SampleResult.model_calls`,
-:func:`expected_model_calls`).
+:func:`expected_model_calls`, which counts them in the plan).
 
 Convention:
     - Images ``(1, 3, H, W)`` (main view) and ``(1, 3, Hp, Wp)`` (panorama, ``Wp = 2 Hp``), float32
@@ -53,7 +57,6 @@ Convention:
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -66,6 +69,7 @@ from snell_bench.models.base import Condition, Generator, generator_device, has_
 from snell_bench.optics.warps import WarpSet
 from snell_bench.sampler.adaptive import decide
 from snell_bench.sampler.eight_bit import to_8bit_floor, to_8bit_round
+from snell_bench.sampler.plan import BRANCHES, Visit, expected_model_calls, visits
 from snell_bench.sampler.steps import (
     euler_estimate,
     latent_rounding,
@@ -139,7 +143,65 @@ class _Prompts:
     both: Condition | None
 
 
-# ---------------------------------------------------------------------------- stages of the loop
+@dataclass
+class _Run:
+    """What every visit of the loop reads, fixed for the run.
+
+    Attributes:
+        gen: the generator.
+        s: the settings after the scene's decisions (:func:`~snell_bench.sampler.adaptive.decide`).
+        sigmas: the ``T + 1`` noise levels (the plan's level indices point into it).
+        prompts: both branches' conditioning.
+        views: the warps and blends, or ``None`` unsynchronised (``sync: none``).
+        keep: :func:`~snell_bench.sampler.steps.latent_rounding` of the run.
+        model_dtype: :func:`~snell_bench.sampler.steps.rounding_dtype` of the run.
+    """
+
+    gen: Generator
+    s: SamplerSettings
+    sigmas: torch.Tensor
+    prompts: _Prompts
+    views: Views | None
+    keep: Callable[[torch.Tensor], torch.Tensor]
+    model_dtype: torch.dtype | None
+
+
+def _no_branch() -> dict[str, torch.Tensor | None]:
+    return dict.fromkeys(BRANCHES)
+
+
+@dataclass
+class _Branches:
+    """Both branches' state as the loop walks the plan; every dict is keyed by branch (``main``, ``pano``).
+
+    Attributes:
+        z: ``(1, C, h, w)`` float32 latents at the level each branch has reached (``pano``: ``None``
+            without the panorama branch).
+        rng: the run's generator: every random draw.
+        enc_rng: ``rng`` with ``encode: sample`` (posterior draws), else ``None``.
+        x0: the latest clean-latent estimates (synchronised after a synchronised ``predict``).
+        img: ``(1, 3, ., .)`` sRGB decoded estimates at the current level (``None`` where none was
+            decoded); a branch the model did not evaluate shows its latest at that level.
+        sync: the synchronised images at the current level (``None`` for a branch not blended).
+        lent: per branch, its latest decoded estimate at each level of the current block.
+        calls: velocity evaluations per branch (:attr:`SampleResult.model_calls`).
+        clock: seconds per stage (:attr:`SampleResult.timings`).
+        dumps: :attr:`SampleResult.dumps`.
+    """
+
+    z: dict[str, torch.Tensor | None]
+    rng: torch.Generator
+    enc_rng: torch.Generator | None
+    x0: dict[str, torch.Tensor | None] = field(default_factory=_no_branch)
+    img: dict[str, torch.Tensor | None] = field(default_factory=_no_branch)
+    sync: dict[str, torch.Tensor | None] = field(default_factory=_no_branch)
+    lent: dict[str, dict[int, torch.Tensor | None]] = field(default_factory=lambda: {b: {} for b in BRANCHES})
+    calls: dict[str, int] = field(default_factory=lambda: dict.fromkeys(BRANCHES, 0))
+    clock: _Clock = field(default_factory=_Clock)
+    dumps: list[dict] = field(default_factory=list)
+
+
+# ---------------------------------------------------------------------------- setting up a run
 
 
 def _check_i_minus(i_minus: torch.Tensor, height: int, width: int) -> None:
@@ -171,131 +233,89 @@ def _encode_prompts(gen: Generator, prompt: str, pano_prompt: str, use_pano: boo
     return _Prompts(main=main, pano=pano, both=both)
 
 
-def _in_window(i: int, s: SamplerSettings) -> bool:
-    """Step ``i`` lies in the time-travel window ``[tt_window[0] T, tt_window[1] T)`` of a
-    synchronised run with time travel (both bounds rounded down with ``tt_window_floor``)."""
-    T = s.steps
-    lo, hi = T * s.tt_window[0], T * s.tt_window[1]
-    if s.tt_window_floor:
-        lo, hi = int(lo), int(hi)
-    return s.sync == "snellcaster" and s.time_travel and lo <= i < hi
-
-
-def _block(i: int, s: SamplerSettings) -> tuple[int, int, int]:
-    """The block of steps that starts at step ``i``: its length and how often each branch runs it.
-
-    With ``tt_mode: repaint``, inside the time-travel window a block is ``tt_length`` steps (fewer at
-    the end) run ``tt_repeats_main`` / ``tt_repeats_pano`` times; otherwise (and always with
-    ``guided``, whose travel happens inside the step) one step, run once. Without the panorama
-    branch its repeat count is 0.
+def _decide(gen: Generator, warps: WarpSet, i_minus: torch.Tensor, settings: SamplerSettings):
+    """Stage 1 of :func:`sample`: check the inputs, decide what the scene needs modelled
+    (:func:`~snell_bench.sampler.adaptive.decide`) and whether the encoder samples.
 
     Returns:
-        ``(length, repeats_main, repeats_pano)``.
+        ``(settings, decisions, reflection_mask)`` as :func:`~snell_bench.sampler.adaptive.decide`.
     """
-    travel = s.tt_mode == "repaint" and _in_window(i, s)
-    length = min(s.tt_length, s.steps - i) if travel else 1
-    repeats_main = s.tt_repeats_main if travel else 1
-    repeats_pano = (s.tt_repeats_pano if travel else 1) if s.uses_panorama else 0
-    return length, repeats_main, repeats_pano
+    _check_i_minus(i_minus, *warps.camera.shape)
+    s, decisions, reflection_mask = decide(warps, settings)
+    if decisions.get("panorama", {}).get("used") is False and "observed_share" in decisions["panorama"]:
+        log.info(
+            "panorama branch skipped: %.1f %% of object pixels observed in I⁻",
+            100 * decisions["panorama"]["observed_share"],
+        )
+    if s.sync == "snellcaster":
+        sampled = s.encode == "sample" and has_posterior(gen)
+        decisions["encode"] = {"mode": s.encode, "posterior_sampled": sampled}
+        if s.encode == "sample" and not sampled:
+            log.info("sampler.encode=sample: %s has no posterior to sample, its encoder gives the mean", gen.name)
+    return s, decisions, reflection_mask
 
 
-def _guided_repeats(i: int, s: SamplerSettings) -> tuple[int, int]:
-    """How many times each branch runs step ``i`` with guided time travel (``(1, 1)`` outside the
-    window or with ``repaint``; the panorama's count without the panorama branch is 0)."""
-    travel = s.tt_mode == "guided" and _in_window(i, s)
-    main = s.tt_repeats_main if travel else 1
-    pano = (s.tt_repeats_pano if travel else 1) if s.uses_panorama else 0
-    return main, pano
-
-
-def expected_model_calls(s: SamplerSettings) -> dict[str, int]:
-    """The velocity calls per branch that :func:`sample` makes with settings ``s``, in closed form.
-
-    With ``T`` steps, the time-travel window's steps ``a <= i < b`` (``a = ceil(tt_window[0] T)``,
-    ``b = ceil(tt_window[1] T)``; ``floor`` of both with ``tt_window_floor``), ``n = b - a`` of them,
-    the travel length ``l`` and ``R`` repeats of a branch (``tt_repeats_main`` / ``tt_repeats_pano``):
-
-    - no time travel (``time_travel: false``, ``sync: none``, or ``R = 1``): ``T``;
-    - ``guided``: ``T + [R > 1] max(0, b - max(a, l))``: one re-prediction per window step that
-      has a level ``l`` steps back to travel to, however many repeats;
-    - ``repaint``: ``T + (R - 1) min(T - a, ceil(n / l) l)``: every step of the ``ceil(n / l)``
-      blocks of ``l`` steps that start in the window (the last one cut at ``T``) runs ``R`` times.
-
-    The panorama's count is 0 without its branch (``sync: none`` or ``panorama: false``). A batched
-    call on both latents counts once for each branch, as :attr:`SampleResult.model_calls` does.
-
-    Args:
-        s: the settings the run uses (with ``skip_panorama_above``, the panorama's decision is the
-            scene's: pass the settings with ``panorama`` as the run's ``decisions`` record it).
+def _prepare(
+    gen: Generator, warps: WarpSet, i_minus: torch.Tensor, settings: SamplerSettings, *, prompts: tuple, seed: int
+) -> tuple[_Run, _Branches, dict]:
+    """Stages 1-4 of :func:`sample` (its arguments; ``prompts``: the main view's and the panorama's).
 
     Returns:
-        ``{"main": n_main, "pano": n_pano}``.
-
-    Examples:
-        The paper's settings (T = 20, window [0.2 T, 0.8 T), main view x3, panorama x1):
-
-        >>> expected_model_calls(SamplerSettings())
-        {'main': 32, 'pano': 20}
-        >>> expected_model_calls(SamplerSettings(tt_mode="repaint"))
-        {'main': 44, 'pano': 20}
+        ``(run, branches, decisions)``: the loop's fixed inputs, the initial state (the initial noise
+        drawn from the run's generator seeded with ``seed``, main view first) and the decisions.
     """
-    T, length = s.steps, s.tt_length
-    rnd = math.floor if s.tt_window_floor else math.ceil
-    a, b = (min(max(rnd(T * w), 0), T) for w in s.tt_window)
-    travels = s.sync == "snellcaster" and s.time_travel and b > a
+    # 1. check inputs; decide what the scene needs modelled; the noise schedule
+    s, decisions, reflection_mask = _decide(gen, warps, i_minus, settings)
+    H, W = warps.camera.shape
+    shape = {"main": gen.geometry.latent_shape(H, W)}
+    shape["pano"] = gen.geometry.latent_shape(*warps.pano.shape) if s.uses_panorama else None
+    sigmas = _noise_schedule(gen, s, H, W)
+    dev = generator_device(gen)
+    clock = _Clock()
 
-    def calls(repeats: int) -> int:
-        if not travels or repeats == 1:
-            return T
-        if s.tt_mode == "guided":
-            return T + max(0, b - max(a, length))
-        return T + (repeats - 1) * min(T - a, -(-(b - a) // length) * length)
+    # 2. encode prompts
+    conds = _encode_prompts(gen, *prompts, s.uses_panorama, shape["main"] == shape["pano"])
 
-    return {"main": calls(s.tt_repeats_main), "pano": calls(s.tt_repeats_pano) if s.uses_panorama else 0}
+    # 3. prepare latents: initial noise from the run's generator, main view first
+    rng = seeded_generator(dev, seed)
+    keep = latent_rounding(gen, s.latent_dtype)
+    noise = torch.randn((1,) + shape["main"], generator=rng, device=dev)
+    decisions["initial_noise"] = digest(noise)  # a generated I⁻ of the same seed drew the same
+    z = {"main": keep(noise), "pano": None}
+    if s.uses_panorama:
+        z["pano"] = keep(torch.randn((1,) + shape["pano"], generator=rng, device=dev))
+    state = _Branches(z=z, rng=rng, enc_rng=rng if s.encode == "sample" else None, clock=clock)
+
+    # 4. prepare warps: maps on the device, I⁻'s warped pyramids
+    t0 = time.perf_counter()
+    views = Views(warps, i_minus.float(), s, reflection_mask, device=dev) if s.sync == "snellcaster" else None
+    clock.add("setup", t0)
+    run = _Run(gen, s, sigmas, conds, views, keep, rounding_dtype(gen, s.latent_dtype))
+    return run, state, decisions
 
 
-def _estimate_x0(
-    gen: Generator,
-    z_main: torch.Tensor,
-    z_pano: torch.Tensor | None,
-    sigma: float,
-    prompts: _Prompts,
-    run_main: bool,
-    run_pano: bool,
-    calls: dict[str, int],
-    clock: _Clock,
-) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-    """The model calls of one step and the clean latent estimates ``x0_hat = z - sigma v``.
+# ---------------------------------------------------------------------------- stages of the loop
+
+
+def _estimate_x0(run: _Run, st: _Branches, branches: tuple[str, ...], sigma: float) -> None:
+    """5a: the model calls at ``sigma`` for ``branches`` and their clean latent estimates
+    ``x0_hat = z - sigma v`` into ``st.x0``.
 
     Both branches go through one batched call when both run and :attr:`_Prompts.both` exists.
-    ``calls`` and ``clock`` (``model``) are updated in place.
-
-    Args:
-        z_main: ``(1, C, h, w)`` the main view's latent at ``sigma``.
-        z_pano: ``(1, C, hp, wp)`` the panorama's latent at ``sigma``, or ``None``.
-        sigma: the noise level.
-        run_main: the main view runs this step.
-        run_pano: the panorama runs this step.
-
-    Returns:
-        ``(x0_main, x0_pano)``, latents of the shapes of ``z``; ``None`` for a branch that does not run.
+    ``st.calls`` and ``st.clock`` (``model``) are updated.
     """
     t0 = time.perf_counter()
-    v_main = v_pano = None
-    if run_main and run_pano and prompts.both is not None:
-        v = gen.velocity(torch.cat([z_main, z_pano]), sigma, prompts.both)
-        v_main, v_pano = v[:1], v[1:]
+    z, p = st.z, run.prompts
+    if len(branches) == 2 and p.both is not None:
+        v = run.gen.velocity(torch.cat([z["main"], z["pano"]]), sigma, p.both)
+        vel = {"main": v[:1], "pano": v[1:]}
     else:
-        if run_main:
-            v_main = gen.velocity(z_main, sigma, prompts.main)
-        if run_pano:
-            v_pano = gen.velocity(z_pano, sigma, prompts.pano)
-    calls["main"] += int(run_main)
-    calls["pano"] += int(run_pano)
-    clock.add("model", t0)
-    x0_main = euler_estimate(z_main, v_main, sigma) if run_main else None
-    x0_pano = euler_estimate(z_pano, v_pano, sigma) if run_pano else None
-    return x0_main, x0_pano
+        vel = {b: run.gen.velocity(z[b], sigma, getattr(p, b)) for b in branches}
+    for b in branches:
+        st.calls[b] += 1
+    st.clock.add("model", t0)
+    for b in branches:
+        st.x0[b] = euler_estimate(z[b], vel[b], sigma)
 
 
 def _decode(gen: Generator, latent: torch.Tensor | None, clock: _Clock) -> torch.Tensor | None:
@@ -307,97 +327,65 @@ def _decode(gen: Generator, latent: torch.Tensor | None, clock: _Clock) -> torch
     return out
 
 
-def _decode_estimate(gen: Generator, latent: torch.Tensor | None, quantize: bool, clock: _Clock):
-    """:func:`_decode` of a clean-latent estimate, rounded to 8 bits with ``quantize``
+def _decode_estimate(run: _Run, latent: torch.Tensor | None, clock: _Clock) -> torch.Tensor | None:
+    """5b: :func:`_decode` of a clean-latent estimate, rounded to 8 bits with ``quantize``
     (:func:`~snell_bench.sampler.eight_bit.to_8bit_round`)."""
-    img = _decode(gen, latent, clock)
-    return to_8bit_round(img) if quantize and img is not None else img
+    img = _decode(run.gen, latent, clock)
+    return to_8bit_round(img) if run.s.quantize and img is not None else img
 
 
-def _warp_and_blend(
-    views: Views,
-    x0_main: torch.Tensor | None,
-    x0_pano: torch.Tensor | None,
-    run_main: bool,
-    run_pano: bool,
-    quantize: bool,
-    clock: _Clock,
-) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-    """The synchronized estimates of the branches that run (:meth:`Views.blend_main`,
-    :meth:`Views.blend_pano`), each reading the other's latest decoded estimate, truncated to 8 bits
-    with ``quantize`` (:func:`~snell_bench.sampler.eight_bit.to_8bit_floor`); the time counts as
-    ``warp_blend``.
-
-    Args:
-        x0_main: ``(1, 3, H, W)`` sRGB in [0, 1], the main view's latest decoded estimate.
-        x0_pano: ``(1, 3, Hp, Wp)`` sRGB in [0, 1], the panorama's, or ``None``.
-
-    Returns:
-        ``(sync_main, sync_pano)`` sRGB images, ``None`` for a branch that does not run.
-    """
+def _warp_and_blend(run: _Run, st: _Branches, blend: tuple[str, ...]) -> dict[str, torch.Tensor | None]:
+    """5c: the synchronized estimates of the ``blend`` branches (:meth:`Views.blend_main`,
+    :meth:`Views.blend_pano`), each reading the other's image in ``st.img``, truncated to 8 bits with
+    ``quantize`` (:func:`~snell_bench.sampler.eight_bit.to_8bit_floor`); ``None`` for the other
+    branches. The time counts as ``warp_blend``."""
     t0 = time.perf_counter()
-    g_main, g_pano = views.gauss(x0_main), views.gauss(x0_pano, wrap_x=True)
-    sync_main = views.blend_main(x0_main, x0_pano, g_main, g_pano) if run_main else None
-    sync_pano = views.blend_pano(x0_pano, x0_main, g_pano, g_main) if run_pano else None
-    if quantize:
-        sync_main = to_8bit_floor(sync_main) if sync_main is not None else None
-        sync_pano = to_8bit_floor(sync_pano) if sync_pano is not None else None
-    clock.add("warp_blend", t0)
-    return sync_main, sync_pano
+    views, img = run.views, st.img
+    g_main, g_pano = views.gauss(img["main"]), views.gauss(img["pano"], wrap_x=True)
+    out = _no_branch()
+    if "main" in blend:
+        out["main"] = views.blend_main(img["main"], img["pano"], g_main, g_pano)
+    if "pano" in blend:
+        out["pano"] = views.blend_pano(img["pano"], img["main"], g_pano, g_main)
+    if run.s.quantize:
+        out = {b: to_8bit_floor(x) if x is not None else None for b, x in out.items()}
+    st.clock.add("warp_blend", t0)
+    return out
 
 
-def _encode(
-    gen: Generator,
-    sync_main: torch.Tensor | None,
-    sync_pano: torch.Tensor | None,
-    run_main: bool,
-    run_pano: bool,
-    rng: torch.Generator | None,
-    clock: _Clock,
-) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-    """The synchronized images ``(1, 3, ., .)`` sRGB in [0, 1] of the branches that run as clean
-    latents ``(1, C, ., .)`` (``None`` for the others): the posterior mean, or with ``rng`` a draw
+def _encode(run: _Run, st: _Branches, blend: tuple[str, ...]) -> dict[str, torch.Tensor | None]:
+    """5d: the synchronized images ``st.sync`` of the ``blend`` branches as clean latents
+    ``(1, C, ., .)`` (``None`` for the others): the posterior mean, or with ``st.enc_rng`` a draw
     from the posterior (main view first); the time counts as ``codec``."""
     t0 = time.perf_counter()
-    x0_main = gen.encode(sync_main, generator=rng) if run_main else None
-    x0_pano = gen.encode(sync_pano, generator=rng) if run_pano else None
-    clock.add("codec", t0)
-    return x0_main, x0_pano
+    out = {b: run.gen.encode(st.sync[b], generator=st.enc_rng) if b in blend else None for b in BRANCHES}
+    st.clock.add("codec", t0)
+    return out
 
 
-def _step(
-    z: torch.Tensor,
-    x0: torch.Tensor,
-    sigma: float,
-    sigma_next: float,
-    s: SamplerSettings,
-    rng: torch.Generator,
-    keep: Callable[[torch.Tensor], torch.Tensor],
-    model_dtype: torch.dtype | None,
-) -> torch.Tensor:
+def _step(run: _Run, z: torch.Tensor, x0: torch.Tensor, sigma: float, sigma_next: float, rng) -> torch.Tensor:
     """One branch's step from ``sigma`` to ``sigma_next`` with the clean estimate ``x0``.
 
     Euler-Maruyama (``s.sde``, :func:`~snell_bench.sampler.steps.sde_step`) or stochastic
-    (``s.stochastic``), each with fresh noise from ``rng`` and rounded by ``keep``, else
-    deterministic: the scheduler's step with latents held in ``model_dtype`` when the latents are
-    rounded to the model's dtype (:func:`~snell_bench.sampler.steps.pipeline_step`), else
+    (``s.stochastic``), each with fresh noise from ``rng`` and rounded by ``run.keep``, else
+    deterministic: the scheduler's step with latents held in ``run.model_dtype`` when the latents
+    are rounded to the model's dtype (:func:`~snell_bench.sampler.steps.pipeline_step`), else
     :func:`~snell_bench.sampler.steps.sync_step`.
 
     Args:
         z: ``(1, C, h, w)`` float32 latent at ``sigma``.
         x0: ``(1, C, h, w)`` clean latent estimate.
-        keep: :func:`~snell_bench.sampler.steps.latent_rounding` of the run.
-        model_dtype: :func:`~snell_bench.sampler.steps.rounding_dtype` of the run.
 
     Returns:
         ``(1, C, h, w)`` float32 latent at ``sigma_next``.
     """
+    s = run.s
     if s.sde:
-        return keep(sde_step(z, x0, sigma, sigma_next, rng))
+        return run.keep(sde_step(z, x0, sigma, sigma_next, rng))
     if s.stochastic:
-        return keep(stochastic_step(z, x0, sigma, sigma_next, rng, s.eta))
-    if model_dtype is not None:
-        return pipeline_step(z, x0, sigma, sigma_next, model_dtype)
+        return run.keep(stochastic_step(z, x0, sigma, sigma_next, rng, s.eta))
+    if run.model_dtype is not None:
+        return pipeline_step(z, x0, sigma, sigma_next, run.model_dtype)
     return sync_step(z, x0, sigma, sigma_next)
 
 
@@ -408,6 +396,29 @@ def _renoise(z: torch.Tensor, sigma: float, s_to: float, s: SamplerSettings, rng
     if s.tt_renoise == "euler_maruyama":
         return renoise_euler_maruyama(z, sigma, s_to, rng)
     return renoise(z, sigma, s_to, rng)
+
+
+def _move(run: _Run, st: _Branches, v: Visit, sigma: float, sigma_to: float) -> None:
+    """5e-5g: a ``travel`` (renoise back to ``sigma_to``), ``return`` or ``step`` (to ``sigma_to``
+    with the held estimate) visit of each of ``v.branches`` in turn; the time counts as ``step``."""
+    t0 = time.perf_counter()
+    for b in v.branches:
+        if v.op == "travel":
+            st.z[b] = run.keep(_renoise(st.z[b], sigma, sigma_to, run.s, st.rng))
+        else:
+            st.z[b] = _step(run, st.z[b], st.x0[b], sigma, sigma_to, st.rng)
+    st.clock.add("step", t0)
+
+
+def _dump(st: _Branches, v: Visit, sigma: float) -> dict:
+    """The dump of a ``step`` visit: the level's decoded estimates (``*_x0``) and synchronised images
+    (``*_sync``; the estimate itself at an unsynchronised level, ``None`` for a branch that does not
+    step), on the CPU."""
+    out: dict = {"step": v.src, "sigma": sigma}
+    for b in BRANCHES:
+        out[f"{b}_x0"] = to_host(st.img[b])
+        out[f"{b}_sync"] = to_host(st.sync[b] if v.sync else st.img[b]) if b in v.branches else None
+    return out
 
 
 # ---------------------------------------------------------------------------- the sampler
@@ -428,7 +439,8 @@ def sample(
     baseline). Without the panorama branch, the reflection comes from I⁻ where the mirror ray
     reaches a surface it shows, and is left out elsewhere. Both branches step through the
     generator's schedule for the main view, ``gen.sigmas(settings.steps, H, W, kind=settings.schedule)``
-    (their noise levels must match to be blended).
+    (their noise levels must match to be blended), visiting its levels in the order of the plan
+    (:func:`~snell_bench.sampler.plan.visits`).
 
     Args:
         gen: the generator (any backend of :class:`~snell_bench.models.base.Generator`).
@@ -448,155 +460,40 @@ def sample(
             does not have ``settings.steps + 1`` levels, or ``pano_to_main: frame`` meets warps
             without ``pano_refraction_frame``.
     """
-    # 1. check inputs; decide what the scene needs modelled; the noise schedule
-    H, W = warps.camera.shape
-    _check_i_minus(i_minus, H, W)
-    s, decisions, reflection_mask = decide(warps, settings)
-    if decisions.get("panorama", {}).get("used") is False and "observed_share" in decisions["panorama"]:
-        log.info(
-            "panorama branch skipped: %.1f %% of object pixels observed in I⁻",
-            100 * decisions["panorama"]["observed_share"],
-        )
-    synchronised = s.sync == "snellcaster"
-    if synchronised:
-        sampled = s.encode == "sample" and has_posterior(gen)
-        decisions["encode"] = {"mode": s.encode, "posterior_sampled": sampled}
-        if s.encode == "sample" and not sampled:
-            log.info("sampler.encode=sample: %s has no posterior to sample, its encoder gives the mean", gen.name)
-    T = s.steps
-    use_pano = s.uses_panorama
-    shape_main = gen.geometry.latent_shape(H, W)
-    shape_pano = gen.geometry.latent_shape(*warps.pano.shape) if use_pano else None
-    sigmas = _noise_schedule(gen, s, H, W)
-    dev = generator_device(gen)
-    clock = _Clock()
-
-    # 2. encode prompts
-    prompts = _encode_prompts(gen, prompt, pano_prompt, use_pano, shape_main == shape_pano)
-
-    # 3. prepare latents: initial noise from the run's generator, main view first
-    rng = seeded_generator(dev, seed)
-    keep = latent_rounding(gen, s.latent_dtype)
-    model_dtype = rounding_dtype(gen, s.latent_dtype)
-    noise = torch.randn((1,) + shape_main, generator=rng, device=dev)
-    decisions["initial_noise"] = digest(noise)  # a generated I⁻ of the same seed drew the same
-    z_main = keep(noise)
-    z_pano = keep(torch.randn((1,) + shape_pano, generator=rng, device=dev)) if use_pano else None
-
-    # 4. prepare warps: maps on the device, I⁻'s warped pyramids
-    t0 = time.perf_counter()
-    views = Views(warps, i_minus.float(), s, reflection_mask, device=dev) if synchronised else None
-    clock.add("setup", t0)
-
-    # 5. denoising loop, in blocks (one step; with repaint time travel, a block run several times)
-    calls = {"main": 0, "pano": 0}
-    dumps: list[dict] = []
-    enc_rng = rng if s.encode == "sample" else None
-    bar = tqdm(total=T, desc=f"sampling ({s.sync})", disable=not s.progress, leave=False)
-    i = 0
+    # 1.-4. check inputs, decide, the noise schedule, prompts, initial noise, warps on the device
+    run, st, decisions = _prepare(gen, warps, i_minus, settings, prompts=(prompt, pano_prompt), seed=seed)
+    s = run.s
+    bar = tqdm(total=s.steps, desc=f"sampling ({s.sync})", disable=not s.progress, leave=False)
+    # 5. denoising loop: the plan's visits of the noise levels
     with torch.inference_mode():
-        while i < T:
-            length, repeats_main, repeats_pano = _block(i, s)
-            repeats = max(repeats_main, repeats_pano)
-            # each branch's latest decoded estimate per step of the block, lent to the other's blends
-            latest_main: list[torch.Tensor | None] = [None] * length
-            latest_pano: list[torch.Tensor | None] = [None] * length
-            for r in range(repeats):
-                run_main, run_pano = r < repeats_main, r < repeats_pano
-                for j in range(length):
-                    k = i + j
-                    sigma, sigma_next = float(sigmas[k]), float(sigmas[k + 1])
-                    dump = bool(s.dump_every) and k % s.dump_every == 0 and r == repeats - 1
-                    # the synchronised blends need the decoded estimates; the generator alone (and an
-                    # unsynchronised last step) decodes nothing before the final image
-                    sync = views is not None and (s.sync_last_step or k < T - 1)
-
-                    # 5a. estimate x0 (clean latents)
-                    x0_main, x0_pano = _estimate_x0(
-                        gen, z_main, z_pano, sigma, prompts, run_main, run_pano, calls, clock
-                    )
-
-                    # 5b. decode the estimates (8-bit with quantize)
-                    img_main = _decode_estimate(gen, x0_main, s.quantize, clock) if sync or dump else None
-                    img_pano = _decode_estimate(gen, x0_pano, s.quantize, clock) if sync or dump else None
-                    if run_main:
-                        latest_main[j] = img_main
-                    if run_pano:
-                        latest_pano[j] = img_pano
-                    img_main, img_pano = latest_main[j], latest_pano[j]
-
-                    # 5c. warp and blend; 5d. encode the synchronised images
-                    sync_main = sync_pano = None
-                    if sync:
-                        sync_main, sync_pano = _warp_and_blend(
-                            views, img_main, img_pano, run_main, run_pano, s.quantize, clock
-                        )
-                        x0_main, x0_pano = _encode(gen, sync_main, sync_pano, run_main, run_pano, enc_rng, clock)
-
-                    # 5e. guided time travel: renoise and step back with the same synchronised
-                    # estimates, then re-predict the branches that moved and synchronise both again
-                    travel_main, travel_pano = _guided_repeats(k, s)
-                    moved_main = moved_pano = False
-                    back = k - s.tt_length  # the noisier level's index
-                    if max(travel_main, travel_pano) > 1 and back >= 0:
-                        t0 = time.perf_counter()
-                        noisier = float(sigmas[back])
-                        for _ in range(travel_main - 1):
-                            z_main = keep(_renoise(z_main, sigma, noisier, s, rng))
-                            z_main = _step(z_main, x0_main, noisier, sigma, s, rng, keep, model_dtype)
-                            moved_main = True
-                        for _ in range(travel_pano - 1):
-                            z_pano = keep(_renoise(z_pano, sigma, noisier, s, rng))
-                            z_pano = _step(z_pano, x0_pano, noisier, sigma, s, rng, keep, model_dtype)
-                            moved_pano = True
-                        clock.add("step", t0)
-                        new_main, new_pano = _estimate_x0(
-                            gen, z_main, z_pano, sigma, prompts, moved_main, moved_pano, calls, clock
-                        )
-                        if moved_main:
-                            x0_main = new_main
-                            img_main = _decode_estimate(gen, new_main, s.quantize, clock) if sync or dump else None
-                        if moved_pano:
-                            x0_pano = new_pano
-                            img_pano = _decode_estimate(gen, new_pano, s.quantize, clock) if sync or dump else None
-                        if sync:
-                            sync_main, sync_pano = _warp_and_blend(
-                                views, img_main, img_pano, True, use_pano, s.quantize, clock
-                            )
-                            x0_main, x0_pano = _encode(gen, sync_main, sync_pano, True, use_pano, enc_rng, clock)
-
-                    # 5f. step each running branch with its (synchronised) estimate
-                    t0 = time.perf_counter()
-                    if run_main:
-                        z_main = _step(z_main, x0_main, sigma, sigma_next, s, rng, keep, model_dtype)
-                    if run_pano:
-                        z_pano = _step(z_pano, x0_pano, sigma, sigma_next, s, rng, keep, model_dtype)
-                    clock.add("step", t0)
-
-                    if dump:
-                        dumps.append(
-                            {
-                                "step": k,
-                                "sigma": sigma,
-                                "main_x0": to_host(img_main),
-                                "main_sync": to_host(sync_main if sync else img_main) if run_main else None,
-                                "pano_x0": to_host(img_pano),
-                                "pano_sync": to_host(sync_pano if sync else img_pano) if run_pano else None,
-                            }
-                        )
-
-                # 5g. repaint time travel: renoise to the block's start each branch that repeats again
-                if r + 1 < repeats_main:
-                    z_main = keep(_renoise(z_main, float(sigmas[i + length]), float(sigmas[i]), s, rng))
-                if r + 1 < repeats_pano:
-                    z_pano = keep(_renoise(z_pano, float(sigmas[i + length]), float(sigmas[i]), s, rng))
-            i += length
-            bar.update(length)
+        for v in visits(s):
+            sigma, sigma_to = float(run.sigmas[v.src]), float(run.sigmas[v.dst])
+            if v.op == "predict":
+                # 5a. estimate x0 (clean latents); 5b. decode them (8-bit with quantize) for the
+                # blends or a dump; a branch not evaluated lends its latest estimate at this level
+                _estimate_x0(run, st, v.branches, sigma)
+                for b in v.branches:
+                    st.lent[b][v.src] = _decode_estimate(run, st.x0[b], st.clock) if v.sync or v.dump else None
+                st.img = {b: st.lent[b].get(v.src) for b in BRANCHES}
+                # 5c. warp and blend; 5d. encode the synchronised images
+                st.sync = _warp_and_blend(run, st, v.blend) if v.sync else _no_branch()
+                if v.sync:
+                    st.x0 = _encode(run, st, v.blend)
+                continue
+            # 5e. guided time travel: renoise back and return with the held estimate; 5f. step each
+            # running branch with its (synchronised) estimate; 5g. repaint: renoise to the block's start
+            _move(run, st, v, sigma, sigma_to)
+            if v.op == "step" and v.dump:
+                st.dumps.append(_dump(st, v, sigma))
+            if v.op == "step" and v.last:  # the level is done: nothing left to lend
+                for lent in st.lent.values():
+                    lent.pop(v.src, None)
+                bar.update(1)
         bar.close()
 
         # 6. decode the final latents (only the final images and the dumps leave the device)
-        image = to_host(_decode(gen, z_main, clock))
-        pano = to_host(_decode(gen, z_pano, clock)) if use_pano else None
+        image = to_host(_decode(gen, st.z["main"], st.clock))
+        pano = to_host(_decode(gen, st.z["pano"], st.clock)) if s.uses_panorama else None
     return SampleResult(
-        image=image, panorama=pano, model_calls=calls, timings=dict(clock.t), dumps=dumps, decisions=decisions
+        image=image, panorama=pano, model_calls=st.calls, timings=dict(st.clock.t), dumps=st.dumps, decisions=decisions
     )
