@@ -65,19 +65,13 @@ _OVERRIDE_NODES = {"method.sampler": "sampler", "method.warps": "warps"}
 _RUNTIME_KEYS = {"hydra"}
 
 
-def _schema():
-    return OmegaConf.structured(Config)
-
-
 def _is_structured(node: Any) -> bool:
     return isinstance(node, DictConfig) and dataclasses.is_dataclass(OmegaConf.get_type(node))
 
 
 def _child(node: DictConfig, key: Any) -> Any:
     """``node[key]`` as written: ``None`` for a missing value or an interpolation (never resolved here)."""
-    if OmegaConf.is_missing(node, key) or OmegaConf.is_interpolation(node, key):
-        return None
-    return node[key]
+    return None if OmegaConf.is_missing(node, key) or OmegaConf.is_interpolation(node, key) else node[key]
 
 
 def _unknown(node: DictConfig, schema: DictConfig, prefix: str, out: list[str], root_schema: DictConfig) -> None:
@@ -93,23 +87,16 @@ def _unknown(node: DictConfig, schema: DictConfig, prefix: str, out: list[str], 
             )
             out.append(f"{path}: no setting has this name ({hint}); remove it or fix its spelling")
             continue
-        sub_schema = _child(schema, key)
-        if path in _OVERRIDE_NODES:
-            target = root_schema[_OVERRIDE_NODES[path]]
-            value = _child(node, key)
-            if isinstance(value, DictConfig):
-                _unknown(value, target, f"{path}.", out, root_schema)
-            continue
-        if _is_structured(sub_schema):
-            value = _child(node, key)
-            if isinstance(value, DictConfig):
-                _unknown(value, sub_schema, f"{path}.", out, root_schema)
+        sub_schema = root_schema[_OVERRIDE_NODES[path]] if path in _OVERRIDE_NODES else _child(schema, key)
+        value = _child(node, key)
+        if (path in _OVERRIDE_NODES or _is_structured(sub_schema)) and isinstance(value, DictConfig):
+            _unknown(value, sub_schema, f"{path}.", out, root_schema)
 
 
 def unknown_keys(cfg: DictConfig) -> list[str]:
     """One line per key of ``cfg`` that no schema knows (``+warps.max_bounce=1``: a typo), each
     naming the closest known key."""
-    schema = _schema()
+    schema = OmegaConf.structured(Config)
     out: list[str] = []
     node = cfg
     if any(k in _RUNTIME_KEYS for k in cfg.keys()):
