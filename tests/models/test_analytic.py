@@ -144,7 +144,9 @@ def test_blur_is_a_replicate_padded_separable_gaussian(sigma):
     # the same two k-tap passes, through kornia's convolution: equal up to the order of the 2k terms
     torch.testing.assert_close(gaussian_blur(img, sigma), ref, rtol=0, atol=reordering_tolerance(2 * k, ref))
     # weights summing to 1 (to rounding) keep a constant, to the rounding of the two k-tap passes
-    assert float((gaussian_blur(torch.full_like(img, 0.3), sigma) - 0.3).abs().max()) <= reordering_tolerance(2 * k, 0.3)
+    assert float((gaussian_blur(torch.full_like(img, 0.3), sigma) - 0.3).abs().max()) <= reordering_tolerance(
+        2 * k, 0.3
+    )
 
 
 def test_image_and_mask_layouts_give_the_same_prior():
