@@ -92,8 +92,9 @@ def _record(tmp, group, method):
 def test_the_plugins_method_and_metric_are_in_every_table(plugged):
     tmp, _ = plugged
     table = (tmp / "reports" / "smoke" / "method_table.md").read_text()
+    rows = [line.split("|")[1].strip() for line in table.splitlines() if line.startswith("| ")]
     for row in ("Physics only (I⁻ through π^R)", "Physics only, refraction alone", "Snellcaster", "Images: made"):
-        assert f"| {row} |" in table, row
+        assert row in rows, row
     assert "SSIM (masked) ↑" in table
     assert "SSIM (masked)" in (tmp / "reports" / "smoke" / "scene_table.md").read_text()
     page = (tmp / "reports" / "smoke" / "index.html").read_text()

@@ -18,7 +18,7 @@ from PIL import Image
 from snell_bench.experiment.reports import build_reports, build_tradeoff_report, collect, method_table
 from snell_bench.experiment.reports.gallery import ERROR_LEVELS, ERROR_SCALES
 from tests.experiment.test_paper_reports import AUTHORS_CONFIG, _cell
-from tests.experiment.test_reports import CELLS, LPIPS_REASON, OOM, SKIP, make_runs
+from tests.experiment.test_reports import CELLS, LPIPS_REASON, OOM, SKIP, make_runs, md_rows
 
 # ---------------------------------------------------------------------------- a small DOM
 
@@ -176,13 +176,9 @@ def test_every_table_holds_the_csv_numbers_with_the_markdown_marks(fixture, requ
         csv = _csv(out, stem, nidx)
         assert len(rows) == len(csv), stem
         assert header[:nidx] == list(csv.index.names), stem
-        md_rows = [
-            [c.strip() for c in line.strip().strip("|").split("|")]
-            for line in (out / f"{stem}.md").read_text().splitlines()
-            if line.startswith("| ") and not line.startswith(f"| {header[0]} |")
-        ]
-        assert len(md_rows) == len(csv), stem
-        for i, (cells, (key, values), md) in enumerate(zip(rows, csv.iterrows(), md_rows)):
+        body = md_rows((out / f"{stem}.md").read_text())[2:]  # after the header and alignment lines
+        assert len(body) == len(csv), stem
+        for i, (cells, (key, values), md) in enumerate(zip(rows, csv.iterrows(), body)):
             key = key if isinstance(key, tuple) else (key,)
             labels = [c.text() for c in cells[:nidx]]
             assert [str(k) for k in labels] == [_label(k) for k in key], (stem, i)

@@ -15,6 +15,7 @@ from snell_bench.experiment.reports import (
     build_reports,
     collect,
     method_table,
+    pipe_table,
     provenance_line,
     qualitative_figure,
     scene_table,
@@ -145,6 +146,21 @@ def runs(tmp_path):
 @pytest.fixture
 def df(runs):
     return collect(runs)
+
+
+def md_rows(md: str) -> list[list[str]]:
+    """The cells of every pipe-table line of a Markdown text, without their padding (an escaped
+    ``\\|`` stays in its cell)."""
+    return [
+        [c.strip() for c in re.split(r"(?<!\\)\|", line.strip()[1:-1])]
+        for line in md.splitlines()
+        if line.startswith("|")
+    ]
+
+
+def has_row(md: str, row: str) -> bool:
+    """Whether a pipe table of ``md`` holds ``row`` (one pipe-table line), whatever the padding."""
+    return md_rows(row)[0] in md_rows(md)
 
 
 def _latex_rows(tex):
@@ -294,9 +310,9 @@ def test_markdown_provenance_missing_and_notes(df):
     lines = md.splitlines()
     assert lines[0] == "## Table 1"
     assert f"_{PROVENANCE}_" in lines
-    assert "| Method | CLIP ↑ | ImageReward ↑ | PSNR ↑ | LPIPS ↓ | n |" in lines
-    assert "| FLUX-dev | _29.00_ | 0.150 | 13.00 | — | 2 |" in lines
-    assert "| Snellcaster | _29.00_ | _0.400_ | **19.00** | **0.250** | 2 |" in lines
+    assert has_row(md, "| Method | CLIP ↑ | ImageReward ↑ | PSNR ↑ | LPIPS ↓ | n |")
+    assert has_row(md, "| FLUX-dev | _29.00_ | 0.150 | 13.00 | — | 2 |")
+    assert has_row(md, "| Snellcaster | _29.00_ | _0.400_ | **19.00** | **0.250** | 2 |")
     notes = md.split("### Notes")[1]
     assert "- failed: kitchen-0 / sphere / inpaint — CUDA out of memory" in notes
     assert f"- skipped: living_room-0 / sphere / no_pano — {SKIP}" in notes
@@ -304,6 +320,16 @@ def test_markdown_provenance_missing_and_notes(df):
     assert "nan" not in md.lower()
     # explicit provenance wins over the stored one
     assert "_custom source_" in to_markdown(t, "T", provenance="custom source")
+
+
+def test_pipe_table_writes_cells_as_given_with_their_alignment():
+    cells = [["1e5", "0010", "a\\|b", "True"], ["", "2.50", "—", "x y"]]
+    lines = pipe_table(["a", "b", "c", "d"], cells, ["left", "right", "center", None])
+    head, rule, *body = md_rows("\n".join(lines))
+    assert head == ["a", "b", "c", "d"] and body == cells  # no number parsed or reformatted
+    assert [re.sub("-+", "-", c) for c in rule] == [":-", "-:", ":-:", "-"]
+    with pytest.raises(KeyError):
+        pipe_table(["a"], [], ["middle"])
 
 
 def test_scene_table_marks_best_per_scene(df):
@@ -400,9 +426,9 @@ def test_every_recorded_metric_is_ranked_in_its_direction(name):
     assert _latex_header(tex)[1] == f"{spec.label} " + (r"$\uparrow$" if spec.higher_is_better else r"$\downarrow$")
     md = to_markdown(t, "T", provenance="")
     best = "high" if spec.higher_is_better else "low"
-    assert f"| {best} | **{spec.fmt(t.loc[best, name])}** | 1 |" in md.splitlines()
-    assert f"| mid | _{spec.fmt(2.0)}_ | 1 |" in md.splitlines()
-    assert f"| Method | {spec.label} {spec.arrow} | n |" in md.splitlines()
+    assert has_row(md, f"| {best} | **{spec.fmt(t.loc[best, name])}** | 1 |")
+    assert has_row(md, f"| mid | _{spec.fmt(2.0)}_ | 1 |")
+    assert has_row(md, f"| Method | {spec.label} {spec.arrow} | n |")
 
 
 @pytest.mark.parametrize("name", RECORDED_METRICS)

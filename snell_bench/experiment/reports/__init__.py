@@ -17,10 +17,12 @@ The reports read those files and nothing else:
   :func:`savings_table` average over the cells whose ``status`` is ``"ok"``;
   :func:`provenance_line` and :func:`cell_notes` say where the numbers come from and which cells
   or values are missing; :func:`rank_marks` ranks best and second best.
-- :mod:`.writers`: :func:`to_markdown`, :func:`to_latex` and :func:`to_csv` write a table;
-  :func:`tradeoff_markdown` and :func:`stdout_table` a sweep's per-setting table; every string from
-  the cells is escaped for its format (:func:`md_escape`, :func:`tex_escape`; the HTML page's
-  templates escape every string themselves).
+- :mod:`.writers`: :func:`to_markdown` (a pipe table by :meth:`pandas.DataFrame.to_markdown`),
+  :func:`to_latex` and :func:`to_csv` write a table; :func:`tradeoff_markdown` and
+  :func:`stdout_table` a sweep's per-setting table.
+- :mod:`.text`: the helpers every module shares: missing values, reasons on one line, slugs, and
+  escaping every string from the cells for its format (:func:`md_escape`, :func:`md_code`,
+  :func:`tex_escape`; the HTML page's templates escape every string themselves).
 - :mod:`.figures`: :func:`qualitative_figure` (reference | Snellcaster | baselines, each tile with
   an inset zoom on the object; :func:`qualitative_pages` draws every row, ``max_rows`` a page),
   :func:`panorama_figure` (main image beside its panorama), :func:`time_travel_figure` (PSNR and
@@ -106,6 +108,7 @@ from .tables import (
     time_travel_table,
     with_recorded_metrics,
 )
+from .text import md_code, md_escape, tex_escape
 from .tradeoff import (
     CONVERGED_METRICS,
     PRESET_AXIS,
@@ -122,12 +125,9 @@ from .tradeoff import (
     update_spp_records,
 )
 from .writers import (
-    md_code,
-    md_escape,
     pipe_table,
     plain_markdown,
     stdout_table,
-    tex_escape,
     to_csv,
     to_latex,
     to_markdown,

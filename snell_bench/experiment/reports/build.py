@@ -45,10 +45,9 @@ from .tables import (
     time_travel_table,
     with_recorded_metrics,
 )
+from .text import md_code, md_escape, slug
 from .tradeoff import collect_tradeoff, tradeoff_table
 from .writers import (
-    md_code,
-    md_escape,
     plain_markdown,
     skipped_markdown,
     to_csv,
@@ -112,10 +111,6 @@ _SAVINGS_NOTE = (
     "Time = warps + sampling per cell, against Snellcaster on the same scene and object; "
     "ΔPSNR = method − Snellcaster (masked, against the reference)."
 )
-
-
-def _slug(s: str) -> str:
-    return re.sub(r"[^A-Za-z0-9]+", "_", s).strip("_").lower() or "exp"
 
 
 def _is_ior_sweep(df) -> bool:
@@ -188,8 +183,8 @@ def build_reports(
         return Written(_write_reports(df, run_dir, out_dir, experiment_name, max_rows), skipped_files(df))
 
 
-def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -> list[Path]:
-    """The body of :func:`build_reports`, while it holds ``out_dir``."""
+def _grid_tables(df: pd.DataFrame, name: str, ior: bool) -> list[tuple[str, str, pd.DataFrame]]:
+    """The tables of :func:`build_reports`, ``(file stem, title, table)`` each, in order."""
     tables = [
         ("method_table", f"Table 1: methods ({name})", method_table(df, with_recorded_metrics(df, TABLE1_METRICS))),
         ("scene_table", f"Table 3: per scene ({name})", block_table(df, with_recorded_metrics(df, SCENE_METRICS))),
@@ -207,7 +202,6 @@ def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -
                 ablation_table(df, with_recorded_metrics(df, ABLATION_METRICS)),
             ),
         ]
-    ior = _is_ior_sweep(df)
     if ior:
         tables.append(
             (
@@ -221,11 +215,19 @@ def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -
     tt = time_travel_table(df, with_recorded_metrics(df, TIME_TRAVEL_METRICS))
     if len(tt):
         tables.append(("time_travel_table", f"Time travel ({name})", tt))
+    return tables
+
+
+def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -> list[Path]:
+    """The body of :func:`build_reports`, while it holds ``out_dir``."""
+    ior = _is_ior_sweep(df)
+    tables = _grid_tables(df, name, ior)
+    tt = {stem: t for stem, _, t in tables}.get("time_travel_table")
     written: list[Path] = []
     for stem, title, table in tables:
         md, tex, csv = (out_dir / f"{stem}.{ext}" for ext in ("md", "tex", "csv"))
         write_text(md, to_markdown(table, title))
-        write_text(tex, to_latex(table, title, label=f"tab:{_slug(name)}_{stem}"))
+        write_text(tex, to_latex(table, title, label=f"tab:{slug(name, '_') or 'exp'}_{stem}"))
         to_csv(table, csv)
         written += [md, tex, csv]
     savings = None
@@ -246,7 +248,7 @@ def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -
     if ior:
         rows = figure_rows(df, by_ior=True)
         figures.append(("Every IOR", qualitative_figure(run_dir, out_dir / "ior.png", cells=rows, df=df)))
-    if len(tt):
+    if tt is not None:
         figures.append(
             (
                 "PSNR and LPIPS against R_main",

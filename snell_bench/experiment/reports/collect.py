@@ -23,6 +23,7 @@ import yaml
 
 from .records import GRID_RECORD, load_record, non_finite
 from .spec import METRICS, MODEL_DESCRIPTIONS, metric_spec
+from .text import as_float, is_missing, reason
 
 log = logging.getLogger(__name__)
 
@@ -101,15 +102,6 @@ def _is_cell_dir(rel: Path) -> bool:
     )
 
 
-def _float_or_nan(v) -> float:
-    if v is None:
-        return float("nan")
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return float("nan")
-
-
 def recipe_and_protocol(cfg) -> dict:
     """Which recipe and metrics protocol a cell's config records.
 
@@ -165,11 +157,11 @@ def _row_from_record(rec: dict, rel: Path) -> dict:
         if k not in row and k not in _OWN_GROUPS and not isinstance(v, (dict, list)):
             row[k] = v
     for k, v in (rec.get("metrics") or {}).items():
-        row[k] = _float_or_nan(v)
+        row[k] = as_float(v)
     for k, v in (rec.get("missing") or {}).items():
         row[f"missing.{k}"] = None if v is None else str(v)
     for k, v in (rec.get("timings_s") or {}).items():
-        row[f"timings_s.{k}"] = _float_or_nan(v)
+        row[f"timings_s.{k}"] = as_float(v)
     return row
 
 
@@ -324,12 +316,8 @@ def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
 # --------------------------------------------------------------------------------------------
 
 
-def _is_missing(v) -> bool:
-    return v is None or (isinstance(v, float) and math.isnan(v))
-
-
 def _str_values(s: pd.Series) -> Counter:
-    return Counter("unknown" if _is_missing(v) else str(v) for v in s)
+    return Counter("unknown" if is_missing(v) else str(v) for v in s)
 
 
 def provenance_line(df: pd.DataFrame) -> str:
@@ -372,7 +360,7 @@ def provenance_line(df: pd.DataFrame) -> str:
             "scenes (scene.source=procedural), not the paper's scene pipeline (I⁻ generated from p⁻)"
         )
     for col, label in (("recipe", "recipe"), ("protocol", "metrics protocol")):
-        if col in df.columns and len(df) and df[col].map(lambda v: not _is_missing(v)).any():
+        if col in df.columns and len(df) and df[col].map(lambda v: not is_missing(v)).any():
             parts.append(f"{label}: " + describe(_str_values(df[col]), False))
     order = ["ok", "failed", "skipped"] + sorted(set(status) - {"ok", "failed", "skipped"})
     breakdown = ", ".join(f"{status[k]} {k}" for k in order if status.get(k) or k == "ok")
@@ -388,11 +376,6 @@ def _cell_name(r) -> str:
     var = r["variation"]
     var = "?" if var is None or pd.isna(var) else str(int(var))
     return f"{r['scene']}-{var} / {r['object']} / {r['method']}"
-
-
-def _one_line(text) -> str:
-    """A reason on one line (multi-line exception messages would break list items and tables)."""
-    return " ".join(str(text).split())
 
 
 def cell_notes(df: pd.DataFrame, metrics: Iterable[str] = ()) -> list[str]:
@@ -411,9 +394,7 @@ def cell_notes(df: pd.DataFrame, metrics: Iterable[str] = ()) -> list[str]:
     """
     notes = []
     for _, r in df[df["status"] != "ok"].iterrows():
-        reason = r.get("reason")
-        reason = "no reason recorded" if _is_missing(reason) else reason
-        notes.append(f"{r['status']}: {_cell_name(r)} — {_one_line(reason)}")
+        notes.append(f"{r['status']}: {_cell_name(r)} — {reason(r.get('reason'))}")
     ok = df[df["status"] == "ok"]
     for m in metrics:
         if m not in ok.columns:
@@ -427,8 +408,7 @@ def cell_notes(df: pd.DataFrame, metrics: Iterable[str] = ()) -> list[str]:
         reasons = miss[col] if col in miss.columns else pd.Series([None] * len(miss), index=miss.index)
         groups: dict[str, Counter] = {}
         for meth, why in zip(miss["method"], reasons):
-            why = "no reason recorded" if _is_missing(why) else _one_line(why)
-            groups.setdefault(why, Counter())[str(meth)] += 1
+            groups.setdefault(reason(why), Counter())[str(meth)] += 1
         for why in sorted(groups):
             per = groups[why]
             k = sum(per.values())
@@ -453,7 +433,7 @@ def reference_noise_note(df: pd.DataFrame) -> str | None:
     col = "reference.self_noise_db"
     if col not in df.columns or df.empty:
         return None
-    ok = df[(df["status"] == "ok") & df[col].map(lambda v: not _is_missing(v))].copy()
+    ok = df[(df["status"] == "ok") & df[col].map(lambda v: not is_missing(v))].copy()
     ok[col] = ok[col].astype(float)
     ok = ok[ok[col].map(math.isfinite)]
     if ok.empty:

@@ -1,7 +1,5 @@
-"""Figures: the qualitative comparison of a grid experiment (one page per ``max_rows`` rows), the
-main image beside its panorama (the paper's Fig. 4), the time-travel curves and the Pareto plot of a
-speed/accuracy sweep. All are drawn with matplotlib's Agg canvas (no display needed) and written
-atomically."""
+"""Figures, drawn with matplotlib's Agg canvas and written atomically: a grid's qualitative pages,
+the main image beside its panorama (the paper's Fig. 4), time-travel curves and the Pareto plot."""
 
 from __future__ import annotations
 
@@ -18,6 +16,7 @@ from snell_bench.utils.io import atomic_write
 
 from .collect import collect
 from .tables import method_labels, object_ior
+from .text import is_missing
 from .tradeoff import PRESET_AXIS, complete_front, fidelity_column
 
 __all__ = [
@@ -532,7 +531,6 @@ def pareto_figure(table: pd.DataFrame, out_png: str | os.PathLike, title: str = 
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     fid = fidelity_column(table)
     panels = [
@@ -547,77 +545,83 @@ def pareto_figure(table: pd.DataFrame, out_png: str | os.PathLike, title: str = 
         panels.append(("psnr_true", "mean masked PSNR vs true render (dB)"))
     fig = Figure(figsize=(6.0 * len(panels), 4.6), dpi=110, facecolor="white")
     FigureCanvasAgg(fig)
-    axes_names = [a for a in dict.fromkeys(table["axis"]) if a not in (None, PRESET_AXIS) and not _isnan(a)]
-    markers = "osD^v<>phX8"
-    colors = [f"C{i}" for i in range(10)]
+    axes_names = [a for a in dict.fromkeys(table["axis"]) if a != PRESET_AXIS and not is_missing(a)]
     for pi, (metric, ylabel) in enumerate(panels):
-        ax = fig.add_subplot(1, len(panels), pi + 1)
-        x = table["timings_s.total"].to_numpy(float)
-        y = table[metric].to_numpy(float)
-        base = (table["axis"].isna()).to_numpy() | np.array([_isnan(a) for a in table["axis"]])
-        if base.any():
-            ax.scatter(
-                x[base], y[base], marker="o", s=60, facecolors="none", edgecolors="black", label="baseline", zorder=3
-            )
-        for i, a in enumerate(axes_names):
-            sel = (table["axis"] == a).to_numpy()
-            ax.scatter(
-                x[sel], y[sel], marker=markers[i % len(markers)], color=colors[i % len(colors)], s=28, label=a, zorder=3
-            )
-            for lab, xi, yi in zip(table.index[sel], x[sel], y[sel]):
-                if np.isfinite(xi) and np.isfinite(yi):
-                    ax.annotate(
-                        lab.split("=", 1)[-1],
-                        (xi, yi),
-                        fontsize=6,
-                        xytext=(3, 2),
-                        textcoords="offset points",
-                        color=colors[i % len(colors)],
-                    )
-        pre = (table["axis"] == PRESET_AXIS).to_numpy()
-        if pre.any():
-            ax.scatter(
-                x[pre],
-                y[pre],
-                marker="*",
-                s=160,
-                color="gold",
-                edgecolors="black",
-                linewidths=0.6,
-                label="presets",
-                zorder=4,
-            )
-            for lab, xi, yi in zip(table.index[pre], x[pre], y[pre]):
-                if np.isfinite(xi) and np.isfinite(yi):
-                    ax.annotate(
-                        lab.split(":", 1)[-1],
-                        (xi, yi),
-                        fontsize=8,
-                        fontweight="bold",
-                        xytext=(5, -10),
-                        textcoords="offset points",
-                    )
-        front = complete_front(table, x, y)
-        if front.size:
-            ax.step(x[front], y[front], where="post", color="grey", lw=1.2, ls="--", label="Pareto front", zorder=2)
-            ax.scatter(x[front], y[front], s=150, facecolors="none", edgecolors="grey", linewidths=1.0, zorder=2)
-        finite = x[np.isfinite(x)]
-        if finite.size and (finite > 0).all():
-            ax.set_xscale("log")
-            ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
-            ax.xaxis.set_minor_locator(LogLocator(base=10, subs=tuple(range(1, 10))))
-            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-            ax.xaxis.set_minor_formatter(NullFormatter())
-        clip_outliers(ax, table.index, x, y)
-        ax.set_xlabel("mean total time per image (s, log scale)")
-        ax.set_ylabel(ylabel)
-        ax.grid(True, which="both", alpha=0.3)
-        if pi == 0:
-            ax.legend(fontsize=7, loc="best")
+        _pareto_panel(fig.add_subplot(1, len(panels), pi + 1), table, metric, ylabel, axes_names, legend=pi == 0)
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return _save(fig, out_png, facecolor="white")
+
+
+def _pareto_panel(ax, table: pd.DataFrame, metric: str, ylabel: str, axes_names: list, legend: bool) -> None:
+    """One panel of :func:`pareto_figure`: ``metric`` against the mean total time."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    markers = "osD^v<>phX8"
+    colors = [f"C{i}" for i in range(10)]
+    x = table["timings_s.total"].to_numpy(float)
+    y = table[metric].to_numpy(float)
+    base = table["axis"].isna().to_numpy()
+    if base.any():
+        ax.scatter(
+            x[base], y[base], marker="o", s=60, facecolors="none", edgecolors="black", label="baseline", zorder=3
+        )
+    for i, a in enumerate(axes_names):
+        sel = (table["axis"] == a).to_numpy()
+        ax.scatter(
+            x[sel], y[sel], marker=markers[i % len(markers)], color=colors[i % len(colors)], s=28, label=a, zorder=3
+        )
+        for lab, xi, yi in zip(table.index[sel], x[sel], y[sel]):
+            if np.isfinite(xi) and np.isfinite(yi):
+                ax.annotate(
+                    lab.split("=", 1)[-1],
+                    (xi, yi),
+                    fontsize=6,
+                    xytext=(3, 2),
+                    textcoords="offset points",
+                    color=colors[i % len(colors)],
+                )
+    pre = (table["axis"] == PRESET_AXIS).to_numpy()
+    if pre.any():
+        ax.scatter(
+            x[pre],
+            y[pre],
+            marker="*",
+            s=160,
+            color="gold",
+            edgecolors="black",
+            linewidths=0.6,
+            label="presets",
+            zorder=4,
+        )
+        for lab, xi, yi in zip(table.index[pre], x[pre], y[pre]):
+            if np.isfinite(xi) and np.isfinite(yi):
+                ax.annotate(
+                    lab.split(":", 1)[-1],
+                    (xi, yi),
+                    fontsize=8,
+                    fontweight="bold",
+                    xytext=(5, -10),
+                    textcoords="offset points",
+                )
+    front = complete_front(table, x, y)
+    if front.size:
+        ax.step(x[front], y[front], where="post", color="grey", lw=1.2, ls="--", label="Pareto front", zorder=2)
+        ax.scatter(x[front], y[front], s=150, facecolors="none", edgecolors="grey", linewidths=1.0, zorder=2)
+    finite = x[np.isfinite(x)]
+    if finite.size and (finite > 0).all():
+        ax.set_xscale("log")
+        ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_minor_locator(LogLocator(base=10, subs=tuple(range(1, 10))))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.xaxis.set_minor_formatter(NullFormatter())
+    clip_outliers(ax, table.index, x, y)
+    ax.set_xlabel("mean total time per image (s, log scale)")
+    ax.set_ylabel(ylabel)
+    ax.grid(True, which="both", alpha=0.3)
+    if legend:
+        ax.legend(fontsize=7, loc="best")
 
 
 def clip_outliers(ax, labels, x: np.ndarray, y: np.ndarray) -> None:
@@ -646,7 +650,3 @@ def clip_outliers(ax, labels, x: np.ndarray, y: np.ndarray) -> None:
             ha="center",
             arrowprops={"arrowstyle": "->", "lw": 0.8, "color": "black"},
         )
-
-
-def _isnan(v) -> bool:
-    return isinstance(v, float) and math.isnan(v)

@@ -37,7 +37,6 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,6 +50,7 @@ from .collect import recorded_metrics
 from .figures import PANORAMA_FILE, figure_rows
 from .spec import metric_spec
 from .tables import DEFAULT_IOR, ior_label, method_labels
+from .text import is_missing, one_line, reason, slug
 
 __all__ = [
     "THUMB_PX",
@@ -285,9 +285,9 @@ def image_name(folder: str, kind: str, size: str, ext: str) -> str:
         A name of ASCII letters, digits, ``.``, ``-`` and ``_`` only; different for different
         ``(folder, kind)``.
     """
-    slug = re.sub(r"[^A-Za-z0-9.-]+", "-", folder).strip("-.")[:60] or "cell"
+    stem = slug(folder, keep=".-", lower=False)[:60] or "cell"
     digest = hashlib.sha1(f"{folder}\0{kind}".encode()).hexdigest()[:8]
-    return f"{slug}_{digest}_{kind}_{size}.{ext}"
+    return f"{stem}_{digest}_{kind}_{size}.{ext}"
 
 
 def _save(image, path: Path, ext: str) -> Path:
@@ -357,14 +357,6 @@ def _cell_error(d: Path, protocol: str) -> tuple[np.ndarray | str, np.ndarray | 
     return err, to_gray(ref_rgb)
 
 
-def _missing(v) -> bool:
-    return v is None or (isinstance(v, float) and math.isnan(v))
-
-
-def _one_line(text) -> str:
-    return " ".join(str(text).split())
-
-
 def metric_values(row: pd.Series, metrics: list[str]) -> list[MetricValue]:
     """A cell's ``metrics`` as a caption shows them, each missing one with its reason: the cell's
     status and reason when it is not ok, else its recorded ``missing.<metric>``."""
@@ -372,17 +364,51 @@ def metric_values(row: pd.Series, metrics: list[str]) -> list[MetricValue]:
     for m in metrics:
         spec = metric_spec(m)
         v = row.get(m)
-        v = float("nan") if _missing(v) else float(v)
-        reason = None
+        v = float("nan") if is_missing(v) else float(v)
+        why = None
         if math.isnan(v):
             if row.get("status") != "ok":
-                why = row.get("reason")
-                reason = f"{row.get('status')}: " + ("no reason recorded" if _missing(why) else _one_line(why))
+                why = f"{row.get('status')}: {reason(row.get('reason'))}"
             else:
-                why = row.get(f"missing.{m}")
-                reason = "no reason recorded" if _missing(why) else _one_line(why)
-        out.append(MetricValue(m, spec.label, v, spec.fmt(None if math.isnan(v) else v), reason))
+                why = reason(row.get(f"missing.{m}"))
+        out.append(MetricValue(m, spec.label, v, spec.fmt(None if math.isnan(v) else v), why))
     return out
+
+
+def _method_cell(
+    method: str,
+    label: str,
+    r: pd.Series,
+    shown: list[str],
+    what: str,
+    run_dir: Path,
+    out_dir: Path,
+    written: list[Path],
+    errors: list,
+) -> MethodCell:
+    """The cell of ``method`` in a gallery row from its row ``r`` of ``collect``: its ``shown``
+    metrics, its image and panorama copied; its masked |error| values go to ``errors`` (coloured
+    once the scale is known)."""
+    cdir = str(r["cell_dir"])
+    why = r.get("reason")
+    why = None if is_missing(why) else one_line(why)
+    cell = MethodCell(method, label, cdir, str(r["status"]), why, metric_values(r, shown))
+    d = run_dir / cdir
+    img = _open(d / "image.png") if r["status"] == "ok" else None
+    if img is not None:
+        cell.image = _copies(img, out_dir, cdir, "image", f"{cell.label}: {what}", written)
+        protocol = r.get("protocol")
+        cell.protocol = protocol = "paper" if is_missing(protocol) else str(protocol)
+        err, _ = _cell_error(d, protocol)
+        if isinstance(err, str):
+            cell.error_reason = err
+        else:
+            cell.error_mean = float(np.nanmean(err))
+            errors.append((cell, protocol, err[np.isfinite(err)].astype(np.float32)))
+    pano = _open(d / PANORAMA_FILE) if r["status"] == "ok" else None
+    if pano is not None:
+        cell.panorama = _copies(pano, out_dir, cdir, "panorama", f"panorama of {cell.label}: {what}", written)
+    return cell
 
 
 def gallery(
@@ -441,35 +467,7 @@ def gallery(
             if sel.empty:
                 cells.append(MethodCell(m, labels.get(m, m), None, "not run", "no cell of this method in this group"))
                 continue
-            r = sel.iloc[0]
-            cdir = str(r["cell_dir"])
-            why = r.get("reason")
-            cell = MethodCell(
-                m,
-                labels.get(m, m),
-                cdir,
-                str(r["status"]),
-                None if _missing(why) else _one_line(why),
-                metric_values(r, shown),
-            )
-            d = run_dir / cdir
-            img = _open(d / "image.png") if r["status"] == "ok" else None
-            if img is not None:
-                cell.image = _copies(img, out_dir, cdir, "image", f"{labels.get(m, m)}: {what}", written)
-                protocol = r.get("protocol")
-                cell.protocol = protocol = "paper" if _missing(protocol) else str(protocol)
-                err, _ = _cell_error(d, protocol)
-                if isinstance(err, str):
-                    cell.error_reason = err
-                else:
-                    cell.error_mean = float(np.nanmean(err))
-                    errors.append((cell, protocol, err[np.isfinite(err)].astype(np.float32)))
-            pano = _open(d / PANORAMA_FILE) if r["status"] == "ok" else None
-            if pano is not None:
-                cell.panorama = _copies(
-                    pano, out_dir, cdir, "panorama", f"panorama of {labels.get(m, m)}: {what}", written
-                )
-            cells.append(cell)
+            cells.append(_method_cell(m, labels.get(m, m), sel.iloc[0], shown, what, run_dir, out_dir, written, errors))
         ior = ior_label(obj)
         rows.append(
             GalleryRow(

@@ -64,8 +64,9 @@ from .gallery import Gallery, error_lut
 from .plots import Plot
 from .spec import MISSING, metric_spec
 from .tables import DEFAULT_IOR, rank_marks
+from .text import as_float, is_missing, reason
 from .tradeoff import PRESET_AXIS
-from .writers import _cell_text, _header, rank_scope
+from .writers import _cell_text, _header, _index_header, rank_scope
 
 __all__ = [
     "PAGE",
@@ -146,19 +147,10 @@ def environment():
 # --------------------------------------------------------------------------------------------
 
 
-def _missing(v) -> bool:
-    return v is None or (isinstance(v, float) and math.isnan(v))
-
-
 def _number(v) -> str:
-    """A number as ``data-value``: ``repr`` of the float, "" where missing."""
-    if _missing(v):
-        return ""
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return ""
-    return "" if not math.isfinite(x) else repr(x)
+    """A number as ``data-value``: ``repr`` of the float, "" where missing or not finite."""
+    x = as_float(v)
+    return repr(x) if math.isfinite(x) else ""
 
 
 def _label_type(values: Sequence) -> str:
@@ -170,21 +162,17 @@ def _label_type(values: Sequence) -> str:
     return "number" if nums else "text"
 
 
-def _one_line(why) -> str:
-    return "no reason recorded" if _missing(why) else " ".join(str(why).split())
-
-
 def _reasons(cells: pd.DataFrame, metric: str) -> str:
     """Why ``metric`` has no value in a row: the reasons of its cells (``"<status>: <reason>"`` for
     a cell not ok, the recorded ``missing.<metric>`` for an ok one), one a line, with their counts."""
     reasons: Counter = Counter()
     for _, r in cells.iterrows():
         if r.get("status") != "ok":
-            reasons[f"{r.get('status')}: {_one_line(r.get('reason'))}"] += 1
+            reasons[f"{r.get('status')}: {reason(r.get('reason'))}"] += 1
         elif metric not in cells.columns:
             reasons["not recorded"] += 1
-        elif _missing(r.get(metric)):
-            reasons[_one_line(r.get(f"missing.{metric}"))] += 1
+        elif is_missing(r.get(metric)):
+            reasons[reason(r.get(f"missing.{metric}"))] += 1
     if not reasons:
         return "no cell"
     return "\n".join(f"{why} (×{n})" if n > 1 else why for why, n in sorted(reasons.items()))
@@ -208,7 +196,7 @@ def table_view(
         table), the cells of every row (module docstring), each row's scenes, objects and methods.
     """
     ranks = rank_marks(table)
-    names = [str(n or "") for n in table.index.names]
+    names = _index_header(table)
     levels = [list(table.index.get_level_values(i)) for i in range(table.index.nlevels)]
     header = [(n, _label_type(levels[i])) for i, n in enumerate(names)]
     header += [(_header(table, c), "number") for c in table.columns]  # every value column holds numbers
@@ -333,7 +321,7 @@ def tradeoff_view(table: pd.DataFrame, files: Sequence[str] = ()) -> TableView:
         cells.append(Cell(axis, axis, "label"))
         for _, col, fmt in _TRADEOFF_COLUMNS:
             v = r.get(col, float("nan"))
-            missing = _missing(v) or not math.isfinite(float(v))
+            missing = is_missing(v) or not math.isfinite(float(v))
             tip = None
             if missing and col == "lpips" and isinstance(r.get("lpips_missing"), str):
                 tip = r["lpips_missing"]

@@ -17,7 +17,6 @@ Conventions:
 
 from __future__ import annotations
 
-import html
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -27,6 +26,7 @@ import pandas as pd
 
 from .spec import MEASURES, metric_spec
 from .tables import column_metric
+from .text import html_escape, slug
 from .tradeoff import PRESET_AXIS, complete_front, fidelity_column
 
 __all__ = [
@@ -71,10 +71,6 @@ def plot_json(fig) -> str:
     return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
 
 
-def _esc(text) -> str:
-    return html.escape(str(text), quote=False)
-
-
 def _floats(values) -> list:
     return [None if v is None or not math.isfinite(float(v)) else float(v) for v in values]
 
@@ -105,7 +101,7 @@ def _subplots(titles: Sequence[str]):
     fig = make_subplots(
         rows=rows,
         cols=cols,
-        subplot_titles=[_esc(t) for t in titles],
+        subplot_titles=[html_escape(t) for t in titles],
         horizontal_spacing=0.08,
         vertical_spacing=min(0.25, 0.5 / rows),
     )
@@ -190,10 +186,10 @@ def axis_plots(tables: Sequence[tuple[str, str, pd.DataFrame]]) -> list[Plot]:
                     n = table["n"].iloc[rows].tolist() if "n" in table.columns else [None] * len(rows)
                     fig.add_trace(
                         go.Scatter(
-                            x=_floats(xs) if numeric else [_esc(x) for x in xs],
+                            x=_floats(xs) if numeric else [html_escape(x) for x in xs],
                             y=_floats(ys),
                             mode="lines+markers",
-                            name=_esc(" / ".join(str(s) for s in skey)),
+                            name=html_escape(" / ".join(str(s) for s in skey)),
                             legendgroup=str(si),
                             showlegend=k == 0,
                             marker={"color": _color(si)},
@@ -204,15 +200,13 @@ def axis_plots(tables: Sequence[tuple[str, str, pd.DataFrame]]) -> list[Plot]:
                         row=row,
                         col=col,
                     )
-                fig.update_xaxes(title_text=_esc(name), row=row, col=col)
+                fig.update_xaxes(title_text=html_escape(name), row=row, col=col)
                 if not numeric:
-                    fig.update_xaxes(type="category", categoryorder="array", categoryarray=[_esc(x) for x in x_all])
-            plots.append(Plot(f"plot-{_slug(name)}", f"Against {name} ({title})", plot_json(fig)))
+                    fig.update_xaxes(
+                        type="category", categoryorder="array", categoryarray=[html_escape(x) for x in x_all]
+                    )
+            plots.append(Plot(f"plot-{slug(name) or 'axis'}", f"Against {name} ({title})", plot_json(fig)))
     return plots
-
-
-def _slug(text: str) -> str:
-    return "".join(ch if ch.isascii() and ch.isalnum() else "-" for ch in str(text)).strip("-").lower() or "axis"
 
 
 def _color(i: int) -> str:
@@ -264,20 +258,20 @@ def tradeoff_axis_plot(table: pd.DataFrame, df: pd.DataFrame) -> Plot | None:
         sub = table[table["axis"] == a]
         values = [value_of.get(s, s) for s in sub.index]
         nums = numeric_labels(values)
-        xs = nums if nums is not None else [_esc(v) for v in values]
+        xs = nums if nums is not None else [html_escape(v) for v in values]
         for mi, m in enumerate(metrics):
             fig.add_trace(
                 go.Scatter(
                     x=xs,
                     y=_floats(sub[m]),
                     mode="lines+markers",
-                    name=_esc(_FIDELITY.get(m, m)),
+                    name=html_escape(_FIDELITY.get(m, m)),
                     legendgroup=m,
                     showlegend=k == 0,
                     marker={"color": _color(mi)},
                     line={"color": _color(mi)},
                     text=[
-                        f"{_esc(s)}<br>total {t:.2f} s<br>n = {n}/{ns}"
+                        f"{html_escape(s)}<br>total {t:.2f} s<br>n = {n}/{ns}"
                         for s, t, n, ns in zip(sub.index, sub["timings_s.total"], sub["n"], sub["n_scenes"])
                     ],
                     hovertemplate="%{text}<br>%{y:.2f} dB<extra>%{fullData.name}</extra>",
@@ -285,7 +279,7 @@ def tradeoff_axis_plot(table: pd.DataFrame, df: pd.DataFrame) -> Plot | None:
                 row=row,
                 col=col,
             )
-        fig.update_xaxes(title_text=_esc(a), row=row, col=col)
+        fig.update_xaxes(title_text=html_escape(a), row=row, col=col)
         if nums is None:
             fig.update_xaxes(type="category", row=row, col=col)
         elif min(nums) > 0 and max(nums) / min(nums) >= 20:
@@ -324,9 +318,9 @@ def pareto_plot(table: pd.DataFrame) -> Plot:
                 x=_floats(x[sel]),
                 y=_floats(y[sel]),
                 mode="markers",
-                name=_esc(name),
+                name=html_escape(name),
                 marker={"symbol": symbol, "size": 14 if symbol == "star" else 9, "color": _color(gi)},
-                text=[_esc(s) for s in table.index[sel]],
+                text=[html_escape(s) for s in table.index[sel]],
                 hovertemplate="%{text}<br>total %{x:.2f} s<br>%{y:.2f} dB<extra></extra>",
             )
         )
@@ -339,7 +333,7 @@ def pareto_plot(table: pd.DataFrame) -> Plot:
                 mode="lines",
                 line={"shape": "hv", "dash": "dash", "color": "grey"},
                 name="Pareto front",
-                text=[_esc(s) for s in table.index[front]],
+                text=[html_escape(s) for s in table.index[front]],
                 hovertemplate="%{text}<extra>Pareto front</extra>",
             )
         )
@@ -352,6 +346,6 @@ def pareto_plot(table: pd.DataFrame) -> Plot:
             "title": {"text": "mean total time per image (s)"},
             "type": "log" if finite.size and (finite > 0).all() else "linear",
         },
-        yaxis={"title": {"text": _esc(_FIDELITY.get(fid, fid))}},
+        yaxis={"title": {"text": html_escape(_FIDELITY.get(fid, fid))}},
     )
     return Plot("plot-pareto", "Time against fidelity (Pareto front)", plot_json(fig))

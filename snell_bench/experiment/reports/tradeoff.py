@@ -28,6 +28,7 @@ from snell_bench.metrics.registry import BUILTIN_METRICS
 from snell_bench.utils.io import write_json
 
 from .records import TRADEOFF_RECORD, load_record, non_finite
+from .text import as_float
 
 log = logging.getLogger(__name__)
 
@@ -231,13 +232,6 @@ def pareto_front(cost: Sequence[float], score: Sequence[float]) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- tables
-def _float(v) -> float:
-    try:
-        return float("nan") if v is None else float(v)
-    except (TypeError, ValueError):
-        return float("nan")
-
-
 def _value_text(v) -> str | None:
     """An axis value for a CSV cell: scalars as text, compound values as JSON."""
     if v is None:
@@ -291,20 +285,20 @@ def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
         for k, v in (r.get("knobs") or {}).items():
             row[f"knob.{k}"] = v
         for k in STAGES + ("total",):
-            row[f"timings_s.{k}"] = _float((r.get("timings_s") or {}).get(k))
+            row[f"timings_s.{k}"] = as_float((r.get("timings_s") or {}).get(k))
         for k, v in (r.get("sampler_timings_s") or {}).items():
-            row[f"sampler_s.{k}"] = _float(v)
+            row[f"sampler_s.{k}"] = as_float(v)
         for k, v in (r.get("model_calls") or {}).items():
             row[f"model_calls.{k}"] = v
         extra = [k for k in (r.get("metrics") or {}) if k not in RECORD_METRICS]  # users' metrics
         for k in (*RECORD_METRICS, *extra):
-            row[k] = float("nan") if k in bad else _float((r.get("metrics") or {}).get(k))
+            row[k] = float("nan") if k in bad else as_float((r.get("metrics") or {}).get(k))
             row[f"missing.{k}"] = (
                 f"not finite in the record ({bad[k]})" if k in bad else (r.get("missing") or {}).get(k)
             )
-        row["reference_psnr_vs_max_spp"] = _float(conv.get(r["_dir"], r.get("reference_psnr_vs_max_spp")))
+        row["reference_psnr_vs_max_spp"] = as_float(conv.get(r["_dir"], r.get("reference_psnr_vs_max_spp")))
         row["converged_spp"] = (r.get("converged_reference") or {}).get("spp")
-        row["reference_self_noise_db"] = _float((r.get("reference") or {}).get("self_noise_db"))
+        row["reference_self_noise_db"] = as_float((r.get("reference") or {}).get("self_noise_db"))
         row["dir"] = r["_dir"]
         rows.append(row)
     df = pd.DataFrame(rows)

@@ -1,5 +1,6 @@
-"""Writing tables: Markdown (one pipe-table writer for every report, the speed/accuracy sweep's
-included), LaTeX (booktabs, through :meth:`pandas.io.formats.style.Styler.to_latex`) and CSV.
+"""Writing tables: Markdown (:meth:`pandas.DataFrame.to_markdown`, one pipe-table writer for every
+report, the speed/accuracy sweep's included), LaTeX (booktabs, through
+:meth:`pandas.io.formats.style.Styler.to_latex`) and CSV.
 
 The Markdown and LaTeX versions of a table from :mod:`.tables` carry a provenance line (which model
 and scene source produced the numbers, how many cells) and notes listing every failed or skipped
@@ -8,9 +9,9 @@ cell with its reason and every metric without a value in some averaged cells. Th
 :func:`~snell_bench.experiment.reports.tables.rank_marks`; a missing value is "—".
 
 Every string that comes from the cells (names, labels, reasons, the experiment's name) is escaped
-for the format it goes into: :func:`md_escape` for Markdown (one line; ``|``, backticks, ``*``,
-``[``, ``<``, ``&``... backslash-escaped, so that it reads back as written and never becomes a
-table cell, a link, emphasis or HTML) and :func:`tex_escape` for LaTeX.
+for the format it goes into: :func:`~.text.md_escape` for Markdown (one line; ``|``, backticks,
+``*``, ``[``, ``<``, ``&``... backslash-escaped, so that it reads back as written and never becomes
+a table cell, a link, emphasis or HTML) and :func:`~.text.tex_escape` for LaTeX.
 """
 
 from __future__ import annotations
@@ -18,7 +19,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import re
 from collections import Counter
 from collections.abc import Iterable, Sequence
 
@@ -30,7 +30,8 @@ from snell_bench.utils.io import write_text
 from .collect import skipped_files
 from .spec import MEASURES, MISSING, metric_spec
 from .tables import column_metric, rank_marks
-from .tradeoff import PRESET_AXIS, RECORD_METRICS, SPP_KEY, TOTAL_NOTE, fidelity_column
+from .text import is_missing, md_code, md_escape, one_line, tex_escape
+from .tradeoff import PRESET_AXIS, RECORD_METRICS, SPP_KEY, STAGES, TOTAL_NOTE, fidelity_column
 
 __all__ = [
     "pipe_table",
@@ -38,9 +39,6 @@ __all__ = [
     "plain_markdown",
     "to_latex",
     "to_csv",
-    "tex_escape",
-    "md_escape",
-    "md_code",
     "rank_scope",
     "tradeoff_markdown",
     "tradeoff_summary",
@@ -48,57 +46,21 @@ __all__ = [
     "stdout_table",
 ]
 
-_ALIGN = {None: "---", "left": ":---", "right": "---:", "center": ":---:"}
-
-# Markdown's active characters in running text and table cells: backslash, code, emphasis, links
-# and images, HTML and autolinks, entities, GFM strikethrough and cell separators. An underscore
-# inside a word (``living_room``) is never emphasis (CommonMark), so it is left as it is.
-_MD_ACTIVE = re.compile(r"[\\`*\[\]<>&|~]|(?<![0-9A-Za-z])_|_(?![0-9A-Za-z])")
-
-
-def md_escape(text) -> str:
-    r"""``str(text)`` as literal Markdown text on one line (a table cell, a list item, a heading).
-
-    Whitespace runs (newlines included) become one space; the characters Markdown would read as
-    markup are backslash-escaped (CommonMark: any ASCII punctuation may be), so the text renders as
-    written.
-
-    Args:
-        text: any value; its ``str``.
-
-    Returns:
-        The escaped text.
-
-    Examples:
-        >>> md_escape("a|b <i>x</i> *y* `z`")
-        'a\\|b \\<i\\>x\\</i\\> \\*y\\* \\`z\\`'
-        >>> md_escape("living_room\n _x_")
-        'living_room \\_x\\_'
-    """
-    return _MD_ACTIVE.sub(lambda m: "\\" + m.group(0), " ".join(str(text).split()))
-
-
-def md_code(text) -> str:
-    """``str(text)`` as a Markdown code span on one line, fenced with more backticks than it holds.
-
-    Examples:
-        >>> md_code("runs/a`b")
-        '``runs/a`b``'
-    """
-    text = " ".join(str(text).split())
-    fence = "`" * (max((len(r) for r in re.findall(r"`+", text)), default=0) + 1)
-    pad = " " if text.startswith("`") or text.endswith("`") else ""
-    return f"{fence}{pad}{text}{pad}{fence}"
+_ALIGNS = (None, "left", "right", "center")
 
 
 def pipe_table(
     header: Sequence[str], rows: Iterable[Sequence[str]], align: Sequence[str | None] | None = None
 ) -> list[str]:
-    """A Markdown pipe table, one string per line, cells written as given (no padding).
+    """A Markdown pipe table (:meth:`pandas.DataFrame.to_markdown`), one string per line.
+
+    Cells are written as given (no number is parsed or reformatted), padded with spaces to their
+    column's width; a column aligned None is not padded. A table without rows has no alignment
+    colons (tabulate writes none there).
 
     Args:
         header: the column headers.
-        rows: the cells of each row, already formatted.
+        rows: the cells of each row, already formatted and escaped (one line each).
         align: per column ``"left"``, ``"right"``, ``"center"`` or None (the renderer's default);
             None for all columns if not given.
 
@@ -107,11 +69,21 @@ def pipe_table(
 
     Raises:
         KeyError: an unknown alignment.
+
+    Examples:
+        >>> print("\\n".join(pipe_table(["a", "b"], [["x", "1.50"], ["yy", "2"]], ["left", "right"])))
+        | a   |    b |
+        |:----|-----:|
+        | x   | 1.50 |
+        | yy  |    2 |
     """
     align = [None] * len(header) if align is None else list(align)
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(_ALIGN[a] for a in align) + "|"]
-    lines += ["| " + " | ".join(row) + " |" for row in rows]
-    return lines
+    for a in align:
+        if a not in _ALIGNS:
+            raise KeyError(a)
+    frame = pd.DataFrame(list(rows), columns=range(len(header)), dtype=object)
+    text = frame.to_markdown(index=False, headers=list(header), colalign=align, disable_numparse=True)
+    return text.splitlines()
 
 
 def _cell_text(table: pd.DataFrame, i: int, j: int) -> str:
@@ -205,7 +177,7 @@ def to_markdown(
         A ``##`` heading, the provenance line, a pipe table (best value **bold**, second best
         _italic_, missing "—"), the caption with the legend, and a "Notes" section listing the
         failed and skipped cells with their reasons and the metrics missing in averaged cells;
-        every text from the table (title, labels, provenance, notes) escaped (:func:`md_escape`).
+        every text from the table (title, labels, provenance, notes) escaped (:func:`~.text.md_escape`).
     """
     provenance, notes = _resolve(table, provenance, notes)
     cols = list(table.columns)
@@ -244,7 +216,7 @@ def plain_markdown(table: pd.DataFrame, title: str, note: str = "") -> str:
 
     Returns:
         The heading, the note and a pipe table: floats with 3 decimals ("—" if not finite),
-        everything else as ``str``, escaped (:func:`md_escape`), as are the title and the note.
+        everything else as ``str``, escaped (:func:`~.text.md_escape`), as are the title and the note.
     """
 
     def fmt(v):
@@ -259,39 +231,7 @@ def plain_markdown(table: pd.DataFrame, title: str, note: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-_LATEX_ESCAPES = {
-    "\\": r"\textbackslash{}",
-    "<": r"\textless{}",
-    ">": r"\textgreater{}",
-    "|": r"\textbar{}",
-    "&": r"\&",
-    "%": r"\%",
-    "$": r"\$",
-    "#": r"\#",
-    "_": r"\_",
-    "{": r"\{",
-    "}": r"\}",
-    "~": r"\textasciitilde{}",
-    "^": r"\textasciicircum{}",
-    "↑": r"$\uparrow$",
-    "↓": r"$\downarrow$",
-    "·": r"$\cdot$",
-    "×": r"$\times$",
-}
 _LATEX_MARKS = {1: "textbf: --rwrap;", 2: "underline: --rwrap;"}
-
-
-def tex_escape(s) -> str:
-    r"""``str(s)`` as LaTeX text on one line: whitespace runs (newlines included: a blank line would
-    end a paragraph inside a caption) become one space, LaTeX's special characters
-    (``\ & % $ # _ { } ~ ^``) and ``< > |`` (other glyphs in LaTeX's default font encoding) are
-    escaped, and ↑ ↓ · × become math symbols (Styler's ``escape="latex"`` leaves those four as they are).
-
-    Examples:
-        >>> tex_escape("50% of a_b & {c}\n#1 <x>")
-        '50\\% of a\\_b \\& \\{c\\} \\#1 \\textless{}x\\textgreater{}'
-    """
-    return "".join(_LATEX_ESCAPES.get(ch, ch) for ch in " ".join(str(s).split()))
 
 
 def to_latex(
@@ -387,7 +327,7 @@ def to_csv(table: pd.DataFrame, path: str | os.PathLike | None = None) -> str:
 
 
 def _fmt(v, spec: str = "{:.2f}") -> str:
-    return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else spec.format(v)
+    return MISSING if is_missing(v) else spec.format(v)
 
 
 def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed/accuracy trade-off") -> str:
@@ -403,31 +343,16 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
         front starred, "missing" for LPIPS without a value), the reference convergence of the spp
         axes, notes listing failed settings and missing metrics with their reasons, and the record
         files left out (:func:`~.collect.skipped_files`); every text from the records escaped
-        (:func:`md_escape`).
+        (:func:`~.text.md_escape`).
     """
     lines = [f"# {md_escape(title)}", "", tradeoff_summary(table, df, bold="**", quote=md_escape), ""]
-    head = [
-        "setting",
-        "scene",
-        "warps",
-        "reference",
-        "true render",
-        "generator",
-        "sampling",
-        "metrics",
-        "total",
-        *(metric_spec(m).label for m in _TRADEOFF_METRICS),
-        "ref. self-noise",
-        "n",
-        "pareto",
-    ]
+    stages = (*STAGES, "total")
+    head = ["setting", *(k.replace("_", " ") for k in stages), *(metric_spec(m).label for m in _TRADEOFF_METRICS)]
+    head += ["ref. self-noise", "n", "pareto"]
     rows = []
     for setting, r in table.iterrows():
         label = f"**{md_escape(setting)}**" if r["axis"] == PRESET_AXIS else md_escape(setting)
-        cells = [label] + [
-            _fmt(r[f"timings_s.{k}"])
-            for k in ("scene", "warps", "reference", "true_render", "generator", "sampling", "metrics", "total")
-        ]
+        cells = [label] + [_fmt(r[f"timings_s.{k}"]) for k in stages]
         cells += [
             *(_metric_text(m, r.get(m, float("nan")), "missing") for m in _TRADEOFF_METRICS),
             _fmt(r.get("reference_self_noise_db", float("nan"))),
@@ -438,39 +363,45 @@ def tradeoff_markdown(table: pd.DataFrame, df: pd.DataFrame, title: str = "Speed
             cells = [f"**{x}**" if x and not x.startswith("**") else x for x in cells]
         rows.append(cells)
     lines += pipe_table(head, rows, [None] + ["right"] * (len(head) - 2) + ["center"])
-    spp = df[df.apply(_is_spp_axis_row, axis=1)] if not df.empty else df
-    if not spp.empty:
-        lines += [
-            "",
-            "## Reference convergence",
-            "",
-            "Masked PSNR (grayscale, histogram-matched) of each reference render against the highest-spp "
-            "reference of its axis for the same scene, over that reference's metric mask; mean over scenes; "
-            "computed from the saved float references (`reference.npy`).",
-            "",
-        ]
-        rows = []
-        for (axis, setting), g in spp.groupby(["axis", "setting"], sort=False):
-            n = int(g["knob.spp"].iloc[0]) if "knob.spp" in g and g["knob.spp"].notna().any() else None
-            top = n is not None and n == spp.loc[spp["axis"] == axis, "knob.spp"].max()
-            v = table.loc[setting, "reference_psnr_vs_max_spp"] if setting in table.index else float("nan")
-            own = table.loc[setting, "reference_self_noise_db"] if setting in table.index else float("nan")
-            rows.append(
-                [
-                    md_escape(setting),
-                    str(n) if n is not None else "—",
-                    "(highest spp: the comparison reference)" if top else _fmt(v),
-                    _fmt(own),
-                ]
-            )
-        lines += pipe_table(
-            ["setting", "spp", "PSNR vs max spp", "self-noise (two halves)"], rows, [None, "right", "right", "right"]
-        )
+    lines += _convergence_markdown(table, df)
     notes = tradeoff_notes(df)
     if notes:
         lines += ["", "## Notes", ""] + [f"- {md_escape(n)}" for n in notes]
     lines += skipped_markdown(skipped_files(df), "##")
     return "\n".join(lines) + "\n"
+
+
+def _convergence_markdown(table: pd.DataFrame, df: pd.DataFrame) -> list[str]:
+    """The "Reference convergence" section of :func:`tradeoff_markdown` (none without an spp axis)."""
+    spp = df[df.apply(_is_spp_axis_row, axis=1)] if not df.empty else df
+    if spp.empty:
+        return []
+    rows = []
+    for (axis, setting), g in spp.groupby(["axis", "setting"], sort=False):
+        n = int(g["knob.spp"].iloc[0]) if "knob.spp" in g and g["knob.spp"].notna().any() else None
+        top = n is not None and n == spp.loc[spp["axis"] == axis, "knob.spp"].max()
+        v = table.loc[setting, "reference_psnr_vs_max_spp"] if setting in table.index else float("nan")
+        own = table.loc[setting, "reference_self_noise_db"] if setting in table.index else float("nan")
+        rows.append(
+            [
+                md_escape(setting),
+                str(n) if n is not None else MISSING,
+                "(highest spp: the comparison reference)" if top else _fmt(v),
+                _fmt(own),
+            ]
+        )
+    return [
+        "",
+        "## Reference convergence",
+        "",
+        "Masked PSNR (grayscale, histogram-matched) of each reference render against the highest-spp "
+        "reference of its axis for the same scene, over that reference's metric mask; mean over scenes; "
+        "computed from the saved float references (`reference.npy`).",
+        "",
+        *pipe_table(
+            ["setting", "spp", "PSNR vs max spp", "self-noise (two halves)"], rows, [None, "right", "right", "right"]
+        ),
+    ]
 
 
 def skipped_markdown(skipped: Sequence[tuple[str, str]], level: str = "##") -> list[str]:
@@ -505,7 +436,7 @@ def tradeoff_summary(table: pd.DataFrame, df: pd.DataFrame, bold: str = "", quot
         table: from :func:`tradeoff_table`.
         df: the rows it was built from (:func:`collect_tradeoff`).
         bold: the mark around the word "pareto" (``"**"`` in Markdown).
-        quote: applied to the names from the records (scenes, models): :func:`md_escape` in
+        quote: applied to the names from the records (scenes, models): :func:`~.text.md_escape` in
             Markdown; ``str`` where the page escapes them itself.
 
     Returns:
@@ -545,13 +476,13 @@ def tradeoff_notes(df: pd.DataFrame) -> list[str]:
     """
     notes = []
     for _, r in df[df["status"] != "ok"].iterrows():
-        notes.append(f"{r['status']}: {r['scene']} / {r['setting']} — {' '.join(str(r['reason']).split())}")
+        notes.append(f"{r['status']}: {r['scene']} / {r['setting']} — {one_line(r['reason'])}")
     for m in RECORD_METRICS:
         col = f"missing.{m}"
         ok = df[df["status"] == "ok"]
         if col in ok and ok[m].isna().any():
             for why, n in Counter(str(v) for v in ok.loc[ok[m].isna(), col]).items():
-                notes.append(f"{m}: missing in {n} of {len(ok)} ok runs — {' '.join(why.split())}")
+                notes.append(f"{m}: missing in {n} of {len(ok)} ok runs — {one_line(why)}")
     return notes
 
 
