@@ -24,8 +24,6 @@ Exit status:
 
 from __future__ import annotations
 
-import contextlib
-import io
 import re
 import shlex
 import sys
@@ -121,15 +119,38 @@ def quoted_override(arg: str) -> str | None:
     return shlex.quote(candidate) if _parses(candidate) else None
 
 
+#: Hydra's flags that take the next argument as their value (``--info`` takes one of its choices).
+_VALUE_FLAGS = frozenset(
+    {"-c", "--cfg", "-p", "--package", "-cp", "--config-path", "-cn", "--config-name", "-cd", "--config-dir"}
+    | {"--experimental-rerun", "-i", "--info"}
+)
+
+
+def overrides_of(argv: list[str]) -> list[str]:
+    """The overrides of a Hydra command line: the arguments that are neither a flag nor a flag's value.
+
+    Examples:
+        >>> overrides_of(["-m", "--cfg", "job", "a=1", "-cn", "other", "b=[x,y]", "--info", "config"])
+        ['a=1', 'b=[x,y]']
+    """
+    out = []
+    for i, arg in enumerate(argv):
+        previous = argv[i - 1] if i > 0 else ""
+        if arg.startswith("-") or (previous in _VALUE_FLAGS and (previous not in ("-i", "--info") or "=" not in arg)):
+            continue
+        out.append(arg)
+    return out
+
+
 def override_problem(argv: list[str]) -> str | None:
     """What is wrong with the first override of ``argv`` that Hydra's override grammar refuses,
     with how to type it, or ``None`` when every override parses.
 
     Hydra's own parser (:class:`~hydra.core.override_parser.overrides_parser.OverridesParser`) reads
-    each override alone, as Hydra will; Hydra's unquoted values take ASCII letters, digits, spaces and
-    ``_ - + . / : @ ? % * \\ | $``; accented and other non-ASCII letters, ``' & # ! ; <`` and the
-    grammar's ``= , ( ) [ ] { }`` need a quoted value (``experiment_name="café"``, typed inside
-    single quotes in a POSIX shell).
+    each override alone (:func:`overrides_of`), as Hydra will; Hydra's unquoted values take ASCII
+    letters, digits, spaces and ``_ - + . / : @ ? % * \\ | $``; accented and other non-ASCII letters,
+    ``' & # ! ; <`` and the grammar's ``= , ( ) [ ] { }`` need a quoted value
+    (``experiment_name="café"``, typed inside single quotes in a POSIX shell).
 
     Args:
         argv: the command line after the program name.
@@ -137,45 +158,40 @@ def override_problem(argv: list[str]) -> str | None:
     Returns:
         Hydra's message, then one line: the quoted form of that argument; or, for a word without
         ``=`` after a ``key=value`` (the shell split a value at a space), both joined and quoted.
-        ``None`` also when the flags themselves do not parse (Hydra says why).
+        ``None`` also for shell completion (``-sc``), whose arguments are not overrides.
     """
-    from hydra._internal.utils import get_args_parser
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import HydraException
 
-    try:
-        with contextlib.redirect_stderr(io.StringIO()):
-            args, _ = get_args_parser().parse_known_args(argv)
-    except SystemExit:  # a flag Hydra refuses: Hydra's own parser says so
+    if "-sc" in argv or "--shell-completion" in argv:
         return None
-    if args.shell_completion:
-        return None
-    overrides = list(args.overrides or [])
+    overrides = overrides_of(argv)
     parser = OverridesParser.create()
     for i, arg in enumerate(overrides):
         try:
             parser.parse_overrides([arg])
         except (HydraException, ValueError) as e:
-            message = str(e).strip()
-            previous = overrides[i - 1] if i > 0 else None
-            if "=" not in arg and previous is not None and "=" in previous:
-                fix = quoted_override(f"{previous} {arg}")
-                hint = (
-                    f"{arg!r} is not key=value: if it belongs to the value of {previous!r} (the shell split it "
-                    f"at a space), quote both as one argument: {fix}"
-                    if fix
-                    else f"{arg!r} is not key=value (write key=value)"
-                )
-            else:
-                fix = quoted_override(arg)
-                hint = (
-                    f"quote the value (and, in a POSIX shell, the whole argument): {fix}"
-                    if fix
-                    else "write it as key=value, the key an ASCII name of the config (python -m snell_bench --help "
-                    'lists them) and the value quoted where it holds other characters: key="café"'
-                )
-            return f"Error: cannot parse the override {arg!r}:\n{message}\nHint: {hint}"
+            return f"Error: cannot parse the override {arg!r}:\n{str(e).strip()}\nHint: {_hint(arg, overrides[:i])}"
     return None
+
+
+def _hint(arg: str, before: list[str]) -> str:
+    previous = before[-1] if before else None
+    if "=" not in arg and previous is not None and "=" in previous:
+        fix = quoted_override(f"{previous} {arg}")
+        if fix:
+            return (
+                f"{arg!r} is not key=value: if it belongs to the value of {previous!r} (the shell split it "
+                f"at a space), quote both as one argument: {fix}"
+            )
+        return f"{arg!r} is not key=value (write key=value)"
+    fix = quoted_override(arg)
+    if fix:
+        return f"quote the value (and, in a POSIX shell, the whole argument): {fix}"
+    return (
+        "write it as key=value, the key an ASCII name of the config (python -m snell_bench --help "
+        'lists them) and the value quoted where it holds other characters: key="café"'
+    )
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="config")
