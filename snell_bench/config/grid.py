@@ -4,7 +4,10 @@ axes."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import itertools
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from snell_bench.config.compose import group_options
@@ -13,6 +16,8 @@ __all__ = [
     "parse_object_spec",
     "object_overrides",
     "object_dir_name",
+    "group_id",
+    "CellId",
     "check_names",
     "check_unique",
     "axis_settings",
@@ -42,6 +47,62 @@ def object_dir_name(spec: str) -> str:
     if ior is None:
         return name
     return f"{name}-ior{format(ior, '.10g') if isinstance(ior, float) else ior}"
+
+
+def group_id(scene: str, variation: int, object_dir: str) -> str:
+    """A scene/object group's id: ``<scene>-<variation>/<object folder>``, its folder in a run and
+    in the benchmark kit (where it is the kit id).
+
+    Examples:
+        >>> group_id("kitchen", 0, "sphere-ior1.333")
+        'kitchen-0/sphere-ior1.333'
+    """
+    return f"{scene}-{int(variation)}/{object_dir}"
+
+
+@dataclass(frozen=True)
+class CellId:
+    """One cell of the grid, ``grid.scenes x grid.variations x grid.objects x grid.methods``: what
+    selects it (:meth:`overrides`) and where it lives (:meth:`folder`,
+    ``<run>/<scene>-<variation>/<object folder>/<method>``).
+
+    Examples:
+        >>> c = CellId("kitchen", 0, "sphere:1.333", "t2i")
+        >>> c.group, c.name, c.overrides()
+        ('kitchen-0/sphere-ior1.333', 'kitchen-0/sphere-ior1.333/t2i', ['scene=kitchen', 'scene.variation=0', 'object=sphere', 'object.ior=1.333', 'method=t2i'])
+    """
+
+    scene: str
+    variation: int
+    object: str  #: the object spec, as ``grid.objects`` gives it (``sphere``, ``sphere:1.333``)
+    method: str
+
+    @classmethod
+    def grid(cls, g: Any) -> Iterator[CellId]:
+        """Every cell of the grid node ``g``, in the runner's order (methods innermost)."""
+        for scene, variation, spec, method in itertools.product(g.scenes, g.variations, g.objects, g.methods):
+            yield cls(str(scene), int(variation), str(spec), str(method))
+
+    @property
+    def object_dir(self) -> str:
+        return object_dir_name(self.object)
+
+    @property
+    def group(self) -> str:
+        return group_id(self.scene, self.variation, self.object_dir)
+
+    @property
+    def name(self) -> str:
+        return f"{self.group}/{self.method}"
+
+    def folder(self, root: str | Path) -> Path:
+        """The cell's folder under the run folder ``root``."""
+        return Path(root) / self.group / self.method
+
+    def overrides(self) -> list[str]:
+        """The overrides that select this cell."""
+        scene = [f"scene={self.scene}", f"scene.variation={self.variation}"]
+        return [*scene, *object_overrides(self.object), f"method={self.method}"]
 
 
 def check_names(group: str, names: Sequence[str], key: str, overrides: Sequence[str] = ()) -> None:

@@ -44,7 +44,6 @@ Layout of an experiment ``E`` under ``runs/``::
 
 from __future__ import annotations
 
-import itertools
 import json
 import logging
 import os
@@ -57,6 +56,7 @@ from submitit.slurm.slurm import SlurmJobEnvironment
 
 from snell_bench import pipeline
 from snell_bench.config import ConfigError, check_grid_entries, compose
+from snell_bench.config.grid import CellId
 from snell_bench.experiment.cells import Cell, SharedCache, failures_verdict, run_cells
 from snell_bench.experiment.files import save_inputs
 from snell_bench.experiment.memory import check_memory
@@ -65,7 +65,6 @@ from snell_bench.experiment.plan import (
     ABSENT,
     check_reproducible,
     compose_cell,
-    object_dir_name,
     object_overrides,
     result_settings,
 )
@@ -91,7 +90,6 @@ log = logging.getLogger(__name__)
 __all__ = [
     "run_grid",
     "plan_grid",
-    "cell_overrides",
     "check_same_settings",
     "shard_cells",
     "job_id",
@@ -106,11 +104,6 @@ PANORAMA_FILE = "panorama.png"
 WARP_STATS = ("roi", "traced_primary_rays", "far_background")
 
 
-def cell_overrides(scene: str, variation: int, obj_spec: str, method: str) -> list[str]:
-    """The overrides that select one cell of the grid."""
-    return [f"scene={scene}", f"scene.variation={int(variation)}", *object_overrides(obj_spec), f"method={method}"]
-
-
 def plan_grid(cfg: DictConfig) -> list[Cell]:
     """Every cell of ``cfg.grid``, composed and checked (raises ``ValueError`` before any work)."""
     g = cfg.grid
@@ -120,44 +113,33 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
         raise ConfigError(problems)
     root = Path(cfg.runs_dir) / str(cfg.experiment_name)
     cells, problems = [], []
-    for scene, variation, obj_spec in itertools.product(g.scenes, g.variations, g.objects):
-        group_id = kit_id(str(scene), int(variation), object_dir_name(obj_spec))
-        group = root / group_id
-        for m in g.methods:
-            raw = compose_cell(cfg, cell_overrides(scene, variation, obj_spec, m), method=False)
-            c = apply_method(raw)
-            try:
-                method = method_of(c)  # the kind (or _target_) loads, its params fit
-                problems += [f"cell {group_id}/{m}: {p}" for p in method.check(c, group_id)]
-                metrics_for(str(c.metrics.protocol), c.metrics.extra)  # users' metrics load
-            except ValueError as e:
-                problems.append(f"cell {group_id}/{m}: {e}")
-                continue
-            record = {
-                "experiment": str(cfg.experiment_name),
-                "scene": str(scene),
-                "variation": int(variation),
-                "object": object_dir_name(obj_spec),
-                "object_spec": str(obj_spec),
-                "method": str(m),
-                "method_label": method.row_label(c),
-                "method_kind": str(c.method.kind),
-                "model": str(c.model.name),
-                "scene_source": str(c.scene.source),
-                **scene_pipeline_record(c),
-                **({"random_weights": True} if bool(c.model.get("random_init", False)) else {}),
-                **recipe_and_protocol(c),
-            }
-            cells.append(
-                Cell(
-                    name=f"{scene}-{variation}/{object_dir_name(obj_spec)}/{m}",
-                    folder=group / m,
-                    config=c,
-                    record=record,
-                    shares=group,
-                    extra={"inputs_config": raw},
-                )
-            )
+    for cell in CellId.grid(g):
+        raw = compose_cell(cfg, cell.overrides(), method=False)
+        c = apply_method(raw)
+        try:
+            method = method_of(c)  # the kind (or _target_) loads, its params fit
+            problems += [f"cell {cell.name}: {p}" for p in method.check(c, cell.group)]
+            metrics_for(str(c.metrics.protocol), c.metrics.extra)  # users' metrics load
+        except ValueError as e:
+            problems.append(f"cell {cell.name}: {e}")
+            continue
+        record = {
+            "experiment": str(cfg.experiment_name),
+            "scene": cell.scene,
+            "variation": cell.variation,
+            "object": cell.object_dir,
+            "object_spec": cell.object,
+            "method": cell.method,
+            "method_label": method.row_label(c),
+            "method_kind": str(c.method.kind),
+            "model": str(c.model.name),
+            "scene_source": str(c.scene.source),
+            **scene_pipeline_record(c),
+            **({"random_weights": True} if bool(c.model.get("random_init", False)) else {}),
+            **recipe_and_protocol(c),
+        }
+        folder = cell.folder(root)
+        cells.append(Cell(cell.name, folder, c, record, shares=folder.parent, extra={"inputs_config": raw, "id": cell}))
     if problems:
         raise ConfigError(list(dict.fromkeys(problems)))
     return cells
@@ -326,7 +308,9 @@ def shard_cells(cells: list[Cell], shards: int, shard: int) -> list[Cell]:
 
 
 def group_of(cell: Cell) -> str:
-    """The kit id of a grid cell's group, ``<scene>-<variation>/<object>`` (:func:`~snell_bench.kit.kit_id`)."""
+    """The id of a grid cell's group, ``<scene>-<variation>/<object>`` (:attr:`~snell_bench.config.grid.CellId.group`)."""
+    if "id" in cell.extra:
+        return cell.extra["id"].group
     r = cell.record
     return kit_id(str(r["scene"]), int(r["variation"]), str(r["object"]))
 

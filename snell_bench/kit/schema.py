@@ -26,6 +26,8 @@ import hashlib
 import json
 from dataclasses import asdict, dataclass
 
+from snell_bench.config.grid import group_id
+
 __all__ = [
     "KIT_VERSION",
     "KitField",
@@ -181,14 +183,8 @@ FIELDS: tuple[KitField, ...] = (
 FILE_FIELDS = tuple(f.name for f in FIELDS if f.type == "file")
 
 
-def kit_id(scene: str, variation: int, object_dir: str) -> str:
-    """A group's id: ``<scene>-<variation>/<object>``, its folder in the run and in the kit.
-
-    Examples:
-        >>> kit_id("kitchen", 0, "sphere-ior1.333")
-        'kitchen-0/sphere-ior1.333'
-    """
-    return f"{scene}-{int(variation)}/{object_dir}"
+#: A group's id, ``<scene>-<variation>/<object>``: its folder in the run and in the kit.
+kit_id = group_id
 
 
 def schema_digest() -> str:

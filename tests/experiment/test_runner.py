@@ -189,9 +189,9 @@ def test_repeated_grid_entries_fail_before_any_work(tmp_path, override, key):
 def test_ior_spec_and_cell_config():
     from omegaconf import OmegaConf
 
+    from snell_bench.config.grid import CellId
     from snell_bench.config.sampler import SamplerSettings
     from snell_bench.experiment.plan import compose_cell, object_dir_name, parse_object_spec
-    from snell_bench.experiment.runner import cell_overrides
 
     assert (
         parse_object_spec("sphere:1.333") == ("sphere", 1.333) and object_dir_name("sphere:1.333") == "sphere-ior1.333"
@@ -201,7 +201,7 @@ def test_ior_spec_and_cell_config():
         and object_dir_name("sphere:water") == "sphere-iorwater"
     )
     cfg = compose(["+experiment=ablation", "sampler.lam=0.3", "output_dir=/tmp/x"])
-    c = compose_cell(cfg, cell_overrides("office", 2, "cylinder:1.333", "no_dpa"))
+    c = compose_cell(cfg, CellId("office", 2, "cylinder:1.333", "no_dpa").overrides())
     assert c.scene.name == "office" and c.scene.variation == 2 and c.scene.width == 640  # the preset's size
     assert c.object.factory._target_.endswith("GlassObject.cylinder") and c.object.ior == 1.333
     assert c.sampler.dpa is False and c.sampler.lpw is True and c.method.label == "w/o DPA"
@@ -351,8 +351,9 @@ def test_a_report_never_averages_cells_of_different_settings(tmp_path):
     ],
 )
 def test_identity_defaults_equal_composing_the_cell(identity):
+    from snell_bench.config.grid import CellId
     from snell_bench.experiment.plan import result_settings
-    from snell_bench.experiment.runner import _IdentityDefaults, cell_overrides
+    from snell_bench.experiment.runner import _IdentityDefaults
     from snell_bench.pipeline import apply_method
 
-    assert _IdentityDefaults()(*identity) == result_settings(apply_method(compose(cell_overrides(*identity))))
+    assert _IdentityDefaults()(*identity) == result_settings(apply_method(compose(CellId(*identity).overrides())))
