@@ -30,7 +30,7 @@ from omegaconf import DictConfig
 
 from snell_bench import pipeline
 from snell_bench.config import ConfigError, OnChange, check_grid_entries
-from snell_bench.experiment.cells import Cell, failures_verdict, read_record, run_cells
+from snell_bench.experiment.cells import Cell, Policy, failures_verdict, read_record, run_cells
 from snell_bench.experiment.files import save_scene_files
 from snell_bench.experiment.memory import check_memory
 from snell_bench.experiment.plan import check_reproducible, compose_cell, object_dir_name, object_overrides
@@ -272,15 +272,10 @@ def run_export(cfg: DictConfig) -> dict:
         cells,
         lambda c, s: export_group(c, pool, warps),
         root=root,
+        # a kit holds what the settings make now
+        policy=Policy.of(cfg.export, "export", claims=cfg.grid, on_change=OnChange.recompute),
         record_name=ENTRY,
-        recompute=bool(cfg.export.recompute),
-        on_change=OnChange.recompute,  # a kit holds what the settings make now
-        on_change_key="export.recompute",
-        recompute_key="export.recompute",
         desc=f"export {exp}",
-        lock=str(cfg.grid.lock),
-        lease_ttl_s=float(cfg.grid.lease_ttl_s),
-        lock_key="grid.lock",
     )
     rows, left_out = kit_rows(cells)
     m = cfg.metrics

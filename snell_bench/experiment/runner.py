@@ -57,7 +57,7 @@ from submitit.slurm.slurm import SlurmJobEnvironment
 from snell_bench import pipeline
 from snell_bench.config import ConfigError, check_grid_entries, compose
 from snell_bench.config.grid import CellId
-from snell_bench.experiment.cells import Cell, SharedCache, failures_verdict, run_cells
+from snell_bench.experiment.cells import Cell, Hooks, Policy, SharedCache, failures_verdict, run_cells
 from snell_bench.experiment.files import save_inputs
 from snell_bench.experiment.memory import check_memory
 from snell_bench.experiment.order import ModelMajor
@@ -398,18 +398,15 @@ def run_grid(cfg: DictConfig) -> dict:
             cells if order is None else order.order(cells),
             lambda c, s: run_cell(c, s, scorers, pool, order, prefetch),
             root=summary_root,
+            policy=Policy.of(g, "grid"),
             schema=GRID_RECORD,
-            recompute=bool(g.recompute),
-            on_change=g.on_change,
-            on_change_key="grid.on_change",
             desc=exp,
-            before=order.prepare if order is not None else (prefetch.plan if prefetch is not None else None),
-            after=None if prefetch is None else prefetch.release,
-            recorded=None if tracker is None else lambda c, record: log_cell(tracker, c, record),
-            lock=str(g.lock),
-            lease_ttl_s=float(g.lease_ttl_s),
-            lock_key="grid.lock",
-            stale=stale_cell,
+            hooks=Hooks(
+                before=order.prepare if order is not None else (prefetch.plan if prefetch is not None else None),
+                after=None if prefetch is None else prefetch.release,
+                recorded=None if tracker is None else lambda c, record: log_cell(tracker, c, record),
+                stale=stale_cell,
+            ),
         )
         finished = True
     finally:

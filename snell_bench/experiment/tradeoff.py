@@ -85,7 +85,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from snell_bench import pipeline
 from snell_bench.config import ConfigError, check_tradeoff_entries
 from snell_bench.config.grid import axis_settings
-from snell_bench.experiment.cells import Cell, SharedCache, failures_verdict, run_cells
+from snell_bench.experiment.cells import Cell, Hooks, Policy, SharedCache, failures_verdict, run_cells
 from snell_bench.experiment.files import save_inputs
 from snell_bench.experiment.memory import check_memory
 from snell_bench.experiment.plan import (
@@ -464,14 +464,11 @@ def run_tradeoff(cfg: DictConfig) -> dict:
         cells,
         lambda c, s: _run_setting(c, s, sweep),
         root=root,
+        policy=Policy.of(t, "tradeoff"),
         record_name="result.json",
         schema=TRADEOFF_RECORD,
-        recompute=bool(t.recompute),
-        on_change=t.on_change,
-        on_change_key="tradeoff.on_change",
-        recompute_key="tradeoff.recompute",
         desc=f"tradeoff {exp}",
-        after=after,
+        hooks=Hooks(after=after),
     )
     for scene in last_of_scene:  # scenes whose last settings were already done
         update_spp_records(root / f"{scene}-{int(t.variation)}")

@@ -5,7 +5,7 @@ import json
 import pytest
 from omegaconf import OmegaConf
 
-from snell_bench.experiment.cells import Cell, SharedCache, record_done, run_cells
+from snell_bench.experiment.cells import Cell, Policy, SharedCache, record_done, run_cells
 from snell_bench.pipeline import Skip
 
 
@@ -65,7 +65,7 @@ def test_resume_redoes_only_unfinished_cells(tmp_path):
     summary = run_cells(cells, fn, root=tmp_path)
     assert calls == ["b", "bad"] and summary["cached"] == 1  # failed cells are retried
     calls.clear()
-    run_cells(cells, fn, root=tmp_path, recompute=True)
+    run_cells(cells, fn, root=tmp_path, policy=Policy(recompute=True))
     assert calls == ["a", "b", "bad"]
     assert record_done(tmp_path / "a" / "metrics.json") and not record_done(tmp_path / "bad" / "metrics.json")
     (tmp_path / "a" / "metrics.json").write_text("{trunc")
@@ -164,7 +164,7 @@ def test_changed_settings_stop_before_any_work_naming_the_keys_and_the_choices(t
         c.config.sampler.progress = False
     assert run_cells(quiet, fn, root=tmp_path)["cached"] == 2 and calls == []
     # on_change=recompute redoes exactly the changed cells, which then count as done
-    summary = run_cells(changed[:1] + _cfg_cells(tmp_path)[1:], fn, root=tmp_path, on_change="recompute")
+    summary = run_cells(changed[:1] + _cfg_cells(tmp_path)[1:], fn, root=tmp_path, policy=Policy(on_change="recompute"))
     assert calls == ["a"] and summary["ok"] == 1 and summary["cached"] == 1
     assert run_cells(changed[:1], fn, root=tmp_path)["cached"] == 1
 
@@ -208,7 +208,7 @@ def _lease_sweep_process(root, log, names):
         time.sleep(0.2)
         return {}
 
-    run_cells(cells_in(root, names), fn, root=root, lock="lease", lease_ttl_s=0.6)
+    run_cells(cells_in(root, names), fn, root=root, policy=Policy(lock="lease", lease_ttl_s=0.6))
 
 
 def test_sweeps_running_at_once_with_leases_compute_each_cell_once(tmp_path):

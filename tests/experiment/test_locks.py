@@ -15,7 +15,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from snell_bench.experiment import locks
-from snell_bench.experiment.cells import Cell, run_cells
+from snell_bench.experiment.cells import Cell, Policy, run_cells
 from snell_bench.experiment.locks import LEASE_NAME, LOCK_NAME, Lease, LockUnsupported, choose_lock, claim
 
 # claims each "folder kind" pair given on the command line; prints held/busy for each; with
@@ -186,7 +186,7 @@ def test_auto_takes_flock_where_it_works_and_leases_where_it_raises(tmp_path, mo
         assert mine and dotfiles(tmp_path)[0] == LEASE_NAME
     calls = []
     with pytest.raises(LockUnsupported):  # forced flock stops the run before any cell
-        run_cells(cells_in(tmp_path, ["a"]), lambda c, s: calls.append(c) or {}, root=tmp_path, lock="flock")
+        run_cells(cells_in(tmp_path, ["a"]), lambda c, s: calls.append(c) or {}, root=tmp_path, policy=Policy(lock="flock"))
     assert calls == []
     summary = run_cells(cells_in(tmp_path, ["a", "b"]), lambda c, s: {}, root=tmp_path)
     assert summary["ok"] == 2 and summary["failed"] == 0
@@ -238,7 +238,7 @@ def test_run_cells_claims_with_each_kind_and_leaves_no_claim(tmp_path, kind):
         held[cell.name] = dotfiles(cell.folder)
         return {}
 
-    summary = run_cells(cells_in(tmp_path, ["a", "b"]), fn, root=tmp_path, lock=kind, lease_ttl_s=5)
+    summary = run_cells(cells_in(tmp_path, ["a", "b"]), fn, root=tmp_path, policy=Policy(lock=kind, lease_ttl_s=5))
     assert summary["ok"] == 2 and summary["failed"] == 0
     chosen = choose_lock(kind, tmp_path)
     want = {"flock": LOCK_NAME, "lease": LEASE_NAME}[chosen]
@@ -250,9 +250,9 @@ def test_run_cells_claims_with_each_kind_and_leaves_no_claim(tmp_path, kind):
 
 def test_a_bad_lock_setting_names_its_key_and_the_fix(tmp_path):
     with pytest.raises(ValueError, match=r"grid.lock='nfs': must be one of auto, flock, lease; e.g. grid.lock=auto"):
-        run_cells(cells_in(tmp_path, ["a"]), lambda c, s: {}, root=tmp_path, lock="nfs")
+        run_cells(cells_in(tmp_path, ["a"]), lambda c, s: {}, root=tmp_path, policy=Policy(lock="nfs"))
     with pytest.raises(ValueError, match=r"grid.lease_ttl_s=0: must be a finite number of seconds > 0"):
-        run_cells(cells_in(tmp_path, ["a"]), lambda c, s: {}, root=tmp_path, lease_ttl_s=0)
+        run_cells(cells_in(tmp_path, ["a"]), lambda c, s: {}, root=tmp_path, policy=Policy(lease_ttl_s=0))
     assert not (tmp_path / "a").exists()
 
 
