@@ -826,7 +826,7 @@ class TrackerConfig:
     """Where each finished grid cell's settings, metrics and images are also logged (conf/tracker/):
     ``none`` (nothing), ``mlflow`` (a local MLflow file store), ``tensorboard`` (event files),
     ``wandb`` (Weights & Biases, offline unless ``mode`` says otherwise). One run per cell, grouped
-    by ``experiment``; the cell's own files stay the record (snell_bench/experiment/tracking.py).
+    by ``experiment``; the cell's own files stay the record (snell_bench/experiment/tracking/).
     Not a result setting."""
 
     name: str = "none"

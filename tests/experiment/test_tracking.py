@@ -24,11 +24,13 @@ from snell_bench.config import ConfigError, check_config, compose
 from snell_bench.experiment.tracking import (
     IMAGE_FILES,
     METRIC_SECTIONS,
+    TRACKERS,
     MlflowTracker,
     Tracker,
     WandbTracker,
     cell_metrics,
     log_cell,
+    make_tracker,
 )
 from tests.experiment.test_runner import REPO, TINY, make_cfg, metrics_of
 
@@ -458,6 +460,23 @@ def test_a_missing_library_stops_the_run_before_any_cell(tmp_path, monkeypatch):
 def test_a_bad_wandb_mode_is_named():
     with pytest.raises(ConfigError, match="tracker.mode='ofline': must be one of offline, online"):
         check_config(compose(["tracker=wandb", "tracker.mode=ofline"]))
+
+
+def test_the_registry_holds_each_tracker_config_and_names_the_choices(tmp_path):
+    from hydra.utils import get_class
+
+    confs = {p.stem: OmegaConf.load(p) for p in (REPO / "snell_bench" / "conf" / "tracker").glob("*.yaml")}
+    assert sorted(TRACKERS) == sorted(set(confs) - {"none"})
+    for name, tracker in TRACKERS.items():
+        assert tracker.name == name and get_class(confs[name].backend._target_) is tracker
+    # a backend node without _target_ is built by the class registered under tracker.name
+    pytest.importorskip("tensorboard")
+    untargeted = ["tracker=tensorboard", "~tracker.backend._target_", f"runs_dir={tmp_path}"]
+    cfg = compose(untargeted)
+    tracker = make_tracker(cfg)
+    assert type(tracker) is TRACKERS["tensorboard"] and tracker.dir == Path(cfg.tracker.dir).absolute()
+    with pytest.raises(ConfigError, match=r"tracker='tb': no such tracker; one of mlflow, tensorboard, wandb, none"):
+        make_tracker(compose([*untargeted, "tracker.name=tb"]))
 
 
 class BrokenTracker(Tracker):
