@@ -57,6 +57,7 @@ from submitit.slurm.slurm import SlurmJobEnvironment
 from snell_bench import pipeline
 from snell_bench.config import ConfigError, check_grid_entries, compose
 from snell_bench.config.grid import CellId
+from snell_bench.config.schema import GridConfig
 from snell_bench.experiment.cells import Cell, Hooks, Policy, SharedCache, failures_verdict, run_cells
 from snell_bench.experiment.files import save_inputs
 from snell_bench.experiment.memory import check_memory
@@ -373,34 +374,58 @@ def run_grid(cfg: DictConfig) -> dict:
     root = Path(cfg.runs_dir) / exp
     every = plan_grid(cfg)
     check_memory(every)  # each distinct cell's peak host memory, and its photo, before any work
-    g = cfg.grid
-    sharded = g.get("shard") is not None
-    cells = shard_cells(every, int(g.shards), int(g.shard)) if sharded else every
+    g: GridConfig = OmegaConf.to_object(cfg.grid)
+    cells = every if g.shard is None else shard_cells(every, g.shards, g.shard)
     n_groups = len(g.scenes) * len(g.variations) * len(g.objects)
     print(f"experiment {exp}: {n_groups} scene/object groups x {len(g.methods)} methods = {len(every)} cells -> {root}")
-    summary_root = root
-    if sharded:
+    summary_root, job = root, None
+    if g.shard is not None:
         summary_root = root / "jobs" / job_id()
-        mine = len({c.shares for c in cells})
-        print(f"shard {int(g.shard)} of {int(g.shards)} (job {job_id()}): {mine} groups, {len(cells)} cells")
+        print(
+            f"shard {g.shard} of {g.shards} (job {job_id()}): {len({c.shares for c in cells})} groups, {len(cells)} cells"
+        )
         _remove_handovers(cells)
         starts = _count_start(summary_root)
+        restarts = max(starts - 1, int(os.environ.get("SLURM_RESTART_COUNT", 0) or 0))
+        job = {"id": job_id(), "shard": g.shard, "shards": g.shards, "host": socket.gethostname(), "restarts": restarts}
+    summary = _compute(cfg, g, cells, summary_root)
+    exit_status, meaning = failures_verdict(summary["failed"], g.allow_failures, "grid.allow_failures")
+    summary = {"experiment": exp, **summary, "exit_status": exit_status, **({"job": job} if job else {})}
+    write_json(summary_root / "summary.json", summary)
+    _print_summary(exp, summary, meaning)
+    if g.report and g.shard is not None and not all((c.folder / "metrics.json").is_file() for c in every):
+        print(f"report: left to the last job of the grid (or run job=report experiment_name={exp})")
+    elif g.report:
+        from snell_bench.experiment.reports import build_reports, summary_line
+
+        check_same_settings(root)
+        out = Path(cfg.reports_dir) / exp
+        paths = build_reports(root, out, exp)
+        print(summary_line(out, paths))
+        summary["reports"] = [str(p) for p in paths]
+    return summary
+
+
+def _compute(cfg: DictConfig, g: GridConfig, cells: list[Cell], summary_root: Path) -> dict:
+    """Compute ``cells`` (group-major, or model-major when the models may not fit together), with
+    the prefetch workers and the tracker: :func:`run_cells`' summary with the order, prefetch,
+    models and tracker."""
     tracker = make_tracker(cfg)  # before any work: a tracker that cannot start stops the run here
     ahead, workers = settings_of(cfg)
     pool = ModelPool(cfg.models.memory_gb, offload=bool(cfg.models.offload))
     scorers = scorers_of(cfg.metrics, pool)
     model_major = pool.budget is not None  # the models may not fit together
     prefetch = Prefetcher(pool, ahead, workers, keep=model_major) if ahead > 0 else None
-    order = ModelMajor(pool, prefetch, lock=str(g.lock), lease_ttl_s=float(g.lease_ttl_s)) if model_major else None
+    order = ModelMajor(pool, prefetch, lock=g.lock, lease_ttl_s=g.lease_ttl_s) if model_major else None
     finished = False
     try:
         summary = run_cells(
             cells if order is None else order.order(cells),
             lambda c, s: run_cell(c, s, scorers, pool, order, prefetch),
             root=summary_root,
-            policy=Policy.of(g, "grid"),
+            policy=Policy.of(cfg.grid, "grid"),
             schema=GRID_RECORD,
-            desc=exp,
+            desc=str(cfg.experiment_name),
             hooks=Hooks(
                 before=order.prepare if order is not None else (prefetch.plan if prefetch is not None else None),
                 after=None if prefetch is None else prefetch.release,
@@ -416,26 +441,15 @@ def run_grid(cfg: DictConfig) -> dict:
             prefetch.close(wait=finished)
         if tracker is not None:
             tracker.close()
-    summary = {
-        "experiment": exp,
-        **summary,
-        "order": "group-major" if order is None else "model-major",
-        "prefetch": prefetch.summary() if prefetch is not None else {"ahead": 0, "workers": 0},
-    }
+    summary["order"] = "group-major" if order is None else "model-major"
+    summary["prefetch"] = prefetch.summary() if prefetch is not None else {"ahead": 0, "workers": 0}
     summary["models"] = pool.summary()
     if tracker is not None:
         summary["tracker"] = tracker.summary()
-    exit_status, meaning = failures_verdict(summary["failed"], bool(g.allow_failures), "grid.allow_failures")
-    summary["exit_status"] = exit_status
-    if sharded:
-        summary["job"] = {
-            "id": job_id(),
-            "shard": int(g.shard),
-            "shards": int(g.shards),
-            "host": socket.gethostname(),
-            "restarts": max(starts - 1, int(os.environ.get("SLURM_RESTART_COUNT", 0) or 0)),
-        }
-    write_json(summary_root / "summary.json", summary)
+    return summary
+
+
+def _print_summary(exp: str, summary: dict, meaning: str) -> None:
     print(
         f"{exp}: {summary['ok']} ok, {summary['cached']} already done, {summary['skipped']} skipped, "
         f"{summary['failed']} failed{meaning}"
@@ -443,20 +457,9 @@ def run_grid(cfg: DictConfig) -> dict:
     )
     for cdir, reason in summary["failures"]:
         print(f"  FAILED {cdir}: {reason}")
-    if tracker is not None:
+    if "tracker" in summary:
         t = summary["tracker"]
         print(
             f"tracker {t['name']}: {t['runs']} runs logged to {t['where']}"
             + (f", {t['failures']} cells could not be logged (see the warnings)" if t["failures"] else "")
         )
-    if g.report and sharded and not all((c.folder / "metrics.json").is_file() for c in every):
-        print(f"report: left to the last job of the grid (or run job=report experiment_name={exp})")
-    elif g.report:
-        from snell_bench.experiment.reports import build_reports, summary_line
-
-        check_same_settings(root)
-        out = Path(cfg.reports_dir) / exp
-        paths = build_reports(root, out, exp)
-        print(summary_line(out, paths))
-        summary["reports"] = [str(p) for p in paths]
-    return summary
