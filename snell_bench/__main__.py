@@ -24,7 +24,6 @@ Exit status:
 
 from __future__ import annotations
 
-import re
 import shlex
 import sys
 
@@ -43,29 +42,8 @@ CONFIG_DIR = "conf"
 EXIT_ERROR = 1
 EXIT_USAGE = 2
 
-_SHARDS = re.compile(r"^\+*grid\.shards=(\d+)$")
-
 #: The exit status a single run's job asks for, read by :func:`cli` once Hydra returns.
 _status: list[int] = []
-
-
-def shard_sweep(argv: list[str]) -> list[str]:
-    """``argv`` with ``grid.shard=range(0,N)`` added when it sweeps (``-m``), sets
-    ``grid.shards=N`` and does not choose shards itself: one job per shard (a Slurm job array).
-
-    Examples:
-        >>> shard_sweep(["-m", "+experiment=smoke", "grid.shards=2", "--cfg", "hydra"])
-        ['-m', '+experiment=smoke', 'grid.shards=2', 'grid.shard=range(0,2)', '--cfg', 'hydra']
-        >>> shard_sweep(["+experiment=smoke", "grid.shards=2"])  # a single run: every group
-        ['+experiment=smoke', 'grid.shards=2']
-    """
-    if not any(a in ("-m", "--multirun") for a in argv) or any(a.lstrip("+").startswith("grid.shard=") for a in argv):
-        return list(argv)
-    at = [i for i, a in enumerate(argv) if _SHARDS.match(a)]
-    if not at or int(_SHARDS.match(argv[at[-1]]).group(1)) < 2:
-        return list(argv)
-    i = at[-1]  # beside it: Hydra's parser takes the overrides as one positional run
-    return [*argv[: i + 1], f"grid.shard=range(0,{int(_SHARDS.match(argv[i]).group(1))})", *argv[i + 1 :]]
 
 
 def _parses(override: str) -> bool:
@@ -230,19 +208,17 @@ def _cells_failed_exit() -> int:
 
 
 def cli() -> None:
-    """The ``snell-bench`` command (``python -m snell_bench``): Hydra's command line, with a sharded
-    sweep's ``grid.shard=range(0,N)`` added (:func:`shard_sweep`), its overrides checked first
-    (:func:`override_problem`: exit status 2, nothing written), and the exit status of the module
+    """The ``snell-bench`` command (``python -m snell_bench``): Hydra's command line, its overrides
+    checked first (:func:`override_problem`: exit status 2, nothing written), and the exit status of the module
     docs. A command of its own is what Hydra's shell completion needs
     (``eval "$(snell-bench -sc install=bash)"``)."""
     from snell_bench.experiment import CellsFailed
 
-    argv = shard_sweep(sys.argv[1:])
+    argv = sys.argv[1:]
     problem = override_problem(argv)
     if problem is not None:
         print(problem, file=sys.stderr)
         sys.exit(EXIT_USAGE)
-    sys.argv[1:] = argv
     _status.clear()
     try:
         main()

@@ -13,7 +13,7 @@ import logging
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from importlib.metadata import entry_points
-from typing import Optional
+from typing import Any, Optional
 
 from hydra import compose as hydra_compose
 from hydra import initialize_config_module
@@ -140,9 +140,23 @@ def plugin_methods() -> dict[str, MethodConfig]:
     return out
 
 
+def _shard_sweep(shards: Any) -> str:
+    """The sweep of ``grid.shard`` a multirun makes (``hydra.sweeper.params``): one job per shard
+    when ``grid.shards`` is 2 or more, else the single unsharded job.
+
+    Examples:
+        >>> _shard_sweep(3), _shard_sweep(1)
+        ('range(0,3)', 'null')
+    """
+    n = int(shards) if isinstance(shards, int) or str(shards).isdigit() else 1
+    return f"range(0,{n})" if n >= 2 else "null"
+
+
 def register_configs() -> None:
-    """Register the schema with Hydra's ConfigStore and the ``prompts`` and ``run_dir`` resolvers
-    (idempotent)."""
+    """Register the schema with Hydra's ConfigStore and the ``prompts``, ``run_dir`` and
+    ``shard_sweep`` resolvers (idempotent)."""
+    if not OmegaConf.has_resolver("shard_sweep"):
+        OmegaConf.register_new_resolver("shard_sweep", _shard_sweep)
     if not OmegaConf.has_resolver("run_dir"):
         OmegaConf.register_new_resolver("run_dir", _run_dir)
     if not OmegaConf.has_resolver("prompts"):

@@ -743,8 +743,8 @@ class GridConfig:
     workers: int = 1
     #: Split the grid's (scene, variation, object) groups between this many jobs (a Slurm job
     #: array with ``-m hydra/launcher=slurm``): each job computes its own groups, so every group's
-    #: shared inputs are computed once in the whole cluster. With ``-m``, ``grid.shards=N`` adds
-    #: ``grid.shard=range(0,N)`` to the sweep.
+    #: shared inputs are computed once in the whole cluster. With ``-m``, ``grid.shards=N`` sweeps
+    #: ``grid.shard=range(0,N)`` (Hydra's ``hydra.sweeper.params``, conf/config.yaml).
     shards: int = 1
     #: Which shard this job is (0 .. shards - 1); ``null``: every group.
     shard: Optional[int] = None

@@ -8,7 +8,6 @@ import sys
 
 import pytest
 
-from snell_bench.__main__ import shard_sweep
 from snell_bench.config import ConfigError, check_config, compose
 from snell_bench.experiment.cells import Cell
 from snell_bench.experiment.runner import job_id, plan_grid, run_grid, shard_cells
@@ -30,15 +29,19 @@ def test_shards_split_whole_groups_balanced_and_cover_the_grid():
     assert [c.name for c in shard_cells(cells, 1, 0)] == [c.name for c in cells]
 
 
-def test_the_shard_sweep_is_added_for_multiruns_only():
-    assert shard_sweep(["-m", "grid.shards=3"]) == ["-m", "grid.shards=3", "grid.shard=range(0,3)"]
-    assert shard_sweep(["--multirun", "grid.shards=3", "grid.shard=1"]) == [
-        "--multirun",
-        "grid.shards=3",
-        "grid.shard=1",
-    ]
-    assert shard_sweep(["-m", "grid.shards=1"]) == ["-m", "grid.shards=1"]
-    assert shard_sweep(["grid.shards=3"]) == ["grid.shards=3"]
+def test_a_multirun_sweeps_one_job_per_shard_through_the_sweepers_params():
+    """``hydra.sweeper.params`` makes ``grid.shard=range(0,N)`` of ``grid.shards=N`` (N >= 2), and
+    the single unsharded job otherwise; Hydra's sweeper lets the command line's ``grid.shard`` win."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_module
+
+    from snell_bench.config import register_configs
+
+    register_configs()
+    with initialize_config_module("snell_bench.conf", version_base="1.3"):
+        for shards, sweep in ((3, "range(0,3)"), (1, "null")):
+            cfg = hydra_compose("config", [f"grid.shards={shards}"], return_hydra_config=True)
+            assert cfg.hydra.sweeper.params["grid.shard"] == sweep
 
 
 def test_bad_shards_name_the_key():
