@@ -269,17 +269,20 @@ def trace_warps(scene: SceneInputs, obj: GlassObject, warps_cfg: DictConfig) -> 
 def render_reference(cfg: DictConfig, scene: SceneInputs, obj: GlassObject, *, spp: int | None = None):
     """Stage 4: the reference render and metric mask, or ``(None, reason)``.
 
-    ``reference.renderer``: ``mitsuba`` (every key of the ``reference`` node that the renderer takes,
-    ``spp`` replaced when given) or ``cycles`` (the authors' ``render_gt`` scene, ``cycles_spp``
-    samples; skipped, with the reason, where no Python with ``bpy`` is found: never another
-    renderer instead). ``reference.ior`` replaces the object's IOR in the render and the mask.
-    ``reference.mask``: ``unobserved`` (Mitsuba's unobserved pass; with ``cycles`` rendered at one
-    sample per pixel for its mask only) or ``authors`` (the authors' ray-traced mask).
+    ``reference.renderer``: ``mitsuba`` (one
+    :class:`~snell_bench.render.reference_settings.ReferenceSettings` made of every key of the
+    ``reference`` node that it has, ``spp`` replaced when given) or ``cycles`` (the authors'
+    ``render_gt`` scene, ``cycles_spp`` samples; skipped, with the reason, where no Python with
+    ``bpy`` is found: never another renderer instead). ``reference.ior`` replaces the object's IOR
+    in the render and the mask. ``reference.mask``: ``unobserved`` (Mitsuba's unobserved pass; with
+    ``cycles`` rendered at one sample per pixel for its mask only) or ``authors`` (the authors'
+    ray-traced mask).
     """
     import dataclasses
 
     from snell_bench.render.authors_mask import authors_mask
     from snell_bench.render.cycles import CyclesUnavailable, render_cycles
+    from snell_bench.render.reference_settings import ReferenceSettings
     from snell_bench.scene.depth_mesh import build_background
 
     rc = cfg.reference
@@ -291,9 +294,11 @@ def render_reference(cfg: DictConfig, scene: SceneInputs, obj: GlassObject, *, s
     mitsuba_spp = int(rc.spp if spp is None else spp)
     if renderer == "cycles" and mask_kind == "unobserved":
         mitsuba_spp = 1  # only the unobserved pass (the mask) is kept
-    kwargs = kwargs_for(render, rc, spp=mitsuba_spp, edge_threshold=edge, seed=int(cfg.seed))
-    if renderer == "cycles":
-        kwargs["self_noise"] = False if mitsuba_spp == 1 else kwargs.get("self_noise", True)
+    settings = ReferenceSettings(
+        **kwargs_for(ReferenceSettings, rc, spp=mitsuba_spp, edge_threshold=edge, seed=int(cfg.seed))
+    )
+    if renderer == "cycles" and mitsuba_spp == 1:
+        settings = dataclasses.replace(settings, self_noise=False)
     ref = None
     if renderer == "cycles":
         try:
@@ -315,7 +320,7 @@ def render_reference(cfg: DictConfig, scene: SceneInputs, obj: GlassObject, *, s
         if mask_kind == "authors":
             return ref, None
     try:  # Mitsuba is imported on the first render
-        mitsuba = render(scene.image, scene.depth, scene.camera, glass, **kwargs)
+        mitsuba = render(scene.image, scene.depth, scene.camera, glass, settings)
     except ImportError as e:
         reason = f"reference renderer unavailable ({e}); install the render extra: make setup EXTRAS=test,render"
         log.warning(reason)

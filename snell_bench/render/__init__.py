@@ -9,7 +9,9 @@ procedural scenes.
 - :mod:`~snell_bench.render.integrator`: :func:`~snell_bench.render.integrator.render_linear`, the
   render loop (windows, seeds, render threads).
 - :mod:`~snell_bench.render.geometry`: the background built from a depth map, the object's arrays.
-- :mod:`~snell_bench.render.reference`: :func:`render_reference`, the Mitsuba reference render.
+- :mod:`~snell_bench.render.reference`: :func:`render_reference`, the Mitsuba reference render, in
+  stages (:mod:`~snell_bench.render.reference_passes`: its scene and passes), with one
+  :class:`ReferenceSettings` (:mod:`~snell_bench.render.reference_settings`).
 - :mod:`~snell_bench.render.true_render`: :func:`render_true`, the true render of a procedural
   scene (no Mitsuba).
 
@@ -17,8 +19,8 @@ Importing this package does not import Mitsuba; :func:`render_reference` does (i
 ``render`` extra: ``pip install snell_bench[render]``).
 """
 
-from snell_bench.render.reference import ReferenceRender, render_reference
+from snell_bench.render.reference import ReferenceRender, ReferenceSettings, render_reference
 from snell_bench.render.true_render import render_true
 from snell_bench.render.variants import mitsuba_variant
 
-__all__ = ["ReferenceRender", "mitsuba_variant", "render_reference", "render_true"]
+__all__ = ["ReferenceRender", "ReferenceSettings", "mitsuba_variant", "render_reference", "render_true"]

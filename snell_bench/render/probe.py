@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from snell_bench.render.reference import render_reference
+from snell_bench.render.reference import ReferenceSettings, render_reference
 from snell_bench.render.variants import PROBE_OK
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.objects import GlassObject
@@ -40,7 +40,7 @@ def probe_render() -> None:
     T = np.eye(4)
     T[:3, 3] = (0.0, -0.5, 2.0)
     obj = GlassObject.sphere(subdivisions=1).transformed(T)
-    ref = render_reference(img, depth, cam, obj, spp=2, sampler="independent", unobserved_spp=2)
+    ref = render_reference(img, depth, cam, obj, ReferenceSettings(spp=2, sampler="independent", unobserved_spp=2))
     if not (np.isfinite(ref.image).all() and ref.image.max() > 0):
         raise RuntimeError("the probe render is empty or not finite")
     print(PROBE_OK, flush=True)

@@ -5,6 +5,11 @@ what a generated scene provides (I⁻, its z-depth, K) and an independent render
 cross-checks our own tracer (:mod:`snell_bench.optics`).
 
 Convention:
+    - Settings: one :class:`~snell_bench.render.reference_settings.ReferenceSettings`; ``spp``,
+      ``reflection=True``, ``crop=True`` and the like below name its fields.
+    - Stages of :func:`render_reference`, each a function: the scene and its window, the image pass,
+      the unobserved pass (:mod:`snell_bench.render.reference_passes`), the paste outside the
+      window, the metric mask, the self-noise.
     - Frames, pixels and sensor: see :mod:`snell_bench.render.pieces`; randomness and render
       windows: see :mod:`snell_bench.render.integrator`; the background, its flaps at depth edges,
       the object's normals and ``object_mask``: see :mod:`snell_bench.render.geometry`.
@@ -75,43 +80,29 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear
-from snell_bench.render.geometry import (
-    background_geometry,
-    flaps,
-    inward_box,
-    object_arrays,
-    object_mask,
-    object_rect,
-    subdivide,
+from snell_bench.imaging.color import linear_to_srgb
+from snell_bench.render.geometry import object_mask
+from snell_bench.render.pieces import SAMPLERS, check_sampler, sample_count
+from snell_bench.render.reference_passes import (
+    ReferenceScene,
+    build_scene,
+    render_image_pass,
+    render_unobserved_pass,
 )
-from snell_bench.render.integrator import render_linear
-from snell_bench.render.pieces import (
-    SAMPLERS,
-    black_bsdf,
-    check_sampler,
-    mesh,
-    rgb_emitter,
-    sample_count,
-    texture_emitter,
-)
-from snell_bench.render.plugins import REFRACTION_ONLY_BSDF, REFRACTION_PATH_BSDF
+from snell_bench.render.reference_settings import ReferenceSettings
 from snell_bench.render.variants import set_variant
 from snell_bench.scene.camera import Camera
-from snell_bench.scene.depth_mesh import build_background, valid_depth_mask
 from snell_bench.scene.objects import GlassObject
+from snell_bench.utils.timing import Timer
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ReferenceRender", "halves_self_noise", "render_reference"]
+__all__ = ["ReferenceRender", "ReferenceSettings", "halves_self_noise", "render_reference"]
 
-#: The back sides of the background sit this far (relative to their distance) behind the front.
-_BACK_OFFSET = 1e-4
 #: Luma weights (R, G, B) of the metrics' grayscale.
 _LUMA = np.array([0.299, 0.587, 0.114], np.float64)
 
@@ -192,12 +183,12 @@ class ReferenceRender:
         }
 
 
-def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject, spp: int) -> tuple[np.ndarray, np.ndarray]:
+def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject) -> tuple[np.ndarray, np.ndarray]:
     """I⁻ as float32 and the depth as an array, after checking them against the camera.
 
     Raises:
-        ValueError: a shape does not match the camera, I⁻ has non-finite values, the object is not
-            placed, or ``spp`` is not a positive integer.
+        ValueError: a shape does not match the camera, I⁻ has non-finite values, or the object is
+            not placed.
     """
     img = np.asarray(i_minus, dtype=np.float32)
     if img.ndim != 3 or img.shape[2] != 3:
@@ -216,8 +207,6 @@ def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject, spp: int) ->
         raise ValueError(
             f"{obj.name}: the object is in its canonical frame; place it first (snell_bench.scene.place_object)"
         )
-    if int(spp) != spp or spp < 1:
-        raise ValueError(f"spp must be a positive integer, got {spp!r}")
     return img, depth
 
 
@@ -292,33 +281,84 @@ def _window(camera: Camera, obj: GlassObject, rect, margin: int, near_clip: floa
     return (x0, y0, x1, y1)
 
 
+def _paste(scene: ReferenceScene, window: tuple, counts, parts, share) -> tuple[np.ndarray, np.ndarray]:
+    """Stage 4, the crop: the frame's ``(linear, unobserved)``, ``(H, W, 3)`` and ``(H, W)`` float32,
+    from the passes of ``window`` (``(x0, y0, x1, y1)``, end exclusive).
+
+    Inside the window, ``linear`` is the sample-weighted mean of the image pass's renders (``counts``
+    samples each) and ``unobserved = R / (R + G)`` of the unobserved pass (negative radiance clipped
+    to 0; 1 where ``R + G <= 1e-6``: no path ends on a surface), clipped to [0, 1]. Outside it, the
+    background seen directly (see the module's conventions): a pixel with a valid depth shows its
+    texel (``unobserved`` 0), one without shows nothing (``linear`` 0, ``unobserved`` 1).
+    """
+    x0, y0, x1, y1 = window
+    win = sum(n * p for n, p in zip(counts, parts)) / float(sum(counts))
+    linear = np.where(scene.valid[..., None], scene.texture, np.float32(0.0)).astype(np.float32)
+    linear[y0:y1, x0:x1] = win
+    u, o = np.clip(share[..., 0], 0.0, None), np.clip(share[..., 1], 0.0, None)
+    total = u + o
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u_win = np.where(total > 1e-6, u / total, 1.0)
+    unobserved = np.where(scene.valid, np.float32(0.0), np.float32(1.0)).astype(np.float32)
+    unobserved[y0:y1, x0:x1] = np.clip(u_win, 0.0, 1.0)
+    return linear, unobserved
+
+
+def _metric_mask(depth, camera: Camera, obj: GlassObject, unobserved: np.ndarray, threshold: float) -> tuple:
+    """Stage 5, the unobserved mask: ``(object_mask, mask)``, ``(H, W)`` bool: the pixels whose
+    centre ray hits the object first, and those of them whose unobserved share is below
+    ``threshold`` (the metric mask)."""
+    obj_mask = object_mask(depth, camera, obj)
+    return obj_mask, obj_mask & (unobserved < threshold)
+
+
+def _self_noise(parts, counts, mask: np.ndarray, window: tuple, wanted: bool) -> tuple:
+    """Stage 6: ``(self_noise_db, self_noise_rgb_db, self_noise_halves_db)`` of the image pass's
+    two halves ``parts`` (linear RGB of ``window``, ``counts`` samples each) inside the window's part
+    of ``mask`` (see :func:`halves_self_noise`); ``(None, None, None)`` with one render or an empty
+    mask (logged where the halves were ``wanted``)."""
+    x0, y0, x1, y1 = window
+    win_mask = mask[y0:y1, x0:x1]
+    if len(parts) == 2 and win_mask.any():
+        a, b = (linear_to_srgb(np.clip(p, 0.0, 1.0)) for p in parts)
+        return halves_self_noise(a, b, win_mask, *counts)
+    if wanted:
+        log.info("reference: no self-noise (%s)", "spp=1 has no halves" if len(parts) == 1 else "empty mask")
+    return (None, None, None)
+
+
+def _log_render(ref: ReferenceRender, counts) -> None:
+    """One line about a finished render: variant, sampler, counts, window, mask sizes, self-noise and
+    the seconds of each stage."""
+    x0, y0, x1, y1 = ref.window
+    log.info(
+        "reference (%s, %s, %s spp in %dx%d px; unobserved %d spp): %d object pixels, %d in the mask; "
+        "self-noise %s dB; %s",
+        ref.variant,
+        ref.sampler,
+        "+".join(map(str, counts)),
+        x1 - x0,
+        y1 - y0,
+        ref.unobserved_spp,
+        int(ref.object_mask.sum()),
+        int(ref.mask.sum()),
+        "n/a" if ref.self_noise_db is None else f"{ref.self_noise_db:.1f}",
+        {k: round(v, 2) for k, v in ref.timings.items()},
+    )
+
+
 def render_reference(
-    i_minus: np.ndarray,
-    depth: np.ndarray,
-    camera: Camera,
-    obj: GlassObject,
-    *,
-    spp: int = 242,
-    edge_threshold: float = 0.05,
-    seed: int = 0,
-    unobserved_threshold: float = 0.05,
-    max_depth: int = 16,
-    fresnel: bool = True,
-    reflection: bool = True,
-    sampler="orthogonal",
-    crop: bool = True,
-    crop_margin_px: int = 4,
-    self_noise: bool = True,
-    unobserved_spp: int | None = 25,
+    i_minus: np.ndarray, depth: np.ndarray, camera: Camera, obj: GlassObject, settings: ReferenceSettings | None = None
 ) -> ReferenceRender:
     """Render ``obj`` placed in the scene of I⁻ with Mitsuba 3.
 
     Camera frame and pixel centres of :mod:`snell_bench.scene.camera`; images ``(H, W, 3)`` float32,
-    sRGB in [0, 1] in and out (rendering is in linear RGB); masks ``(H, W)`` bool. Two passes: the
-    image (observed surfaces emit I⁻, the object is a dielectric; ``spp`` samples per pixel, in two
-    halves with ``self_noise``) and the unobserved share (refraction path only; ``unobserved_spp``).
-    With ``crop`` only the object's window is rendered, the rest pasted. See the module's docstring
-    for the scene, the window and the self-noise.
+    sRGB in [0, 1] in and out (rendering is in linear RGB); masks ``(H, W)`` bool. Stages: the
+    scene and its window (:func:`~snell_bench.render.reference_passes.build_scene`), the image pass
+    (observed surfaces emit I⁻, the object is a dielectric; ``spp`` samples per pixel, in two halves
+    with ``self_noise``) and the unobserved pass (refraction path only; ``unobserved_spp``) of the
+    window, the rest of the frame pasted, the metric mask, the self-noise. See the module's
+    docstring for the scene, the window and the self-noise.
 
     Args:
         i_minus: ``(H, W, 3)`` sRGB image in [0, 1] of the object-free scene.
@@ -326,166 +366,52 @@ def render_reference(
         camera: the camera of I⁻, any pinhole ``K`` (``fx != fy`` and skew included; see
             :func:`~snell_bench.render.pieces.sensor`).
         obj: the glass object in camera coordinates.
-        spp: samples per pixel of the image pass (rounded up to a count ``sampler`` accepts).
-        edge_threshold: relative depth jump at which the depth mesh is cut (as in ``compute_warps``).
-        seed: seed of Mitsuba's sampler.
-        unobserved_threshold: object pixels whose unobserved share is below this form ``mask``.
-        max_depth: longest light path (surface interactions, the emitter hit included).
-        fresnel: ``True`` (default): the object is Mitsuba's ``dielectric`` (reflection and
-            refraction sampled with Fresnel weights). ``False``: every pixel sample follows the
-            refraction path (refraction at each interface, reflection only under total internal
-            reflection) with weight 1, so ``image`` shows what our self-warp π^R predicts, without
-            Fresnel reflection or loss: a purely geometric render, for cross-checks.
-        reflection: with ``fresnel``: ``True`` (default): the physically complete dielectric;
-            ``False``: refraction only, as the paper's Blender reference and the authors'
-            ``render_gt`` (camera rays transmit into the object with weight 1, every later
-            interaction is the dielectric's; see the module's conventions). Without ``fresnel``
-            there is no reflection either way.
-        sampler: Mitsuba's sampler: a name of :data:`~snell_bench.render.pieces.SAMPLERS`, or a
-            dict of its properties (see :func:`~snell_bench.render.pieces.check_sampler`).
-        crop: render only the object's window (see the module's conventions); ``False``: the
-            whole frame.
-        crop_margin_px: pixels added on each side of the object's rectangle.
-        self_noise: render the image pass in two independent halves and measure the self-noise.
-        unobserved_spp: samples per pixel of the unobserved pass; ``None``: ``spp``.
+        settings: the render's :class:`~snell_bench.render.reference_settings.ReferenceSettings`;
+            ``None``: its defaults (a few changed: ``ReferenceSettings(spp=8, crop=False)``).
 
     Returns:
         The :class:`ReferenceRender`.
 
     Raises:
         ImportError: Mitsuba is not installed (the message names the ``render`` extra).
-        ValueError: invalid inputs (shapes, an object not placed, ``spp``, ``unobserved_spp``,
-            ``crop_margin_px`` or ``unobserved_threshold`` out of range, an unknown sampler).
+        ValueError: invalid inputs (shapes, non-finite I⁻, an object not placed); invalid settings
+            raise where the :class:`ReferenceSettings` is made.
     """
-    img, depth = _check_inputs(i_minus, depth, camera, obj, spp)
-    if not (0.0 < unobserved_threshold <= 1.0):
-        raise ValueError(f"unobserved_threshold must be in (0, 1], got {unobserved_threshold}")
-    if unobserved_spp is not None and (int(unobserved_spp) != unobserved_spp or unobserved_spp < 1):
-        raise ValueError(f"unobserved_spp must be a positive integer or None, got {unobserved_spp!r}")
-    if int(crop_margin_px) != crop_margin_px or crop_margin_px < 0:
-        raise ValueError(f"crop_margin_px must be a non-negative integer, got {crop_margin_px!r}")
-    sampler_name = check_sampler(sampler)["type"]
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    mi = set_variant()
-    variant = mi.variant()
-    counts = _image_counts(mi, sampler, int(spp), bool(self_noise))
-    u_spp = sample_count(mi, sampler, int(spp if unobserved_spp is None else unobserved_spp))
-
-    lo, hi = obj.mesh.bounds
-    bg = build_background(depth, camera, edge_threshold, extra_points=np.stack([lo, hi]))
-    geo = background_geometry(bg, depth, camera, edge_threshold)
-    fv, ff, fuv = flaps(geo, camera)
-    # the observed surface, each triangle split so that every piece shows one texel (pass a) ...
-    sv, sf, suv = subdivide(geo, camera.shape, geo.observed)
-    tex_v, tex_f, tex_uv = np.concatenate([sv, fv]), np.concatenate([sf, ff + len(sv)]), np.concatenate([suv, fuv])
-    # ... and unsplit (pass b); its back side is unobserved
-    obs_v, obs_f = np.concatenate([geo.vertices, fv]), np.concatenate([geo.observed, ff + len(geo.vertices)])
-    back_v, back_f = obs_v * np.float32(1.0 + _BACK_OFFSET), obs_f[:, [0, 2, 1]]
-    box_faces = inward_box(bg.box_vertices, bg.box_faces)
-    ov, of, on = object_arrays(obj)
-    # clip planes well inside the nearest geometry and beyond the farthest
-    valid = valid_depth_mask(depth)
-    front = ov[:, 2][ov[:, 2] > 0]
-    zmin = min([float(np.min(depth[valid]))] + ([float(front.min())] if len(front) else []))
-    clip = (1e-3 * zmin, 10.0 * float(np.linalg.norm(np.abs(bg.box_vertices).max(axis=0))))
-    tex = np.ascontiguousarray(srgb_to_linear(np.clip(img, 0.0, 1.0)), dtype=np.float32)
-    texture = mi.Bitmap(tex)
-    rect = object_rect(camera, obj)
-    window = _window(camera, obj, rect, crop_margin_px, clip[0], crop)
-    x0, y0, x1, y1 = window
-    render_opts = dict(window=window, sampler=sampler)
-    timings["geometry"] = time.perf_counter() - t0
-
-    def dielectric(kind: str, **props):
-        return mi.load_dict({"type": kind, "int_ior": float(obj.ior), "ext_ior": 1.0, **props})
-
-    def object_shape(bsdf):
-        return mesh(mi, "object", ov, of, normals=on, bsdf=bsdf)
-
-    # ---- (a) observed surfaces emit I⁻, the rest is black; Mitsuba's dielectric
-    t0 = time.perf_counter()
-    if not fresnel:
-        glass = dielectric(REFRACTION_PATH_BSDF)
-    elif reflection:
-        glass = dielectric("dielectric")
-    else:  # camera rays start on the near clip plane, every other ray on a surface beyond zmin
-        glass = dielectric(REFRACTION_ONLY_BSDF, camera_z=0.5 * zmin)
-    shapes = {
-        "background": mesh(
-            mi, "background", tex_v, tex_f, uv=tex_uv, bsdf=black_bsdf(mi), emitter=texture_emitter(mi, texture)
-        ),
-        "object": object_shape(glass),
-    }
-    python_rect = None if fresnel and reflection else rect
-    seeds = [int(seed)] if len(counts) == 1 else [2 * int(seed), 2 * int(seed) + 1]
-    parts = render_linear(mi, shapes, camera, list(counts), seeds, max_depth, clip, python_rect, **render_opts)
-    win = sum(n * p for n, p in zip(counts, parts)) / float(sum(counts))
-    timings["image"] = time.perf_counter() - t0
-
-    # ---- (b) observed surfaces emit green, unobserved ones red; the refraction path
-    t0 = time.perf_counter()
-    red, green = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
-    shapes = {
-        "background": mesh(mi, "background", obs_v, obs_f, bsdf=black_bsdf(mi), emitter=rgb_emitter(mi, green)),
-        "back": mesh(mi, "back", back_v, back_f, bsdf=black_bsdf(mi), emitter=rgb_emitter(mi, red)),
-        "box": mesh(mi, "box", bg.box_vertices, box_faces, bsdf=black_bsdf(mi), emitter=rgb_emitter(mi, red)),
-        "object": object_shape(dielectric(REFRACTION_PATH_BSDF)),
-    }
-    share = render_linear(mi, shapes, camera, u_spp, seed, max_depth, clip, rect, **render_opts)
-    timings["unobserved"] = time.perf_counter() - t0
-
-    # outside the window: the background seen directly (see the module's conventions)
-    linear = np.where(valid[..., None], tex, np.float32(0.0)).astype(np.float32)
-    linear[y0:y1, x0:x1] = win
-    u, o = np.clip(share[..., 0], 0.0, None), np.clip(share[..., 1], 0.0, None)
-    total = u + o
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u_win = np.where(total > 1e-6, u / total, 1.0)
-    unobserved = np.where(valid, np.float32(0.0), np.float32(1.0)).astype(np.float32)
-    unobserved[y0:y1, x0:x1] = np.clip(u_win, 0.0, 1.0)
-    obj_mask = object_mask(depth, camera, obj)
-    mask = obj_mask & (unobserved < unobserved_threshold)
-    image = linear_to_srgb(np.clip(linear, 0.0, 1.0)).astype(np.float32)
-
-    noise: tuple = (None, None, None)
-    win_mask = mask[y0:y1, x0:x1]
-    if len(parts) == 2 and win_mask.any():
-        a, b = (linear_to_srgb(np.clip(p, 0.0, 1.0)) for p in parts)
-        noise = halves_self_noise(a, b, win_mask, *counts)
-    elif self_noise:
-        log.info("reference: no self-noise (%s)", "spp=1 has no halves" if len(parts) == 1 else "empty mask")
-    log.info(
-        "reference (%s, %s, %s spp in %dx%d px; unobserved %d spp): %d object pixels, %d in the mask; "
-        "self-noise %s dB; %s",
-        variant,
-        sampler_name,
-        "+".join(map(str, counts)),
-        x1 - x0,
-        y1 - y0,
-        u_spp,
-        int(obj_mask.sum()),
-        int(mask.sum()),
-        "n/a" if noise[0] is None else f"{noise[0]:.1f}",
-        {k: round(v, 2) for k, v in timings.items()},
-    )
-    return ReferenceRender(
-        image=image,
+    s = ReferenceSettings() if settings is None else settings
+    img, depth = _check_inputs(i_minus, depth, camera, obj)
+    t = Timer()
+    with t("geometry"):
+        mi = set_variant()
+        counts = _image_counts(mi, s.sampler, int(s.spp), bool(s.self_noise))
+        u_spp = sample_count(mi, s.sampler, int(s.spp if s.unobserved_spp is None else s.unobserved_spp))
+        scene = build_scene(img, depth, camera, obj, s.edge_threshold)
+        window = _window(camera, obj, scene.rect, s.crop_margin_px, scene.clip[0], s.crop)
+    with t("image"):
+        parts = render_image_pass(mi, scene, camera, obj, s, counts, window)
+    with t("unobserved"):
+        share = render_unobserved_pass(mi, scene, camera, obj, s, u_spp, window)
+    linear, unobserved = _paste(scene, window, counts, parts, share)
+    obj_mask, mask = _metric_mask(depth, camera, obj, unobserved, s.unobserved_threshold)
+    noise = _self_noise(parts, counts, mask, window, s.self_noise)
+    ref = ReferenceRender(
+        image=linear_to_srgb(np.clip(linear, 0.0, 1.0)).astype(np.float32),
         linear=linear,
         unobserved=unobserved,
         object_mask=obj_mask,
         mask=mask,
-        unobserved_threshold=float(unobserved_threshold),
-        variant=variant,
+        unobserved_threshold=float(s.unobserved_threshold),
+        variant=mi.variant(),
         spp=int(sum(counts)),
-        seed=int(seed),
-        timings=timings,
-        sampler=sampler_name,
+        seed=int(s.seed),
+        timings=t.seconds,
+        sampler=s.sampler_name,
         unobserved_spp=int(u_spp),
         window=tuple(int(v) for v in window),
         self_noise_db=noise[0],
         self_noise_rgb_db=noise[1],
         self_noise_halves_db=noise[2],
         halves=tuple(int(n) for n in counts) if len(counts) == 2 else None,
-        reflection=bool(fresnel and reflection),
+        reflection=bool(s.fresnel and s.reflection),
     )
+    _log_render(ref, counts)
+    return ref

@@ -155,6 +155,34 @@ def test_a_missing_renderer_is_a_reason_not_a_failure(monkeypatch, inputs):
     assert ref is None and "render extra" in reason
 
 
+def test_the_reference_gets_one_settings_object_of_the_config(monkeypatch, inputs):
+    """Every key of the ``reference`` node that the settings have, ``spp`` replaced when given,
+    ``warps.edge_threshold`` and the run's seed."""
+    import dataclasses
+
+    from snell_bench.pipeline import inputs as stages
+    from snell_bench.render import ReferenceSettings
+
+    seen = []
+    monkeypatch.setattr(stages, "render", lambda *args: seen.append(args[4]) or inputs.reference)
+    cfg = compose(TINY)
+    pipeline.render_reference(cfg, inputs.scene, inputs.obj, spp=6)
+    overrides = ["reference.sampler=independent", "reference.crop=false", "warps.edge_threshold=0.08", "seed=4"]
+    pipeline.render_reference(compose([*TINY, *overrides]), inputs.scene, inputs.obj)
+    r = cfg.reference
+    keys = ("unobserved_spp", "crop", "crop_margin_px", "self_noise", "unobserved_threshold", "reflection")
+    expected = ReferenceSettings(
+        spp=6,
+        sampler=str(r.sampler.value),
+        edge_threshold=cfg.warps.edge_threshold,
+        seed=cfg.seed,
+        **{k: r[k] for k in keys},
+    )
+    changed = dataclasses.replace(expected, spp=1, sampler="independent", crop=False, edge_threshold=0.08, seed=4)
+    assert seen == [expected, changed]
+    assert type(seen[0].sampler) is str
+
+
 def test_each_variation_has_its_own_seed(inputs):
     """The sampling seed is seed + variation (so a text-only baseline differs between variations);
     variation 0 keeps the run's seed."""

@@ -41,11 +41,11 @@ def test_cycles_and_mitsuba_agree_on_the_refraction_unlit():
     if not default_blender_python().exists():
         pytest.skip(f"no Blender environment at {default_blender_python()}: run `make setup-cycles`")
     pytest.importorskip("mitsuba", reason="Mitsuba is the render extra: make setup EXTRAS=test,render")
-    from snell_bench.render import render_reference
+    from snell_bench.render import ReferenceSettings, render_reference
     from snell_bench.render.cycles import render_cycles
 
     img, depth, camera, obj = _scene()
-    m = render_reference(img, depth, camera, obj, spp=242, reflection=False, seed=0)
+    m = render_reference(img, depth, camera, obj, ReferenceSettings(spp=242, reflection=False, seed=0))
     c0, c1 = (render_cycles(img, depth, camera, obj, spp=256, seed=s, lighting="unlit", ior=None) for s in (0, 1))
     mask = m.mask
     assert mask.sum() > 1000

@@ -25,7 +25,7 @@ from render_testing import (  # noqa: E402
 
 from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear  # noqa: E402
 from snell_bench.optics import HitKind  # noqa: E402
-from snell_bench.render.reference import render_reference  # noqa: E402
+from snell_bench.render.reference import ReferenceSettings, render_reference  # noqa: E402
 from snell_bench.render.variants import VARIANT_ENV  # noqa: E402
 from snell_bench.scene.camera import Camera  # noqa: E402
 from snell_bench.scene.objects import GlassObject  # noqa: E402
@@ -44,12 +44,14 @@ def room():
 
 @pytest.fixture(scope="module")
 def reference(room):
-    return render_reference(room.image, room.depth, room.camera, room.obj, spp=18, seed=0)
+    return render_reference(room.image, room.depth, room.camera, room.obj, ReferenceSettings(spp=18, seed=0))
 
 
 @pytest.fixture(scope="module")
 def geometric(room):
-    return render_reference(room.image, room.depth, room.camera, room.obj, spp=18, seed=0, fresnel=False)
+    return render_reference(
+        room.image, room.depth, room.camera, room.obj, ReferenceSettings(spp=18, seed=0, fresnel=False)
+    )
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +63,7 @@ def non_square_room(room):
 @pytest.fixture(scope="module")
 def non_square_geometric(non_square_room):
     r = non_square_room
-    return render_reference(r.image, r.depth, r.camera, r.obj, spp=18, seed=0, fresnel=False)
+    return render_reference(r.image, r.depth, r.camera, r.obj, ReferenceSettings(spp=18, seed=0, fresnel=False))
 
 
 # ============================================================================ conventions
@@ -88,7 +90,7 @@ class TestConventions:
         # the whole frame rendered (crop=False), and the object's window alone (the rest pasted);
         # fresnel=False renders the object's rectangle apart (crop windows of the same film)
         for fresnel, crop in ((True, False), (False, False), (True, True)):
-            ref = render_reference(img, depth, cam, obj, spp=8, fresnel=fresnel, crop=crop)
+            ref = render_reference(img, depth, cam, obj, ReferenceSettings(spp=8, fresnel=fresnel, crop=crop))
             out = far_from_object(ref.object_mask)
             err = np.abs(ref.image - img).max(axis=-1)[out]
             assert ref.object_mask.sum() > 10
@@ -165,14 +167,14 @@ class TestCrossCheck:
 class TestProperties:
     def test_deterministic_for_a_seed(self, room):
         args = (room.image, room.depth, room.camera, room.obj)
-        a = render_reference(*args, spp=8, seed=3)
-        b = render_reference(*args, spp=8, seed=3)
-        c = render_reference(*args, spp=8, seed=4)
+        a = render_reference(*args, ReferenceSettings(spp=8, seed=3))
+        b = render_reference(*args, ReferenceSettings(spp=8, seed=3))
+        c = render_reference(*args, ReferenceSettings(spp=8, seed=4))
         assert np.array_equal(a.image, b.image) and np.array_equal(a.unobserved, b.unobserved)
         assert not np.array_equal(a.image, c.image)
 
     def test_ior_one_object_vanishes(self, room):
-        ref = render_reference(room.image, room.depth, room.camera, room.obj.with_ior(1.0), spp=8)
+        ref = render_reference(room.image, room.depth, room.camera, room.obj.with_ior(1.0), ReferenceSettings(spp=8))
         err = np.abs(ref.image - room.image).max(axis=-1)
         assert err.mean() < 0.1 / 255
         assert np.mean(err < 1 / 255) > 0.999

@@ -32,7 +32,7 @@ from render_testing import forced_cpu_variant, make_room, metric_pixels, psnr, w
 
 from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear  # noqa: E402
 from snell_bench.optics import compute_warps  # noqa: E402
-from snell_bench.render.reference import render_reference  # noqa: E402
+from snell_bench.render.reference import ReferenceSettings, render_reference  # noqa: E402
 
 IORS = (0.75, 2.9)
 
@@ -54,7 +54,9 @@ def warps(room):
 
 
 def _render(room, ior, **kw):
-    return render_reference(room.image, room.depth, room.camera, room.obj.with_ior(ior), spp=18, seed=0, **kw)
+    return render_reference(
+        room.image, room.depth, room.camera, room.obj.with_ior(ior), ReferenceSettings(spp=18, seed=0, **kw)
+    )
 
 
 @pytest.mark.parametrize("ior", IORS)

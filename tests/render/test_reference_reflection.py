@@ -13,7 +13,7 @@ from conftest import sphere_at  # noqa: E402
 from render_testing import far_from_object, forced_cpu_variant  # noqa: E402
 
 from snell_bench.imaging.color import srgb_to_linear  # noqa: E402
-from snell_bench.render.reference import render_reference  # noqa: E402
+from snell_bench.render.reference import ReferenceSettings, render_reference  # noqa: E402
 from snell_bench.scene.camera import Camera  # noqa: E402
 
 IOR = 1.5
@@ -41,7 +41,11 @@ def centre_ratio(scene, **kwargs):
     """Mean linear radiance of the central patch over the plane's radiance ``L``."""
     cam, depth, image, obj, L = scene
     ref = render_reference(
-        image, depth, cam, obj, spp=SPP, seed=1, sampler="independent", self_noise=False, unobserved_spp=1, **kwargs
+        image,
+        depth,
+        cam,
+        obj,
+        ReferenceSettings(spp=SPP, seed=1, sampler="independent", self_noise=False, unobserved_spp=1, **kwargs),
     )
     a = (48 - PATCH) // 2
     return float(ref.linear[a : a + PATCH, a : a + PATCH].mean() / L), ref
@@ -85,8 +89,8 @@ def test_refraction_only_transmits_camera_rays_with_weight_one(scene):
 def test_refraction_only_is_the_same_outside_the_object(scene):
     cam, depth, image, obj, L = scene
     kwargs = dict(spp=4, seed=0, sampler="independent", self_noise=False, unobserved_spp=1)
-    a = render_reference(image, depth, cam, obj, reflection=True, **kwargs)
-    b = render_reference(image, depth, cam, obj, reflection=False, **kwargs)
+    a = render_reference(image, depth, cam, obj, ReferenceSettings(reflection=True, **kwargs))
+    b = render_reference(image, depth, cam, obj, ReferenceSettings(reflection=False, **kwargs))
     out = far_from_object(a.object_mask)  # pixels whose footprints miss the object
     assert out.sum() > 500
     np.testing.assert_array_equal(a.object_mask, b.object_mask)

@@ -17,7 +17,7 @@ from tolerances import reordering_tolerance  # noqa: E402
 from snell_bench.config import ReferenceConfig, compose  # noqa: E402
 from snell_bench.render import variants  # noqa: E402
 from snell_bench.render.pieces import SAMPLERS, check_sampler, sample_count  # noqa: E402
-from snell_bench.render.reference import _window, halves_self_noise, render_reference  # noqa: E402
+from snell_bench.render.reference import ReferenceSettings, _window, halves_self_noise, render_reference  # noqa: E402
 from snell_bench.scene.camera import Camera  # noqa: E402
 from snell_bench.scene.objects import GlassObject  # noqa: E402
 
@@ -58,13 +58,17 @@ def holed_scene():
 # ============================================================================ the window
 class TestWindow:
     def test_window_holds_the_object(self, room):
-        ref = render_reference(room.image, room.depth, room.camera, room.obj, spp=8, crop_margin_px=3)
+        ref = render_reference(
+            room.image, room.depth, room.camera, room.obj, ReferenceSettings(spp=8, crop_margin_px=3)
+        )
         x0, y0, x1, y1 = ref.window
         H, W = room.camera.shape
         ys, xs = np.nonzero(ref.object_mask)
         assert 0 < x1 - x0 < W and 0 < y1 - y0 < H
         assert x0 + 3 <= xs.min() and xs.max() < x1 - 3 and y0 + 3 <= ys.min() and ys.max() < y1 - 3
-        assert render_reference(room.image, room.depth, room.camera, room.obj, spp=2, crop=False).window == (0, 0, W, H)
+        assert render_reference(
+            room.image, room.depth, room.camera, room.obj, ReferenceSettings(spp=2, crop=False)
+        ).window == (0, 0, W, H)
 
     def test_window_falls_back_to_the_whole_frame(self):
         """An object reaching in front of the near clip plane (here behind the camera) has no bounded
@@ -88,8 +92,8 @@ class TestWindow:
         numbers in a window (the sampler's stream follows the window's pixels), so they agree within
         the noise: two independent references differ by their self-noise minus 3 dB."""
         args = (room.image, room.depth, room.camera, room.obj)
-        c = render_reference(*args, spp=18, seed=0)
-        f = render_reference(*args, spp=18, seed=0, crop=False)
+        c = render_reference(*args, ReferenceSettings(spp=18, seed=0))
+        f = render_reference(*args, ReferenceSettings(spp=18, seed=0, crop=False))
         x0, y0, x1, y1 = c.window
         inside = np.zeros(c.mask.shape, bool)
         inside[y0:y1, x0:x1] = True
@@ -109,8 +113,8 @@ class TestWindow:
         """Pixels of unknown depth show nothing in the full-frame render (their rays leave through
         the hole and end on the unobserved box): the paste keeps that, black and unobserved."""
         img, depth, cam, obj = holed_scene()
-        c = render_reference(img, depth, cam, obj, spp=8)
-        f = render_reference(img, depth, cam, obj, spp=8, crop=False)
+        c = render_reference(img, depth, cam, obj, ReferenceSettings(spp=8))
+        f = render_reference(img, depth, cam, obj, ReferenceSettings(spp=8, crop=False))
         x0, y0, x1, y1 = c.window
         assert x1 <= 70 and c.object_mask.sum() > 10  # the far hole lies outside the window
         hole = np.zeros(depth.shape, bool)
@@ -128,7 +132,7 @@ class TestSampler:
         with pytest.raises(ValueError, match="reference.sampler='sobol'"):
             check_sampler("sobol")
         with pytest.raises(ValueError, match="reference.sampler"):
-            render_reference(room.image, room.depth, room.camera, room.obj, spp=2, sampler="sobol")
+            render_reference(room.image, room.depth, room.camera, room.obj, ReferenceSettings(spp=2, sampler="sobol"))
         with pytest.raises(ValueError, match="sample_count"):
             check_sampler({"type": "stratified", "sample_count": 4})
         assert check_sampler({"type": "stratified", "jitter": False}) == {"type": "stratified", "jitter": False}
@@ -144,10 +148,14 @@ class TestSampler:
 
     def test_rounding_is_logged(self, room, caplog):
         with caplog.at_level(logging.WARNING, logger="snell_bench.render.reference"):
-            ref = render_reference(room.image, room.depth, room.camera, room.obj, spp=16, unobserved_spp=2)
+            ref = render_reference(
+                room.image, room.depth, room.camera, room.obj, ReferenceSettings(spp=16, unobserved_spp=2)
+            )
         assert ref.sampler == "orthogonal" and ref.spp == 18 and ref.halves == (9, 9) and ref.unobserved_spp == 4
         assert "spp=16 rendered as 9 + 9 = 18" in caplog.text
-        ref = render_reference(room.image, room.depth, room.camera, room.obj, spp=7, sampler="independent")
+        ref = render_reference(
+            room.image, room.depth, room.camera, room.obj, ReferenceSettings(spp=7, sampler="independent")
+        )
         assert ref.spp == 7 and ref.halves == (3, 4)
 
     @pytest.mark.parametrize("preset", [None, "fast", "balanced", "paper"])
@@ -184,8 +192,8 @@ class TestSelfNoise:
         """The 32-spp reference's estimated self-noise is its PSNR against a 1024-spp one (whose own
         noise costs 0.14 dB at most)."""
         args = (room.image, room.depth, room.camera, room.obj)
-        ref = render_reference(*args, spp=32, sampler="independent", seed=1)
-        conv = render_reference(*args, spp=1024, sampler="independent", seed=2, unobserved_spp=4)
+        ref = render_reference(*args, ReferenceSettings(spp=32, sampler="independent", seed=1))
+        conv = render_reference(*args, ReferenceSettings(spp=1024, sampler="independent", seed=2, unobserved_spp=4))
         m = ref.mask & conv.mask
         assert m.sum() > 500 and ref.halves == (16, 16)
         assert gray_psnr(ref.image, conv.image, m) == pytest.approx(ref.self_noise_db, abs=0.75)
@@ -196,21 +204,21 @@ class TestSelfNoise:
         """Independent sampler: 16 times the samples, 10 log10(16) = 12 dB less noise; the orthogonal
         sampler gains more at the same count."""
         args = (room.image, room.depth, room.camera, room.obj)
-        lo = render_reference(*args, spp=8, sampler="independent", unobserved_spp=4)
-        hi = render_reference(*args, spp=128, sampler="independent", unobserved_spp=4)
+        lo = render_reference(*args, ReferenceSettings(spp=8, sampler="independent", unobserved_spp=4))
+        hi = render_reference(*args, ReferenceSettings(spp=128, sampler="independent", unobserved_spp=4))
         assert hi.self_noise_db - lo.self_noise_db == pytest.approx(10 * math.log10(16), abs=1.0)
-        ortho = render_reference(*args, spp=98, unobserved_spp=4)
+        ortho = render_reference(*args, ReferenceSettings(spp=98, unobserved_spp=4))
         assert ortho.self_noise_db > hi.self_noise_db + 3
 
     def test_without_halves_there_is_none(self, room):
         args = (room.image, room.depth, room.camera, room.obj)
-        one = render_reference(*args, spp=1, sampler="independent", unobserved_spp=1)
+        one = render_reference(*args, ReferenceSettings(spp=1, sampler="independent", unobserved_spp=1))
         assert one.self_noise_db is None and one.halves is None and one.spp == 1
-        off = render_reference(*args, spp=8, self_noise=False)
+        off = render_reference(*args, ReferenceSettings(spp=8, self_noise=False))
         assert off.self_noise_db is None and off.halves is None and off.spp == 9
 
     def test_summary_is_json(self, room):
-        ref = render_reference(room.image, room.depth, room.camera, room.obj, spp=8)
+        ref = render_reference(room.image, room.depth, room.camera, room.obj, ReferenceSettings(spp=8))
         rec = json.loads(json.dumps(ref.summary()))
         assert rec["sampler"] == "orthogonal" and rec["spp"] == 8 and rec["halves"] == [4, 4]
         assert rec["self_noise_db"] == pytest.approx(ref.self_noise_db, abs=1e-3)
@@ -231,9 +239,9 @@ class TestLLVM:
         if not variants._probe("llvm_ad_rgb"):
             pytest.skip("the llvm_ad_rgb variant does not work here (libLLVM missing or incompatible)")
         args = (room.image, room.depth, room.camera, room.obj)
-        scalar = render_reference(*args, spp=50, seed=3)
+        scalar = render_reference(*args, ReferenceSettings(spp=50, seed=3))
         monkeypatch.setenv(variants.VARIANT_ENV, "llvm_ad_rgb")
-        a, b = (render_reference(*args, spp=50, seed=3) for _ in range(2))
+        a, b = (render_reference(*args, ReferenceSettings(spp=50, seed=3)) for _ in range(2))
         assert a.variant == "llvm_ad_rgb" and a.window == scalar.window
         # a pixel is the mean of its a.spp positive samples: summed in any order, it is within
         # (spp - 1) u of the exact mean times its magnitude (box filter: no other pixel's samples)
@@ -243,7 +251,7 @@ class TestLLVM:
         threads = dr.thread_count()
         dr.set_thread_count(1)
         try:
-            c, d = (render_reference(*args, spp=50, seed=3) for _ in range(2))
+            c, d = (render_reference(*args, ReferenceSettings(spp=50, seed=3)) for _ in range(2))
         finally:
             dr.set_thread_count(threads)
         assert np.array_equal(c.linear, d.linear) and np.array_equal(c.unobserved, d.unobserved)

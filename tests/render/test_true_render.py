@@ -41,10 +41,12 @@ class TestTrueRender:
 
     def test_inside_agrees_with_reference(self, room):
         pytest.importorskip("mitsuba")
-        from snell_bench.render.reference import render_reference
+        from snell_bench.render.reference import ReferenceSettings, render_reference
 
         with forced_cpu_variant():
-            reference = render_reference(room.image, room.depth, room.camera, room.obj, spp=16, seed=0)
+            reference = render_reference(
+                room.image, room.depth, room.camera, room.obj, ReferenceSettings(spp=16, seed=0)
+            )
         true = render_true(room.scene, room.camera, room.obj, spp=4, seed=0)
         m = metric_pixels(reference, room.ws)
         assert psnr(true, reference.image, m) > 25
