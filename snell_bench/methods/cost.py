@@ -1,4 +1,5 @@
-"""What a method costs for ``job=plan``: the bases of the estimates (the documented GPU figures or a
+"""What a method costs for ``job=plan``: the bases of the estimates (the documented GPU and CPU
+figures, kept with their sources in ``snell_bench/methods/documented_costs.yaml``, or a
 ``benchmarks/bench_gpu.py`` measurement), a model's description and where its weights are, a cell's
 :class:`Estimate`, and the sampler's, FLUX Fill's and FLUX Kontext's scaling of a basis.
 
@@ -14,8 +15,10 @@ Convention:
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +31,8 @@ __all__ = [
     "Basis",
     "CPU_LABEL",
     "CPU_PRESETS",
+    "DOCUMENTED_FILE",
+    "Documented",
     "Estimate",
     "ModelNeed",
     "README_BASIS",
@@ -37,6 +42,7 @@ __all__ = [
     "fill_estimate",
     "device_of",
     "diffusers_folder",
+    "documented",
     "example",
     "lookup",
     "model_calls",
@@ -52,10 +58,6 @@ __all__ = [
 
 
 # ---------------------------------------------------------------------------- the bases of the estimates
-#: The label of the documented figures (docs/gpu.md).
-README_LABEL = "estimate: documented basis (docs/gpu.md: the paper's 126 s per pair on an A100, scaled to an 80 GB GPU), not a measurement"
-
-
 @dataclass(frozen=True)
 class Basis:
     """Seconds and GB the estimates start from, at the settings they were taken at.
@@ -89,38 +91,92 @@ class Basis:
     peak_gb: dict[str, float] = field(default_factory=dict)
 
 
-#: The model calls per view of the authors' loop at the paper's setting (T = 20, time travel x3 in
-#: [0.2 T, 0.8 T)): 56 main-view + 56 panorama (:func:`~snell_bench.sampler.authors_calls.authors_model_calls`).
-AUTHORS_PAIR_CALLS = (authors_model_calls(SamplerSettings())["main"], authors_model_calls(SamplerSettings())["pano"])
+#: The file of the documented figures, in the package's config folder (no config group uses it).
+DOCUMENTED_FILE = "documented_costs.yaml"
+
+
+@dataclass(frozen=True)
+class Documented:
+    """The documented figures (:data:`DOCUMENTED_FILE`; each with its source there).
+
+    Attributes:
+        basis: the GPU basis (docs/gpu.md) at the authors' model calls per pair
+            (:func:`~snell_bench.sampler.authors_calls.authors_model_calls` at the paper's setting).
+        cpu_label: the label of ``cpu_presets``.
+        cpu_presets: the CPU stand-ins' full method per image, ``(preset, seconds)`` by
+            ``(height, width, pano_height, steps)`` (docs/presets.md).
+        other_gb: GB of other models' weights by name (``moge2``, ``sam3``).
+        activations_gb: GB a stage holds beside its weights when no bench measured it.
+        reference_gpu_gb, larger_gpu_gb: the GPU the figures are for, and a larger one.
+        group_inputs_s: each group's inputs on the CPU, ``(warps, reference)`` seconds.
+    """
+
+    basis: Basis
+    cpu_label: str
+    cpu_presets: dict[tuple[int, int, int, int], tuple[str, float]]
+    other_gb: dict[str, float]
+    activations_gb: float
+    reference_gpu_gb: float
+    larger_gpu_gb: float
+    group_inputs_s: tuple[float, float]
+
+
+def _pair(values: Sequence[float]) -> tuple[float, float]:
+    low, high = values
+    return float(low), float(high)
+
+
+@functools.cache
+def documented() -> Documented:
+    """The documented figures, read from :data:`DOCUMENTED_FILE` once."""
+    import yaml
+
+    data = yaml.safe_load(resources.files(__package__).joinpath(DOCUMENTED_FILE).read_text(encoding="utf-8"))
+    gpu, cpu = data["gpu"], data["cpu"]
+    calls = authors_model_calls(SamplerSettings())
+    basis = Basis(
+        label=str(gpu["label"]),
+        measured=False,
+        pair_s=_pair(gpu["pair_s"]),
+        pair_calls=(calls["main"], calls["pano"]),
+        size=tuple(int(x) for x in gpu["size"]),
+        t2i_s=_pair(gpu["t2i_s"]),
+        t2i_steps=int(gpu["t2i_steps"]),
+        fill_s=_pair(gpu["fill_s"]),
+        fill_steps=int(gpu["fill_steps"]),
+        kontext_s=_pair(gpu["kontext_s"]),
+        kontext_steps=int(gpu["kontext_steps"]),
+        memory_gb={k: float(v) for k, v in gpu["memory_gb"].items()},
+    )
+    presets = {
+        (int(p["height"]), int(p["width"]), int(p["pano_height"]), int(p["steps"])): (
+            str(p["preset"]),
+            float(p["seconds"]),
+        )
+        for p in cpu["presets"]
+    }
+    return Documented(
+        basis=basis,
+        cpu_label=str(cpu["label"]),
+        cpu_presets=presets,
+        other_gb={k: float(v) for k, v in gpu["other_gb"].items()},
+        activations_gb=float(gpu["activations_gb"]),
+        reference_gpu_gb=float(gpu["reference_gpu_gb"]),
+        larger_gpu_gb=float(gpu["larger_gpu_gb"]),
+        group_inputs_s=_pair(gpu["group_inputs_s"]),
+    )
+
 
 #: The documented basis (docs/gpu.md): the authors' 56 main-view + 56 panorama model calls at
 #: 720 x 1280 with a 1024 x 2048 panorama, t2i at 20 steps, Fill at 30, Kontext at its 28 per candidate.
-README_BASIS = Basis(
-    label=README_LABEL,
-    measured=False,
-    pair_s=(50.0, 75.0),
-    pair_calls=AUTHORS_PAIR_CALLS,
-    size=(720, 1280, 1024),
-    t2i_s=(10.0, 10.0),
-    t2i_steps=20,
-    fill_s=(15.0, 15.0),
-    fill_steps=30,
-    kontext_s=(20.0, 20.0),
-    kontext_steps=28,
-    memory_gb={"flux_dev": 34.0, "fill": 34.0, "kontext": 34.0, "shared_text_vae": 10.0},
-)
-
-#: The documented CPU measurements (docs/presets.md) of the full method per image with the mixture stand-in on 2 cores
-#: (warps, sampling, reference and metrics; "Presets and the speed/accuracy trade"), by
-#: ``(height, width, pano_height, steps)``.
-CPU_PRESETS: dict[tuple[int, int, int, int], tuple[str, float]] = {
-    (360, 640, 256, 8): ("fast", 5.2),
-    (360, 640, 512, 20): ("balanced", 18.4),
-    (720, 1280, 1024, 20): ("paper", 88.4),
-}
-
+README_BASIS = documented().basis
+#: The label of the documented figures (docs/gpu.md).
+README_LABEL = README_BASIS.label
+#: The documented CPU measurements (docs/presets.md), ``(preset, seconds)`` by ``(height, width,
+#: pano_height, steps)``.
+CPU_PRESETS = documented().cpu_presets
 #: The label of :data:`CPU_PRESETS`.
-CPU_LABEL = "the documented CPU measurement of the CPU stand-ins (mixture, 2 cores), not a GPU figure"
+CPU_LABEL = documented().cpu_label
 
 
 # ---------------------------------------------------------------------------- model calls of the sampler

@@ -35,11 +35,13 @@ from .registry import BUILTIN_METRICS, ScoreInputs, compute_metrics, metrics_for
 
 __all__ = [
     "AUTHORS_ONLY_METRICS",
+    "CLIP_DEFAULT",
     "IMAGE_REWARD_WORKER",
     "METRIC_NAMES",
     "CLIPScore",
     "ImageRewardScorer",
     "ScoreResult",
+    "default_clip_checkpoint",
     "metric_names",
     "resolve_clip_checkpoint",
     "score_all",
@@ -156,6 +158,32 @@ def resolve_clip_checkpoint(
     raise MetricUnavailable(
         f"no CLIP weights for {model_name} ({pretrained_tag}) on this machine: {hint}, or place them in {where}"
     )
+
+
+#: Where :func:`resolve_clip_checkpoint` finds ViT-B-16 (openai) without ``weights_path``: open_clip's
+#: pretrained entry (its Hugging Face repository and file names, then the URL download's file),
+#: written out for :func:`default_clip_checkpoint`.
+CLIP_DEFAULT = (
+    "timm/vit_base_patch16_clip_224.openai",
+    ("open_clip_model.safetensors", "open_clip_pytorch_model.bin"),
+    "ViT-B-16.pt",
+)
+
+
+def default_clip_checkpoint() -> str:
+    """What ``resolve_clip_checkpoint(None)`` finds (:data:`CLIP_DEFAULT`), without importing
+    open_clip (~4 s): for looking the weights up (``job=plan``), not for loading them."""
+    from huggingface_hub import try_to_load_from_cache
+
+    repo, names, url_file = CLIP_DEFAULT
+    for name in names:
+        hit = try_to_load_from_cache(repo, name)
+        if isinstance(hit, str) and os.path.isfile(hit):
+            return hit
+    hit = Path("~/.cache/clip").expanduser() / url_file
+    if hit.is_file():
+        return str(hit)
+    raise MetricUnavailable(f"no CLIP weights for ViT-B-16 (openai) on this machine (Hugging Face cache: {repo})")
 
 
 class CLIPScore:

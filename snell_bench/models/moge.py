@@ -37,7 +37,7 @@ from .depth_base import (
 )
 from .errors import WeightsNotFoundError
 
-__all__ = ["MoGe2Depth"]
+__all__ = ["MoGe2Depth", "moge_checkpoint"]
 
 _MOGE_CHECKPOINT = "model.pt"
 _MOGE_EXTRA_HELP = 'pip install "snell_bench[depth]" (or make setup EXTRAS=test,depth)'
@@ -54,7 +54,7 @@ def _import_moge_model() -> Any:
     return MoGeModel
 
 
-def _moge_checkpoint(path: str | os.PathLike | None) -> str:
+def moge_checkpoint(path: str | os.PathLike | None) -> str:
     """The local ``model.pt`` of a MoGe checkpoint given as a file, a folder or a cached hub id."""
     layout = f"the MoGe checkpoint file {_MOGE_CHECKPOINT}"
     if path is None:
@@ -158,7 +158,7 @@ class MoGe2Depth:
             DeviceNotAvailableError: when CUDA is asked for and missing.
         """
         MoGeModel = _import_moge_model()
-        checkpoint = _moge_checkpoint(path)
+        checkpoint = moge_checkpoint(path)
         dev = resolve_depth_device(device)
         try:
             model = MoGeModel.from_pretrained(checkpoint)

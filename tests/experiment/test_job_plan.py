@@ -270,11 +270,10 @@ def test_weights_found_are_named(empty_caches):
 
 
 def test_the_default_clip_lookup_agrees_with_the_metric(monkeypatch, empty_caches):
-    from snell_bench.experiment.estimate import CLIP_DEFAULT, _default_clip_checkpoint
-    from snell_bench.metrics.alignment import resolve_clip_checkpoint
+    from snell_bench.metrics.alignment import CLIP_DEFAULT, default_clip_checkpoint, resolve_clip_checkpoint
     from snell_bench.metrics.functional import MetricUnavailable
 
-    for fn in (_default_clip_checkpoint, lambda: resolve_clip_checkpoint(None)):
+    for fn in (default_clip_checkpoint, lambda: resolve_clip_checkpoint(None)):
         with pytest.raises(MetricUnavailable):
             fn()
     repo, names, _ = CLIP_DEFAULT
@@ -283,7 +282,7 @@ def test_the_default_clip_lookup_agrees_with_the_metric(monkeypatch, empty_cache
     (entry / "refs").mkdir()
     (entry / "refs" / "main").write_text("abc")
     (entry / "snapshots" / "abc" / names[1]).write_bytes(b"")
-    assert _default_clip_checkpoint() == resolve_clip_checkpoint(None) == str(entry / "snapshots" / "abc" / names[1])
+    assert default_clip_checkpoint() == resolve_clip_checkpoint(None) == str(entry / "snapshots" / "abc" / names[1])
 
 
 # ---------------------------------------------------------------------------- time and memory
