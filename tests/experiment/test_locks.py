@@ -186,7 +186,9 @@ def test_auto_takes_flock_where_it_works_and_leases_where_it_raises(tmp_path, mo
         assert mine and dotfiles(tmp_path)[0] == LEASE_NAME
     calls = []
     with pytest.raises(LockUnsupported):  # forced flock stops the run before any cell
-        run_cells(cells_in(tmp_path, ["a"]), lambda c, s: calls.append(c) or {}, root=tmp_path, policy=Policy(lock="flock"))
+        run_cells(
+            cells_in(tmp_path, ["a"]), lambda c, s: calls.append(c) or {}, root=tmp_path, policy=Policy(lock="flock")
+        )
     assert calls == []
     summary = run_cells(cells_in(tmp_path, ["a", "b"]), lambda c, s: {}, root=tmp_path)
     assert summary["ok"] == 2 and summary["failed"] == 0
