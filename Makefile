@@ -47,7 +47,7 @@ system-deps-slurm:
 	  else echo "please install slurmctld, slurmd, munge and the Slurm client commands with your system package manager" >&2; exit 1; fi; \
 	fi
 
-# A headless browser for the slow test that opens the HTML report (tests/experiment/test_html_browser.py):
+# A headless browser for the slow test that opens the HTML report (tests/reports/test_html_browser.py):
 # Debian's chromium and its WebDriver (the test skips, saying so, when they are missing).
 system-deps-browser:
 	@if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; then \

@@ -474,9 +474,9 @@ def config_groups() -> str:
 
 def _metric_specs() -> dict[str, tuple[str, bool, str]]:
     """Column key -> (label, higher is better, format), from the metric registry and the reports'
-    measures (:mod:`snell_bench.metrics.registry`, :mod:`snell_bench.experiment.reports.spec`)."""
-    from snell_bench.experiment.reports.spec import MEASURES
+    measures (:mod:`snell_bench.metrics.registry`, :mod:`snell_bench.reports.spec`)."""
     from snell_bench.metrics.registry import BUILTIN_METRICS
+    from snell_bench.reports.spec import MEASURES
 
     out = {m.name: (f"{m.label} {m.arrow}", m.higher_is_better, m.format) for m in BUILTIN_METRICS}
     out.update({m.name: (m.label, None, m.format) for m in MEASURES.values()})

@@ -10,7 +10,7 @@ pages' tables from these snapshots, so no number on a result page is typed by ha
 
 For the speed/accuracy sweep it also writes ``tradeoff_settings.csv``: the per-setting means the
 report's ``tradeoff.md`` shows, computed by the report's own
-:func:`snell_bench.experiment.reports.tradeoff_table` from ``tradeoff.csv``.
+:func:`snell_bench.reports.tradeoff_table` from ``tradeoff.csv``.
 
 Usage (``make docs-results``)::
 
@@ -132,7 +132,7 @@ def tradeoff_means(raw):
         One row per setting: ``setting``, ``axis``, the stage times, the PSNRs, LPIPS, the
         reference's self-noise, ``n`` (``"ok/scenes"``) and ``pareto`` (``"★"`` on the front).
     """
-    from snell_bench.experiment.reports import tradeoff_table
+    from snell_bench.reports import tradeoff_table
 
     table = tradeoff_table(raw)
     out = table.drop(columns=[c for c in ("lpips_missing",) if c in table.columns]).copy()

@@ -752,7 +752,7 @@ class GridConfig:
     #: ``<cell>/.lock``; the kernel frees the lock of a dead process), ``lease`` (flufl.lock's
     #: hard-link lease ``<cell>/.lease``, renewed every ``lease_ttl_s / 3`` s and broken 10 s after
     #: it expires: for Lustre without ``flock``, NFS with ``local_lock``, BeeGFS) or ``auto`` (``lease`` where flock raises or the mount keeps it
-    #: local to one machine, else ``flock``; snell_bench/experiment/locks.py). Every job sharing a
+    #: local to one machine, else ``flock``; snell_bench/utils/locks.py). Every job sharing a
     #: run folder must claim the same way. Not a result setting.
     lock: str = "auto"
     #: Seconds a lease lives without renewal: a cell whose process died on another machine is

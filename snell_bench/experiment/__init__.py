@@ -60,7 +60,7 @@ def _tradeoff(cfg: DictConfig) -> int:
 
 
 def _report(cfg: DictConfig) -> None:
-    from snell_bench.experiment.reports import NoCells, build_reports, summary_line
+    from snell_bench.reports import NoCells, build_reports, summary_line
 
     name = str(cfg.experiment_name)
     out = Path(cfg.reports_dir) / name

@@ -14,7 +14,7 @@ from omegaconf import DictConfig, OmegaConf
 from snell_bench.config import Config
 from snell_bench.config.recipes import BEFORE_SWITCHES
 from snell_bench.experiment.plan import ABSENT, flatten, result_settings, settings_diff
-from snell_bench.experiment.reports.records import load_record
+from snell_bench.reports.records import load_record
 from snell_bench.utils.io import file_sha256
 
 __all__ = [
@@ -54,8 +54,8 @@ def record_done(path: Path) -> bool:
 def read_record(path: Path, schema: dict | None = None) -> dict | None:
     """A record file as a dict, or ``None`` when it is missing or not a record (unreadable, not
     UTF-8 JSON, not an object, or against ``schema``, e.g.
-    :data:`~snell_bench.experiment.reports.records.GRID_RECORD`:
-    :func:`~snell_bench.experiment.reports.records.load_record`)."""
+    :data:`~snell_bench.reports.records.GRID_RECORD`:
+    :func:`~snell_bench.reports.records.load_record`)."""
     return load_record(path, schema)[0]
 
 

@@ -5,7 +5,7 @@ method; a sweep setting: scene x setting). :func:`run_cells` runs a list of them
 
 - a cell is identified by its folder (a grid cell by scene, variation, object and method); it is
   done, and skipped, when its record file (``metrics.json`` or ``result.json``) is a record
-  (:func:`~snell_bench.experiment.reports.records.load_record`: a UTF-8 JSON object matching the
+  (:func:`~snell_bench.reports.records.load_record`: a UTF-8 JSON object matching the
   sweep's ``schema``; any other file is warned about, naming it and the problem, and the cell
   computed again), says ``ok`` or ``skipped``, every file the record lists (``files``: size and SHA-256) is there unchanged, and
   the record's ``settings_hash`` (of :func:`~snell_bench.experiment.plan.result_settings`: every
@@ -13,11 +13,11 @@ method; a sweep setting: scene x setting). :func:`run_cells` runs a list of them
   changed file makes it unfinished again; other settings stop the run before any work with an
   error naming the changed keys (:class:`SettingsChanged`), or, with ``on_change="recompute"``,
   redo it; ``recompute`` redoes every cell;
-- a process claims a cell (:func:`~snell_bench.experiment.locks.claim`) before computing it, so
+- a process claims a cell (:func:`~snell_bench.utils.locks.claim`) before computing it, so
   sweeps running at once into one folder compute each cell once: with ``fcntl.flock`` on
   ``.lock`` (the kernel frees the lock of a process that dies) or, where flock is missing or holds
   on one machine only, with a lease ``.lease`` (flufl.lock) renewed by a heartbeat and broken once
-  it expires (``lock``: ``auto``, ``flock`` or ``lease``; :mod:`snell_bench.experiment.locks`);
+  it expires (``lock``: ``auto``, ``flock`` or ``lease``; :mod:`snell_bench.utils.locks`);
 - ``fn(cell, shared)`` computes one cell and returns its record's fields; it raises
   :class:`~snell_bench.pipeline.Skip` for a method that cannot run here (``skipped`` with the
   reason) and any other exception for a failure (``failed`` with the reason and traceback); the
@@ -59,10 +59,10 @@ from snell_bench.experiment.cell_state import (
     read_record,
     record_done,
 )
-from snell_bench.experiment.locks import CLAIM_NAMES, DEFAULT_TTL_S, LOCK_NAME, check_ttl, choose_lock, claim
 from snell_bench.experiment.plan import result_settings, settings_hash
 from snell_bench.pipeline import Skip
 from snell_bench.utils.io import write_json, write_text
+from snell_bench.utils.locks import CLAIM_NAMES, DEFAULT_TTL_S, LOCK_NAME, check_ttl, choose_lock, claim
 
 log = logging.getLogger(__name__)
 
@@ -187,7 +187,7 @@ class Policy:
         on_change: a finished cell whose recorded settings differ from its config's: ``error``
             (raise :class:`SettingsChanged` before any work) or ``recompute`` (redo it).
         lock: how a cell is claimed: ``flock``, ``lease`` or ``auto`` (decided once for the run
-            folder's file system; :func:`~snell_bench.experiment.locks.choose_lock`).
+            folder's file system; :func:`~snell_bench.utils.locks.choose_lock`).
         lease_ttl_s: a lease's lifetime without renewal (``lease``).
     """
 

@@ -32,11 +32,11 @@ from snell_bench.experiment.plan import (
     result_settings,
     settings_hash,
 )
-from snell_bench.experiment.reports.records import GRID_RECORD
 from snell_bench.kit.schema import kit_id
 from snell_bench.methods import method_of
 from snell_bench.pipeline import apply_method
 from snell_bench.pipeline.cell import node_key
+from snell_bench.reports.records import GRID_RECORD
 
 __all__ = ["RECORD", "CellState", "GridParts", "cell_states", "group_models"]
 

@@ -70,8 +70,6 @@ from snell_bench.experiment.plan import (
     result_settings,
 )
 from snell_bench.experiment.prefetch import Prefetcher, settings_of
-from snell_bench.experiment.reports.collect import recipe_and_protocol
-from snell_bench.experiment.reports.records import GRID_RECORD
 from snell_bench.experiment.tracking import log_cell, make_tracker
 from snell_bench.kit.schema import kit_id
 from snell_bench.methods import method_of
@@ -83,6 +81,8 @@ from snell_bench.pipeline import (
     scene_pipeline_record,
     scorers_of,
 )
+from snell_bench.reports.collect import recipe_and_protocol
+from snell_bench.reports.records import GRID_RECORD
 from snell_bench.utils.io import link_or_copy, save_png, write_json, write_text
 from snell_bench.utils.tensors import bchw_to_hwc
 
@@ -396,7 +396,7 @@ def run_grid(cfg: DictConfig) -> dict:
     if g.report and g.shard is not None and not all((c.folder / "metrics.json").is_file() for c in every):
         print(f"report: left to the last job of the grid (or run job=report experiment_name={exp})")
     elif g.report:
-        from snell_bench.experiment.reports import build_reports, summary_line
+        from snell_bench.reports import build_reports, summary_line
 
         check_same_settings(root)
         out = Path(cfg.reports_dir) / exp

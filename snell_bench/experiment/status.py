@@ -23,8 +23,8 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from snell_bench.experiment.estimate import GridParts, cell_states
-from snell_bench.experiment.locks import CLAIM_NAMES
 from snell_bench.experiment.runner import shard_cells
+from snell_bench.utils.locks import CLAIM_NAMES
 
 __all__ = ["GridStatus", "grid_status", "format_status", "run_status"]
 

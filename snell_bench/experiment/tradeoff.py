@@ -65,7 +65,7 @@ Reference convergence and the converged reference:
     also scored against a converged reference of its scene, object and resolution, rendered once
     and shared (``psnr_converged``, ``mae_converged``, ``lpips_converged``): fidelity that does
     not move with ``reference.spp``; the Pareto front uses it. The report
-    (:func:`~snell_bench.experiment.reports.build_tradeoff_report`) is a pure function of the run
+    (:func:`~snell_bench.reports.build_tradeoff_report`) is a pure function of the run
     folder.
 """
 
@@ -95,7 +95,9 @@ from snell_bench.experiment.plan import (
     object_dir_name,
     object_overrides,
 )
-from snell_bench.experiment.reports import (  # noqa: F401  (re-exported)
+from snell_bench.metrics.registry import builtin_metric
+from snell_bench.pipeline.cell import plain
+from snell_bench.reports import (  # noqa: F401  (re-exported)
     CONVERGED_METRICS,
     PRESET_AXIS,
     RECORD_METRICS,
@@ -113,8 +115,6 @@ from snell_bench.experiment.reports import (  # noqa: F401  (re-exported)
     tradeoff_table,
     update_spp_records,
 )
-from snell_bench.metrics.registry import builtin_metric
-from snell_bench.pipeline.cell import plain
 from snell_bench.utils.io import json_hash, save_npy, write_json
 
 log = logging.getLogger(__name__)

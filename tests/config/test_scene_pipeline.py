@@ -63,7 +63,7 @@ def test_a_generator_on_a_procedural_scene_is_a_named_choice_and_recorded():
 
 
 def test_the_provenance_line_says_when_a_generator_ran_on_procedural_scenes():
-    from snell_bench.experiment.reports.collect import provenance_line
+    from snell_bench.reports.collect import provenance_line
 
     rows = [
         {"model": "flux", "scene_source": "procedural", "status": "ok", "generator_on_procedural": True},

@@ -283,7 +283,7 @@ def test_temporaries_of_a_killed_run_are_removed_when_the_cell_is_computed(tmp_p
 def test_a_record_that_is_not_a_cell_record_is_computed_again_with_a_warning(tmp_path, caplog):
     """A finished cell whose record file was replaced (by hand, by another tool, cut short, in another
     encoding) is not done: it is computed again, and the warning names the file and the problem."""
-    from snell_bench.experiment.reports.records import GRID_RECORD
+    from snell_bench.reports.records import GRID_RECORD
 
     broken = {
         "array": b"[1, 2]",

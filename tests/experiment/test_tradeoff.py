@@ -427,7 +427,7 @@ def test_converged_reference_is_shared_and_independent_of_the_settings_spp(sweep
 def test_figure_keeps_the_bulk_and_points_at_isolated_outliers():
     from matplotlib.figure import Figure
 
-    from snell_bench.experiment.reports import clip_outliers
+    from snell_bench.reports import clip_outliers
 
     x = np.array([4.0, 8.0, 10.0, 12.0, 15.0, 17.0])
     y = np.array([26.1, 28.4, 27.4, 27.5, 27.4, 13.3])  # one isolated low point (one bounce)
@@ -445,8 +445,8 @@ def test_figure_keeps_the_bulk_and_points_at_isolated_outliers():
 
 
 def test_report_skips_files_that_are_not_records_and_shows_non_finite_metrics_as_missing(tmp_path, caplog):
-    from snell_bench.experiment.reports import build_tradeoff_report, collect_tradeoff, skipped_files
-    from tests.experiment.test_html_report import make_tradeoff_runs
+    from snell_bench.reports import build_tradeoff_report, collect_tradeoff, skipped_files
+    from tests.reports.test_html_report import make_tradeoff_runs
 
     root = make_tradeoff_runs(tmp_path / "runs" / "tradeoff")
     d = root / "office-0" / "baseline"

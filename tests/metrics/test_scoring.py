@@ -145,7 +145,7 @@ def test_a_perfect_match_is_recorded_at_the_psnr_ceiling_and_counts_in_the_mean(
 
 
 def test_the_record_of_a_perfect_cell_is_strict_json_with_the_ceiling(cell, tmp_path):
-    from snell_bench.experiment.reports.records import GRID_RECORD, record_problem
+    from snell_bench.reports.records import GRID_RECORD, record_problem
     from snell_bench.utils.io import write_json
 
     gen, _, mask, _, _ = cell

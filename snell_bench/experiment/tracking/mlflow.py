@@ -14,8 +14,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from snell_bench.experiment.locks import hold
 from snell_bench.experiment.tracking.base import Tracker, as_text, clip, import_library, run_notes
+from snell_bench.utils.locks import hold
 
 
 def store_uri(uri: str) -> tuple[str, Path | None]:

@@ -22,7 +22,7 @@ A speed/accuracy sweep's page (:func:`write_tradeoff_page`) holds its per-settin
 the fidelity against each setting, the time-fidelity Pareto plot, its notes and the files skipped.
 
 Conventions:
-    - Templates: Jinja2, shipped in ``snell_bench/experiment/reports/templates/`` (``grid.html.j2``,
+    - Templates: Jinja2, shipped in ``snell_bench/reports/templates/`` (``grid.html.j2``,
       ``tradeoff.html.j2``, the shared ``base.html.j2`` and ``macros.html.j2``, ``report.css`` and
       ``report.js`` inlined into the page). Autoescaping is on: every string from a cell file
       (scene and object names, labels, reasons) is escaped; the only unescaped insertions are the
@@ -131,7 +131,7 @@ def environment():
     from jinja2 import Environment, PackageLoader, StrictUndefined
 
     env = Environment(
-        loader=PackageLoader("snell_bench.experiment.reports", "templates"),
+        loader=PackageLoader("snell_bench.reports", "templates"),
         autoescape=True,
         undefined=StrictUndefined,
         trim_blocks=True,

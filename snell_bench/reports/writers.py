@@ -6,7 +6,7 @@ The Markdown and LaTeX versions of a table from :mod:`.tables` carry a provenanc
 and scene source produced the numbers, how many cells) and notes listing every failed or skipped
 cell with its reason and every metric without a value in some averaged cells. The best value is
 **bold** (``\\textbf``), the second best _italic_ (``\\underline``), as ranked by
-:func:`~snell_bench.experiment.reports.tables.rank_marks`; a missing value is "—".
+:func:`~snell_bench.reports.tables.rank_marks`; a missing value is "—".
 
 Every string that comes from the cells (names, labels, reasons, the experiment's name) is escaped
 for the format it goes into: :func:`~.text.md_escape` for Markdown (one line; ``|``, backticks,

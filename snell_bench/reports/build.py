@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from snell_bench.experiment.locks import hold
 from snell_bench.utils.io import atomic_write_bytes, write_text
+from snell_bench.utils.locks import hold
 
 from .collect import collect, skipped_files
 from .figures import (
@@ -135,7 +135,7 @@ def build_reports(
 
     Tables (each as ``.md``, ``.tex`` and ``.csv``; every column of the paper's table is shown,
     a metric without a value in any cell as "—" with its recorded reason in the notes; the
-    recorded optional metrics, :func:`~snell_bench.experiment.reports.tables.with_recorded_metrics`,
+    recorded optional metrics, :func:`~snell_bench.reports.tables.with_recorded_metrics`,
     follow):
 
     - ``method_table``: Table 1, methods x (CLIP, ImageReward, PSNR, LPIPS);

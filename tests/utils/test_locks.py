@@ -14,15 +14,15 @@ import time
 import pytest
 from omegaconf import OmegaConf
 
-from snell_bench.experiment import locks
 from snell_bench.experiment.cells import Cell, Policy, run_cells
-from snell_bench.experiment.locks import LEASE_NAME, LOCK_NAME, Lease, LockUnsupported, choose_lock, claim
+from snell_bench.utils import locks
+from snell_bench.utils.locks import LEASE_NAME, LOCK_NAME, Lease, LockUnsupported, choose_lock, claim
 
 # claims each "folder kind" pair given on the command line; prints held/busy for each; with
 # "hold", keeps its claims until stdin closes
 CHILD = """
 import contextlib, sys
-from snell_bench.experiment.locks import claim
+from snell_bench.utils.locks import claim
 with contextlib.ExitStack() as stack:
     for arg in sys.argv[2:]:
         folder, kind = arg.rsplit("=", 1)

@@ -456,7 +456,7 @@ def time_travel_figure(
     """The time-travel experiment: each metric against R_main, one line per variant.
 
     Args:
-        table: from :func:`~snell_bench.experiment.reports.tables.time_travel_table`.
+        table: from :func:`~snell_bench.reports.tables.time_travel_table`.
         out_png: the PNG to write.
         title: the figure's title, if any.
         metrics: one panel each; a panel without any value says why (the table's notes on it).

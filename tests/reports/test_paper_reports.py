@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from snell_bench.experiment.reports import (
+from snell_bench.reports import (
     ABLATION_ROWS,
     TIME_TRAVEL_ROWS,
     block_table,
@@ -29,7 +29,7 @@ from snell_bench.experiment.reports import (
     time_travel_table,
     with_recorded_metrics,
 )
-from tests.experiment.test_reports import has_row, md_rows
+from tests.reports.test_reports import has_row, md_rows
 
 W, H = 32, 24
 LPIPS_REASON = "no VGG weights: set metrics.lpips_weights"
@@ -190,7 +190,7 @@ def test_block_table_ranks_within_each_scene(paper_runs):
         ("office", "Snellcaster"),
         ("office", "Text-to-image"),
     ]
-    from snell_bench.experiment.reports import rank_marks
+    from snell_bench.reports import rank_marks
 
     ranks = rank_marks(t)
     # kitchen: 21.0 best, 18.5 second; office: 25.0 best, 22.0 second

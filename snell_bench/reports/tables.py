@@ -1,4 +1,4 @@
-"""Tables from the cells of :func:`~snell_bench.experiment.reports.collect.collect`: methods x
+"""Tables from the cells of :func:`~snell_bench.reports.collect.collect`: methods x
 metrics, scenes x methods, the ablation, time saved against fidelity lost; and the best /
 second-best ranking the writers mark.
 
@@ -285,7 +285,7 @@ def method_table(
         One row per method, labelled by ``method_label`` (``index.name`` ``"Method"``), with the
         ``metrics`` and ``n``, the number of ``ok`` cells (0 for a method whose cells all failed;
         its values are NaN). The notes end with the references' self-noise where the cells record
-        it (:func:`~snell_bench.experiment.reports.collect.reference_noise_note`). Where the cells
+        it (:func:`~snell_bench.reports.collect.reference_noise_note`). Where the cells
         sweep an axis (:func:`swept_axes`), indexed by ``(IOR, Method)``, ranked per IOR.
 
     Raises:

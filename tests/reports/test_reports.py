@@ -9,7 +9,8 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from snell_bench.experiment.reports import (
+from snell_bench.metrics import METRIC_NAMES
+from snell_bench.reports import (
     METRICS,
     ablation_table,
     build_reports,
@@ -25,7 +26,6 @@ from snell_bench.experiment.reports import (
     to_latex,
     to_markdown,
 )
-from snell_bench.metrics import METRIC_NAMES
 
 W, H = 32, 24
 LPIPS_REASON = "no VGG weights: set metrics.lpips_weights"
@@ -553,7 +553,7 @@ def test_record_files_that_are_not_cells_are_skipped_named_and_counted(runs, tmp
 
 
 def test_a_report_without_a_single_cell_record_names_the_files(tmp_path):
-    from snell_bench.experiment.reports import NoCells
+    from snell_bench.reports import NoCells
 
     runs = tmp_path / "runs" / "x"
     _add_not_cells(runs)
@@ -689,7 +689,7 @@ def test_strings_from_cells_are_literal_in_latex(runs):
 
 
 def test_plots_of_cell_labels_stay_inside_their_script(tmp_path):
-    from tests.experiment.test_paper_reports import _cell
+    from tests.reports.test_paper_reports import _cell
 
     evil = '</script><script>alert("x")</script> & <b>'
     root = tmp_path / "runs"

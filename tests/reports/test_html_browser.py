@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from snell_bench.experiment.reports import build_reports
-from tests.experiment.test_html_report import IORS, make_ior_runs
+from snell_bench.reports import build_reports
+from tests.reports.test_html_report import IORS, make_ior_runs
 
 pytestmark = pytest.mark.slow
 
@@ -38,7 +38,7 @@ def report(tmp_path_factory):
     """An IOR sweep (two scenes, three IORs, two methods, panoramas) with a failed cell."""
     tmp = tmp_path_factory.mktemp("html")
     runs = make_ior_runs(tmp / "runs" / "ior_sweep")
-    from tests.experiment.test_paper_reports import _cell
+    from tests.reports.test_paper_reports import _cell
 
     _cell(runs, "office", 0, "sphere-ior1", "inpaint", {"psnr": None}, {}, status="failed")
     out = tmp / "reports" / "ior_sweep"

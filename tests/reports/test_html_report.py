@@ -15,10 +15,10 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from snell_bench.experiment.reports import build_reports, build_tradeoff_report, collect, method_table
-from snell_bench.experiment.reports.gallery import ERROR_LEVELS, ERROR_SCALES
-from tests.experiment.test_paper_reports import AUTHORS_CONFIG, _cell
-from tests.experiment.test_reports import CELLS, LPIPS_REASON, OOM, SKIP, make_runs, md_rows
+from snell_bench.reports import build_reports, build_tradeoff_report, collect, method_table
+from snell_bench.reports.gallery import ERROR_LEVELS, ERROR_SCALES
+from tests.reports.test_paper_reports import AUTHORS_CONFIG, _cell
+from tests.reports.test_reports import CELLS, LPIPS_REASON, OOM, SKIP, make_runs, md_rows
 
 # ---------------------------------------------------------------------------- a small DOM
 
@@ -428,7 +428,7 @@ def test_no_plot_and_no_plotly_without_a_swept_axis(grid):
 
 
 def test_time_travel_plot_against_r_main(tmp_path):
-    from tests.experiment.test_paper_reports import TT_PSNR
+    from tests.reports.test_paper_reports import TT_PSNR
 
     root = tmp_path / "runs"
     for method, psnr in TT_PSNR.items():
@@ -512,7 +512,7 @@ def make_tradeoff_runs(root):
 
 
 def test_tradeoff_page_table_and_plots(tmp_path):
-    from snell_bench.experiment.reports import collect_tradeoff, tradeoff_table
+    from snell_bench.reports import collect_tradeoff, tradeoff_table
 
     root = make_tradeoff_runs(tmp_path / "runs" / "tradeoff")
     out = tmp_path / "r"
@@ -604,7 +604,7 @@ def test_reports_built_at_once_into_one_folder_take_turns(ior, monkeypatch):
     temporaries), so both succeed and the report is the one a single build writes."""
     import threading
 
-    from snell_bench.experiment.reports import build as build_module
+    from snell_bench.reports import build as build_module
 
     runs, out, _ = ior
     before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
