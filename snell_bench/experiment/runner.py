@@ -48,6 +48,7 @@ import json
 import logging
 import os
 import socket
+from collections.abc import Callable
 from pathlib import Path
 
 import submitit
@@ -59,6 +60,7 @@ from snell_bench.config import ConfigError, check_grid_entries, compose
 from snell_bench.config.grid import CellId
 from snell_bench.config.schema import GridConfig
 from snell_bench.experiment.cells import Cell, Hooks, Policy, SharedCache, failures_verdict, run_cells
+from snell_bench.experiment.estimate_cells import GridParts
 from snell_bench.experiment.files import save_inputs
 from snell_bench.experiment.memory import check_memory
 from snell_bench.experiment.order import ModelMajor
@@ -66,7 +68,6 @@ from snell_bench.experiment.plan import (
     ABSENT,
     check_reproducible,
     compose_cell,
-    object_overrides,
     result_settings,
 )
 from snell_bench.experiment.prefetch import Prefetcher, settings_of
@@ -206,38 +207,11 @@ def run_cell(
     }
 
 
-class _IdentityDefaults:
-    """The settings a cell's identity alone composes (no run overrides), put together from one
-    composition per scene and variation, per object and per method (their config groups touch only
-    their own nodes, and a method the ``sampler`` / ``warps`` keys it overrides): the same as
-    composing each cell, in far fewer compositions."""
-
-    def __init__(self) -> None:
-        self._parts: dict[tuple, dict] = {}
-
-    def _part(self, key: tuple, overrides: list[str], keep) -> dict:
-        if key not in self._parts:
-            cfg = compose(overrides)
-            settings = result_settings(apply_method(cfg))
-            self._parts[key] = {k: v for k, v in settings.items() if keep(k, cfg)}
-        return self._parts[key]
-
-    def __call__(self, scene: str, variation: int, spec: str, method: str) -> dict:
-        def method_keys(k, cfg):
-            overridden = {f"sampler.{n}" for n in (cfg.method.sampler or {})}
-            overridden |= {f"warps.{n}" for n in (cfg.method.warps or {})}
-            return k.startswith("method.") or any(k == o or k.startswith(o + ".") for o in overridden)
-
-        return {
-            **self._part(("rest",), [], lambda k, c: not k.startswith(("scene.", "object.", "method."))),
-            **self._part(
-                ("scene", scene, variation),
-                [f"scene={scene}", f"scene.variation={variation}"],
-                lambda k, c: k.startswith("scene."),
-            ),
-            **self._part(("object", spec), object_overrides(spec), lambda k, c: k.startswith("object.")),
-            **self._part(("method", method), [f"method={method}"], method_keys),
-        }
+def identity_defaults() -> Callable[[str, int, str, str], dict]:
+    """The settings a cell's identity alone composes (no run overrides), by ``(scene, variation,
+    object spec, method)``: :meth:`~snell_bench.experiment.estimate_cells.GridParts.settings` of
+    the config without overrides (one composition per scene, object and method, not per cell)."""
+    return GridParts(compose([])).settings
 
 
 def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") -> None:
@@ -247,7 +221,7 @@ def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") ->
     A cell's own settings are its recorded ``config.yaml``; the run's are where it differs from
     what the cell's identity alone (scene, variation, object, method) composes. Every cell must
     agree on every key any run changed."""
-    defaults = _IdentityDefaults()
+    defaults = identity_defaults()
     stored: dict[str, dict] = {}
     changed: set[str] = set()
     for path in sorted(root.rglob("metrics.json")):

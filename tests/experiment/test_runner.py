@@ -353,7 +353,7 @@ def test_a_report_never_averages_cells_of_different_settings(tmp_path):
 def test_identity_defaults_equal_composing_the_cell(identity):
     from snell_bench.config.grid import CellId
     from snell_bench.experiment.plan import result_settings
-    from snell_bench.experiment.runner import _IdentityDefaults
+    from snell_bench.experiment.runner import identity_defaults
     from snell_bench.pipeline import apply_method
 
-    assert _IdentityDefaults()(*identity) == result_settings(apply_method(compose(CellId(*identity).overrides())))
+    assert identity_defaults()(*identity) == result_settings(apply_method(compose(CellId(*identity).overrides())))
