@@ -20,18 +20,12 @@ from snell_bench.utils.io import atomic_write_bytes, write_text
 from snell_bench.utils.locks import hold
 
 from .collect import collect, skipped_files
-from .figures import (
-    figure_rows,
-    panorama_pages,
-    pareto_figure,
-    qualitative_figure,
-    qualitative_pages,
-    time_travel_figure,
-)
+from .figures import figure_rows, panorama_pages, qualitative_figure, qualitative_pages
 from .gallery import gallery
 from .html import PAGE, frame_view, table_view, tradeoff_view, write_grid_page, write_tradeoff_page
 from .plots import axis_plots, pareto_plot, tradeoff_axis_plot
 from .spec import ABLATION_METRICS, ABLATION_ROWS, ABLATION_TABLE2_METRICS, SCENE_METRICS, TABLE1_METRICS
+from .sweep_figures import pareto_figure, time_travel_figure
 from .tables import (
     SAVING_METHODS,
     TIME_TRAVEL_METRICS,

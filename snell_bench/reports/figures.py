@@ -1,26 +1,25 @@
-"""Figures, drawn with matplotlib's Agg canvas and written atomically: a grid's qualitative pages,
-the main image beside its panorama (the paper's Fig. 4), time-travel curves and the Pareto plot."""
+"""Figures of a grid, drawn with matplotlib's Agg canvas and written atomically: the qualitative
+pages and the main image beside its panorama (the paper's Fig. 4). The sweeps' figures (time travel,
+the Pareto plot) are :mod:`~snell_bench.reports.sweep_figures`, re-exported here."""
 
 from __future__ import annotations
 
-import math
 import os
-import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from snell_bench.utils.io import atomic_write
-
+from .canvas import load_rgb, new_figure, save_png
 from .collect import collect
-from .tables import method_labels, object_ior
-from .text import is_missing
-from .tradeoff import PRESET_AXIS, complete_front, fidelity_column
+from .sweep_figures import clip_outliers, pareto_figure, time_travel_figure
+from .swept import object_ior, object_order
+from .tables import method_labels
 
 __all__ = [
     "figure_rows",
+    "method_columns",
     "pages",
     "qualitative_figure",
     "qualitative_pages",
@@ -29,14 +28,8 @@ __all__ = [
     "panorama_pages",
     "time_travel_figure",
     "pareto_figure",
+    "clip_outliers",
 ]
-
-
-def _save(fig, out_png: str | os.PathLike, **kwargs) -> Path:
-    out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(out_png, lambda f: fig.savefig(f, format="png", metadata={"Software": None}, **kwargs))
-    return out_png
 
 
 # --------------------------------------------------------------------------------------------
@@ -44,21 +37,9 @@ def _save(fig, out_png: str | os.PathLike, **kwargs) -> Path:
 # --------------------------------------------------------------------------------------------
 
 
-def _load_rgb(path: Path) -> np.ndarray | None:
-    from PIL import Image
-
-    if not path.is_file():
-        return None
-    try:
-        with Image.open(path) as im:
-            return np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
-    except OSError:
-        return None
-
-
 def _mask_box(path: Path) -> tuple[float, float, float, float] | None:
     """Bounding box of the white pixels of a mask as fractions (x0, y0, x1, y1) of its size."""
-    img = _load_rgb(path)
+    img = load_rgb(path)
     if img is None:
         return None
     m = img.mean(-1) > 0.5
@@ -82,7 +63,7 @@ def _zoom_window(box, W: int, H: int, pad: float = 0.15) -> tuple[int, int, int,
 
 def _object_label(obj: str) -> str:
     name, ior = object_ior(obj)
-    return str(obj) if math.isnan(ior) else f"{name}, IOR {ior:g}"
+    return str(obj) if ior != ior else f"{name}, IOR {ior:g}"
 
 
 def _row_label(scene: str, variation: int, obj: str) -> str:
@@ -96,6 +77,12 @@ def _cell_label(cell_dir: str) -> str:
     if len(parts) < 3:
         return cell_dir
     return f"{parts[-3]} / {_object_label(parts[-2])}\n{parts[-1]}"
+
+
+def method_columns(df: pd.DataFrame) -> list[str]:
+    """The methods of the cells as a figure's columns: ``snellcaster`` first, the others sorted."""
+    names = sorted(df["method"].astype(str).unique())
+    return (["snellcaster"] if "snellcaster" in names else []) + [m for m in names if m != "snellcaster"]
 
 
 def figure_rows(df: pd.DataFrame, by_ior: bool = False) -> list[tuple[str, int, str]]:
@@ -112,12 +99,7 @@ def figure_rows(df: pd.DataFrame, by_ior: bool = False) -> list[tuple[str, int, 
     df = df.dropna(subset=["scene", "variation", "object"])
     keys = sorted({(str(r.scene), int(r.variation), str(r.object)) for r in df.itertuples()})
     if by_ior:
-
-        def key(k):
-            name, ior = object_ior(k[2])
-            return (name, 0 if math.isnan(ior) else 1, 0.0 if math.isnan(ior) else ior, k[0], k[1])
-
-        return sorted(keys, key=key)
+        return sorted(keys, key=lambda k: object_order(k[2]) + (k[0], k[1]))
     chosen, scenes = [], set()
     for k in keys:
         if k[0] not in scenes:
@@ -229,111 +211,110 @@ def qualitative_figure(
     Raises:
         FileNotFoundError: there is no cell below ``run_dir``.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    from matplotlib.patches import Rectangle
-
     run_dir = Path(run_dir)
     df = _cells_of(run_dir, df).dropna(subset=["scene", "variation", "object", "method"])
     if cells is None:
         cells = figure_rows(df)
         cells = cells if max_rows is None else cells[:max_rows]
     cells = [(str(s), int(v), str(o)) for s, v, o in cells]
-    all_methods = sorted(df["method"].astype(str).unique())
-    if methods is None:
-        methods = (["snellcaster"] if "snellcaster" in all_methods else []) + [
-            m for m in all_methods if m != "snellcaster"
-        ]
-    methods = list(methods)
+    methods = method_columns(df) if methods is None else list(methods)
     labels = method_labels(df)
-
-    def cell_row(key, method):
-        g = df[
-            (df["scene"] == key[0]) & (df["variation"] == key[1]) & (df["object"] == key[2]) & (df["method"] == method)
-        ]
-        return None if g.empty else g.iloc[0]
-
-    # one (image, reason) per tile; the reference and the mask per row
-    grid, boxes = [], []
-    for key in cells:
-        rows = {m: cell_row(key, m) for m in methods}
-        same_row = df[(df["scene"] == key[0]) & (df["variation"] == key[1]) & (df["object"] == key[2])]
-        dirs = [run_dir / r["cell_dir"] for r in rows.values() if r is not None] + [
-            run_dir / d for d in same_row["cell_dir"]
-        ]
-        ref = next((img for d in dirs if (img := _load_rgb(d / "reference.png")) is not None), None)
-        box = next((b for d in dirs if (b := _mask_box(d / "mask.png")) is not None), None)
-        tiles = [(ref, "no reference.png")]
-        for m in methods:
-            r = rows[m]
-            if r is None:
-                tiles.append((None, "not run"))
-                continue
-            img = _load_rgb(run_dir / r["cell_dir"] / "image.png")
-            why = r["status"] if r["status"] != "ok" else "no image.png"
-            if r["status"] != "ok" and isinstance(r.get("reason"), str):
-                why += ": " + r["reason"]
-            tiles.append((img, why))
-        grid.append(tiles)
-        boxes.append(box)
-
-    first = next((img for tiles in grid for img, _ in tiles if img is not None), None)
+    rows = [_row_tiles(df, run_dir, key, methods) for key in cells]
+    first = next((img for tiles, _ in rows for img, _ in tiles if img is not None), None)
     aspect = first.shape[0] / first.shape[1] if first is not None else 9 / 16
     ncols, nrows = 1 + len(methods), max(len(cells), 1)
     left_in, top_in = 0.3, 0.3
     tile_h_in = tile_width_in * aspect
     fig_w, fig_h = left_in + ncols * tile_width_in, top_in + nrows * tile_h_in
-    fig = Figure(figsize=(fig_w, fig_h), dpi=dpi, facecolor="white")
-    FigureCanvasAgg(fig)
+    fig = new_figure(fig_w, fig_h, dpi)
     titles = ["Reference"] + [labels.get(m, m) for m in methods]
     gap = 0.03  # fraction of a tile left blank on each side
-    for i, tiles in enumerate(grid):
+    for i, (tiles, box) in enumerate(rows):
         for j, (img, why) in enumerate(tiles):
             x = (left_in + j * tile_width_in) / fig_w
             y = 1 - (top_in + (i + 1) * tile_h_in) / fig_h
             w, h = tile_width_in / fig_w, tile_h_in / fig_h
-            ax = fig.add_axes((x + gap * w, y + gap * h, w * (1 - 2 * gap), h * (1 - 2 * gap)))
-            ax.set_xticks([])
-            ax.set_yticks([])
-            if i == 0:
-                ax.set_title(titles[j], fontsize=9, pad=3)
-            if img is None:
-                ax.set_facecolor((0.85, 0.85, 0.85))
-                text = why if len(why) <= 60 else why[:57] + "..."
-                ax.text(0.5, 0.5, text, ha="center", va="center", fontsize=6, wrap=True, transform=ax.transAxes)
-                continue
-            ax.imshow(img, interpolation="antialiased")
-            ax.set_aspect("auto")
-            box = boxes[i]
-            if inset and box is not None:
-                H, W = img.shape[:2]
-                x0, y0, x1, y1 = _zoom_window(box, W, H)
-                ax.add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, fill=False, ec="yellow", lw=0.8))
-                side_in = 0.42 * min(tile_width_in, tile_h_in)
-                iw, ih = side_in / tile_width_in, side_in / tile_h_in
-                # the corner farthest from the object, so the inset hides as little of it as possible
-                cx, cy = (x0 + x1) / 2 / W, (y0 + y1) / 2 / H
-                ix = 1 - iw - 0.01 if cx < 0.5 else 0.01
-                iy = 0.01 if cy < 0.5 else 1 - ih - 0.01
-                sub = ax.inset_axes((ix, iy, iw, ih))
-                sub.imshow(img[y0:y1, x0:x1], interpolation="nearest")
-                sub.set_aspect("auto")
-                sub.set_xticks([])
-                sub.set_yticks([])
-                for sp in sub.spines.values():
-                    sp.set_edgecolor("yellow")
-                    sp.set_linewidth(1.0)
-        key = cells[i]
-        fig.text(
-            0.5 * left_in / fig_w,
-            1 - (top_in + (i + 0.5) * tile_h_in) / fig_h,
-            _row_label(*key),
-            rotation=90,
-            ha="center",
-            va="center",
-            fontsize=7,
-        )
-    return _save(fig, out_png, dpi=dpi, facecolor="white")
+            rect = (x + gap * w, y + gap * h, w * (1 - 2 * gap), h * (1 - 2 * gap))
+            ax = _tile(fig, rect, img, titles[j] if i == 0 else None, why, wrap=True)
+            if ax is not None and inset and box is not None:
+                _inset(ax, img, box, tile_width_in, tile_h_in)
+        y = 1 - (top_in + (i + 0.5) * tile_h_in) / fig_h
+        _row_text(fig, 0.5 * left_in / fig_w, y, _row_label(*cells[i]), 7)
+    return save_png(fig, out_png, dpi=dpi, facecolor="white")
+
+
+def _row_tiles(
+    df: pd.DataFrame, run_dir: Path, key: tuple[str, int, str], methods: Sequence[str]
+) -> tuple[list[tuple[np.ndarray | None, str]], tuple | None]:
+    """One row of :func:`qualitative_figure`: per column, the image and why there is none (the
+    reference first, then each method's), and the box of the row's mask (None without one)."""
+    same_row = df[(df["scene"] == key[0]) & (df["variation"] == key[1]) & (df["object"] == key[2])]
+    cells = {m: same_row[same_row["method"] == m] for m in methods}
+    rows = {m: None if g.empty else g.iloc[0] for m, g in cells.items()}
+    dirs = [run_dir / r["cell_dir"] for r in rows.values() if r is not None] + [
+        run_dir / d for d in same_row["cell_dir"]
+    ]
+    ref = next((img for d in dirs if (img := load_rgb(d / "reference.png")) is not None), None)
+    box = next((b for d in dirs if (b := _mask_box(d / "mask.png")) is not None), None)
+    tiles = [(ref, "no reference.png")]
+    for m in methods:
+        r = rows[m]
+        if r is None:
+            tiles.append((None, "not run"))
+            continue
+        why = r["status"] if r["status"] != "ok" else "no image.png"
+        if r["status"] != "ok" and isinstance(r.get("reason"), str):
+            why += ": " + r["reason"]
+        tiles.append((load_rgb(run_dir / r["cell_dir"] / "image.png"), why))
+    return tiles, box
+
+
+def _tile(fig, rect, img: np.ndarray | None, title: str | None, missing: str, wrap: bool = False):
+    """One tile of a figure's grid at ``rect`` (figure fractions): ``img``, or a gray tile saying
+    ``missing`` (cut at 60 characters); ``title`` above it. Returns the axes holding the image,
+    None for a gray tile."""
+    ax = fig.add_axes(rect)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    if title is not None:
+        ax.set_title(title, fontsize=9, pad=3)
+    if img is None:
+        ax.set_facecolor((0.85, 0.85, 0.85))
+        text = missing if len(missing) <= 60 else missing[:57] + "..."
+        ax.text(0.5, 0.5, text, ha="center", va="center", fontsize=6, wrap=wrap, transform=ax.transAxes)
+        return None
+    ax.imshow(img, interpolation="antialiased")
+    ax.set_aspect("auto")
+    return ax
+
+
+def _inset(ax, img: np.ndarray, box, tile_w_in: float, tile_h_in: float) -> None:
+    """The zoom on ``box`` (the object) in ``ax``: a yellow frame around the window and the window
+    enlarged in the tile's corner farthest from the object."""
+    from matplotlib.patches import Rectangle
+
+    H, W = img.shape[:2]
+    x0, y0, x1, y1 = _zoom_window(box, W, H)
+    ax.add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, fill=False, ec="yellow", lw=0.8))
+    side_in = 0.42 * min(tile_w_in, tile_h_in)
+    iw, ih = side_in / tile_w_in, side_in / tile_h_in
+    # the corner farthest from the object, so the inset hides as little of it as possible
+    cx, cy = (x0 + x1) / 2 / W, (y0 + y1) / 2 / H
+    ix = 1 - iw - 0.01 if cx < 0.5 else 0.01
+    iy = 0.01 if cy < 0.5 else 1 - ih - 0.01
+    sub = ax.inset_axes((ix, iy, iw, ih))
+    sub.imshow(img[y0:y1, x0:x1], interpolation="nearest")
+    sub.set_aspect("auto")
+    sub.set_xticks([])
+    sub.set_yticks([])
+    for sp in sub.spines.values():
+        sp.set_edgecolor("yellow")
+        sp.set_linewidth(1.0)
+
+
+def _row_text(fig, x: float, y: float, text: str, fontsize: int) -> None:
+    """A row's label, vertical, centred at ``(x, y)`` (figure fractions) in the left margin."""
+    fig.text(x, y, text, rotation=90, ha="center", va="center", fontsize=fontsize)
 
 
 # --------------------------------------------------------------------------------------------
@@ -373,11 +354,8 @@ def panorama_figure(
     Returns:
         ``out_png`` as a :class:`~pathlib.Path`.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     run_dir = Path(run_dir)
-    rows = [(d, _load_rgb(run_dir / d / "image.png"), _load_rgb(run_dir / d / PANORAMA_FILE)) for d in cell_dirs]
+    rows = [(d, load_rgb(run_dir / d / "image.png"), load_rgb(run_dir / d / PANORAMA_FILE)) for d in cell_dirs]
     img0 = next((im for _, im, _ in rows if im is not None), None)
     pano0 = next((p for _, _, p in rows if p is not None), None)
     aspect = img0.shape[0] / img0.shape[1] if img0 is not None else 9 / 16
@@ -386,8 +364,7 @@ def panorama_figure(
     tile_h_in = tile_width_in * aspect
     pano_w_in = tile_h_in * pano_aspect
     fig_w, fig_h = left_in + tile_width_in + pano_w_in, top_in + max(len(rows), 1) * tile_h_in
-    fig = Figure(figsize=(fig_w, fig_h), dpi=dpi, facecolor="white")
-    FigureCanvasAgg(fig)
+    fig = new_figure(fig_w, fig_h, dpi)
     gap = 0.03
     for i, (d, img, pano) in enumerate(rows):
         y = 1 - (top_in + (i + 1) * tile_h_in) / fig_h
@@ -397,29 +374,15 @@ def panorama_figure(
             (left_in + tile_width_in, pano_w_in, pano, "Panorama", f"no {PANORAMA_FILE}"),
         ):
             x, w = x0_in / fig_w, w_in / fig_w
-            ax = fig.add_axes(
-                (x + gap * tile_width_in / fig_w, y + gap * h, w - 2 * gap * tile_width_in / fig_w, h * (1 - 2 * gap))
+            rect = (
+                x + gap * tile_width_in / fig_w,
+                y + gap * h,
+                w - 2 * gap * tile_width_in / fig_w,
+                h * (1 - 2 * gap),
             )
-            ax.set_xticks([])
-            ax.set_yticks([])
-            if i == 0:
-                ax.set_title(title, fontsize=9, pad=3)
-            if im is None:
-                ax.set_facecolor((0.85, 0.85, 0.85))
-                ax.text(0.5, 0.5, missing, ha="center", va="center", fontsize=6, transform=ax.transAxes)
-                continue
-            ax.imshow(im, interpolation="antialiased")
-            ax.set_aspect("auto")
-        fig.text(
-            0.5 * left_in / fig_w,
-            1 - (top_in + (i + 0.5) * tile_h_in) / fig_h,
-            _cell_label(str(d)),
-            rotation=90,
-            ha="center",
-            va="center",
-            fontsize=6,
-        )
-    return _save(fig, out_png, dpi=dpi, facecolor="white")
+            _tile(fig, rect, im, title if i == 0 else None, missing)
+        _row_text(fig, 0.5 * left_in / fig_w, 1 - (top_in + (i + 0.5) * tile_h_in) / fig_h, _cell_label(str(d)), 6)
+    return save_png(fig, out_png, dpi=dpi, facecolor="white")
 
 
 def panorama_pages(
@@ -443,210 +406,3 @@ def panorama_pages(
         panorama_figure(run_dir, out_dir / f"{stem}_{k}.png", page, **kwargs)
         for k, page in enumerate(pages(panorama_rows(df, run_dir), max_rows), start=1)
     ]
-
-
-# --------------------------------------------------------------------------------------------
-# Time travel
-# --------------------------------------------------------------------------------------------
-
-
-def time_travel_figure(
-    table: pd.DataFrame, out_png: str | os.PathLike, title: str = "", metrics: Sequence[str] = ("psnr", "lpips")
-) -> Path:
-    """The time-travel experiment: each metric against R_main, one line per variant.
-
-    Args:
-        table: from :func:`~snell_bench.reports.tables.time_travel_table`.
-        out_png: the PNG to write.
-        title: the figure's title, if any.
-        metrics: one panel each; a panel without any value says why (the table's notes on it).
-
-    Returns:
-        ``out_png`` as a :class:`~pathlib.Path`.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    from .spec import metric_spec
-
-    fig = Figure(figsize=(4.2 * len(metrics), 3.4), dpi=110, facecolor="white")
-    FigureCanvasAgg(fig)
-
-    # the last level is R_main; the levels before it (the variant, and a swept axis where the cells
-    # sweep one) name a line
-    def line(k) -> str:
-        return " / ".join(str(x) for x in k[:-1])
-
-    variants = list(dict.fromkeys(line(k) for k in table.index))
-    rs = sorted({int(k[-1]) for k in table.index})
-    for pi, m in enumerate(metrics):
-        spec = metric_spec(m)
-        ax = fig.add_subplot(1, len(metrics), pi + 1)
-        values = table[m] if m in table.columns else pd.Series(np.nan, index=table.index)
-        drawn = False
-        for vi, v in enumerate(variants):
-            sel = [(int(k[-1]), float(values.iloc[i])) for i, k in enumerate(table.index) if line(k) == v]
-            sel = [(r, y) for r, y in sel if np.isfinite(y)]
-            if sel:
-                x, y = zip(*sel)
-                ax.plot(x, y, marker="os"[vi % 2], color=f"C{vi}", label=v)
-                drawn = True
-        ax.set_xlabel("R_main (time-travel repeats of the main view)")
-        ax.set_ylabel(f"{spec.label} {spec.arrow}")
-        if rs:
-            ax.set_xticks(rs)
-        ax.grid(True, alpha=0.3)
-        if drawn:
-            ax.legend(fontsize=7, loc="best")
-        else:
-            why = [n for n in table.attrs.get("notes", []) if n.startswith(f"{spec.label}:")]
-            text = "no values" + (": " + why[0].split(" — ", 1)[-1] if why else "")
-            ax.set_yticks([])
-            ax.text(0.5, 0.5, textwrap.fill(text, 48), ha="center", va="center", fontsize=7, transform=ax.transAxes)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    return _save(fig, out_png, facecolor="white")
-
-
-# --------------------------------------------------------------------------------------------
-# Pareto plot
-# --------------------------------------------------------------------------------------------
-
-
-def pareto_figure(table: pd.DataFrame, out_png: str | os.PathLike, title: str = "") -> Path:
-    """``pareto.png`` of a speed/accuracy sweep.
-
-    Mean total seconds (log x) against mean PSNR (:func:`fidelity_column`), one marker and colour
-    per axis, presets as labelled stars, the Pareto front (settings that succeeded on every scene)
-    as a step line; a second panel with PSNR vs the true render when any setting has it.
-
-    Args:
-        table: per-setting means from ``tradeoff_table``.
-        out_png: the PNG to write.
-        title: the figure's title, if any.
-
-    Returns:
-        ``out_png`` as a :class:`~pathlib.Path`.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fid = fidelity_column(table)
-    panels = [
-        (
-            fid,
-            "mean masked PSNR vs converged reference (dB)"
-            if fid == "psnr_converged"
-            else "mean masked PSNR vs reference (dB)",
-        )
-    ]
-    if table["psnr_true"].notna().any():
-        panels.append(("psnr_true", "mean masked PSNR vs true render (dB)"))
-    fig = Figure(figsize=(6.0 * len(panels), 4.6), dpi=110, facecolor="white")
-    FigureCanvasAgg(fig)
-    axes_names = [a for a in dict.fromkeys(table["axis"]) if a != PRESET_AXIS and not is_missing(a)]
-    for pi, (metric, ylabel) in enumerate(panels):
-        _pareto_panel(fig.add_subplot(1, len(panels), pi + 1), table, metric, ylabel, axes_names, legend=pi == 0)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    return _save(fig, out_png, facecolor="white")
-
-
-def _pareto_panel(ax, table: pd.DataFrame, metric: str, ylabel: str, axes_names: list, legend: bool) -> None:
-    """One panel of :func:`pareto_figure`: ``metric`` against the mean total time."""
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
-
-    markers = "osD^v<>phX8"
-    colors = [f"C{i}" for i in range(10)]
-    x = table["timings_s.total"].to_numpy(float)
-    y = table[metric].to_numpy(float)
-    base = table["axis"].isna().to_numpy()
-    if base.any():
-        ax.scatter(
-            x[base], y[base], marker="o", s=60, facecolors="none", edgecolors="black", label="baseline", zorder=3
-        )
-    for i, a in enumerate(axes_names):
-        sel = (table["axis"] == a).to_numpy()
-        ax.scatter(
-            x[sel], y[sel], marker=markers[i % len(markers)], color=colors[i % len(colors)], s=28, label=a, zorder=3
-        )
-        for lab, xi, yi in zip(table.index[sel], x[sel], y[sel]):
-            if np.isfinite(xi) and np.isfinite(yi):
-                ax.annotate(
-                    lab.split("=", 1)[-1],
-                    (xi, yi),
-                    fontsize=6,
-                    xytext=(3, 2),
-                    textcoords="offset points",
-                    color=colors[i % len(colors)],
-                )
-    pre = (table["axis"] == PRESET_AXIS).to_numpy()
-    if pre.any():
-        ax.scatter(
-            x[pre],
-            y[pre],
-            marker="*",
-            s=160,
-            color="gold",
-            edgecolors="black",
-            linewidths=0.6,
-            label="presets",
-            zorder=4,
-        )
-        for lab, xi, yi in zip(table.index[pre], x[pre], y[pre]):
-            if np.isfinite(xi) and np.isfinite(yi):
-                ax.annotate(
-                    lab.split(":", 1)[-1],
-                    (xi, yi),
-                    fontsize=8,
-                    fontweight="bold",
-                    xytext=(5, -10),
-                    textcoords="offset points",
-                )
-    front = complete_front(table, x, y)
-    if front.size:
-        ax.step(x[front], y[front], where="post", color="grey", lw=1.2, ls="--", label="Pareto front", zorder=2)
-        ax.scatter(x[front], y[front], s=150, facecolors="none", edgecolors="grey", linewidths=1.0, zorder=2)
-    finite = x[np.isfinite(x)]
-    if finite.size and (finite > 0).all():
-        ax.set_xscale("log")
-        ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
-        ax.xaxis.set_minor_locator(LogLocator(base=10, subs=tuple(range(1, 10))))
-        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        ax.xaxis.set_minor_formatter(NullFormatter())
-    clip_outliers(ax, table.index, x, y)
-    ax.set_xlabel("mean total time per image (s, log scale)")
-    ax.set_ylabel(ylabel)
-    ax.grid(True, which="both", alpha=0.3)
-    if legend:
-        ax.legend(fontsize=7, loc="best")
-
-
-def clip_outliers(ax, labels, x: np.ndarray, y: np.ndarray) -> None:
-    """Keep the y range on the bulk of the settings: settings separated from all others by a gap
-    more than twice the rest of the range (e.g. one bounce, which breaks the glass) are drawn at the
-    lower edge as arrows labelled with their values."""
-    ok = np.isfinite(x) & np.isfinite(y)
-    if ok.sum() < 4:
-        return
-    ys = np.sort(y[ok])
-    gaps = np.diff(ys)
-    i = int(np.argmax(gaps))
-    if gaps[i] <= 2 * (ys[-1] - ys[i + 1]) or i + 1 > len(ys) // 2:  # no isolated low cluster
-        return
-    lo = ys[i + 1]
-    out = ok & (y < lo)
-    bottom = lo - 0.05 * (y[ok & ~out].max() - lo + 1e-9)
-    ax.set_ylim(bottom=bottom)
-    for lab, xi, yi in zip(np.asarray(labels)[out], x[out], y[out]):
-        ax.annotate(
-            f"{lab}: {yi:.2f} dB",
-            (xi, bottom),
-            xytext=(0, 14),
-            textcoords="offset points",
-            fontsize=6,
-            ha="center",
-            arrowprops={"arrowstyle": "->", "lw": 0.8, "color": "black"},
-        )

@@ -46,10 +46,12 @@ import pandas as pd
 
 from snell_bench.utils.io import atomic_write
 
+from .canvas import open_image
 from .collect import recorded_metrics
-from .figures import PANORAMA_FILE, figure_rows
+from .figures import PANORAMA_FILE, figure_rows, method_columns
 from .spec import metric_spec
-from .tables import DEFAULT_IOR, ior_label, method_labels
+from .swept import DEFAULT_IOR, ior_label
+from .tables import method_labels
 from .text import is_missing, one_line, reason, slug
 
 __all__ = [
@@ -320,19 +322,6 @@ def _copies(image, out_dir: Path, folder: str, kind: str, alt: str, written: lis
     return Tile(kind, names["thumb"], names["large"], thumb_size[0], thumb_size[1], alt)
 
 
-def _open(path: Path):
-    from PIL import Image
-
-    if not path.is_file():
-        return None
-    try:
-        with Image.open(path) as im:
-            im.load()
-            return im.copy()
-    except OSError:
-        return None
-
-
 # --------------------------------------------------------------------------------------------
 # The gallery
 # --------------------------------------------------------------------------------------------
@@ -343,7 +332,7 @@ def _cell_error(d: Path, protocol: str) -> tuple[np.ndarray | str, np.ndarray | 
     there is none (a string) and None."""
     from snell_bench.metrics import to_gray
 
-    img, ref, mask = (_open(d / n) for n in ("image.png", "reference.png", "mask.png"))
+    img, ref, mask = (open_image(d / n) for n in ("image.png", "reference.png", "mask.png"))
     if img is None or ref is None or mask is None:
         return "no image.png, reference.png or mask.png in the cell", None
     ref_rgb = np.asarray(ref.convert("RGB"))
@@ -394,7 +383,7 @@ def _method_cell(
     why = None if is_missing(why) else one_line(why)
     cell = MethodCell(method, label, cdir, str(r["status"]), why, metric_values(r, shown))
     d = run_dir / cdir
-    img = _open(d / "image.png") if r["status"] == "ok" else None
+    img = open_image(d / "image.png") if r["status"] == "ok" else None
     if img is not None:
         cell.image = _copies(img, out_dir, cdir, "image", f"{cell.label}: {what}", written)
         protocol = r.get("protocol")
@@ -405,7 +394,7 @@ def _method_cell(
         else:
             cell.error_mean = float(np.nanmean(err))
             errors.append((cell, protocol, err[np.isfinite(err)].astype(np.float32)))
-    pano = _open(d / PANORAMA_FILE) if r["status"] == "ok" else None
+    pano = open_image(d / PANORAMA_FILE) if r["status"] == "ok" else None
     if pano is not None:
         cell.panorama = _copies(pano, out_dir, cdir, "panorama", f"panorama of {cell.label}: {what}", written)
     return cell
@@ -432,8 +421,7 @@ def gallery(
 
     run_dir, out_dir = Path(run_dir), Path(out_dir)
     df = df.dropna(subset=["scene", "variation", "object", "method"])
-    names = sorted(df["method"].astype(str).unique())
-    methods = (["snellcaster"] if "snellcaster" in names else []) + [m for m in names if m != "snellcaster"]
+    methods = method_columns(df)
     labels = method_labels(df)
     shown = [m for m in CAPTION_METRICS if m in df.columns]
     shown += [m for m in recorded_metrics(df) if m not in shown]  # users' metrics (metrics.extra)
@@ -448,7 +436,7 @@ def gallery(
         ]
 
         def first(name, dirs=dirs):
-            return next((im for d in dirs if (im := _open(d / name)) is not None), None)
+            return next((im for d in dirs if (im := open_image(d / name)) is not None), None)
 
         what = f"{scene}-{variation} / {obj}"
         tiles, mask_px = {}, 0

@@ -62,8 +62,9 @@ from snell_bench.utils.io import write_text
 from .collect import cell_notes, recorded_metrics
 from .gallery import Gallery, error_lut
 from .plots import Plot
+from .ranking import rank_marks
 from .spec import MISSING, metric_spec
-from .tables import DEFAULT_IOR, rank_marks
+from .swept import DEFAULT_IOR
 from .text import as_float, is_missing, reason
 from .tradeoff import PRESET_AXIS
 from .writers import _cell_text, _header, _index_header, rank_scope

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from .ranking import column_metric
 from .spec import MEASURES, metric_spec
-from .tables import column_metric
 from .text import html_escape, slug
 from .tradeoff import PRESET_AXIS, complete_front, fidelity_column
 

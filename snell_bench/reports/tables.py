@@ -1,6 +1,6 @@
 """Tables from the cells of :func:`~snell_bench.reports.collect.collect`: methods x
 metrics, scenes x methods, the ablation, time saved against fidelity lost; and the best /
-second-best ranking the writers mark.
+second-best ranking the writers mark (:mod:`~snell_bench.reports.ranking`, re-exported here).
 
 A table is a DataFrame whose index holds the row labels (``index.name`` is the row header) and
 whose columns are metric names plus ``n``, the number of ``ok`` cells averaged (a scene table has
@@ -12,7 +12,8 @@ tooltips and filters read them).
 
 A table never averages cells of different values of a swept axis (:func:`swept_axes`: today the
 IOR, when one object ran at two or more IORs): where the axis varies within the cells a row would
-average, the table gets the axis as its outermost index level (``"IOR"``), one block per value.
+average, the table gets the axis as its outermost index level (``"IOR"``), one block per value
+(:mod:`~snell_bench.reports.swept`, whose names are re-exported here).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from .collect import cell_notes, provenance_line, recorded_metrics, reference_noise_note
+from .ranking import column_metric, rank_marks
 from .spec import (
     ABLATION_METRICS,
     ABLATION_ROWS,
@@ -34,9 +36,9 @@ from .spec import (
     TABLE1_METRICS,
     TIME_TRAVEL_ROWS,
     TIME_TRAVEL_VARIANTS,
-    Metric,
     metric_spec,
 )
+from .swept import DEFAULT_IOR, ior_label, keep_swept, object_ior, object_order, swept_axes, swept_parts
 
 __all__ = [
     "SAVING_METHODS",
@@ -132,134 +134,16 @@ def with_recorded_metrics(df: pd.DataFrame, metrics: Sequence[str]) -> tuple[str
     return tuple(metrics) + tuple(extra)
 
 
-def object_ior(name: str) -> tuple[str, float]:
-    """``(object name, IOR)`` of an object folder (``"sphere-ior1.333"`` -> ``("sphere", 1.333)``);
-    NaN for an object without an IOR in its name."""
-    base, sep, ior = str(name).rpartition("-ior")
-    if sep:
-        try:
-            return base, float(ior)
-        except ValueError:
-            pass
-    return str(name), float("nan")
-
-
-DEFAULT_IOR = "default"
-"""The IOR label of an object folder without ``-ior`` in its name (the object config's own IOR)."""
-
-
-def ior_label(name: str) -> str:
-    """The IOR of an object folder as written in its name (``"sphere-ior1.333"`` -> ``"1.333"``,
-    ``"sphere-iorwater"`` -> ``"water"``); :data:`DEFAULT_IOR` without ``-ior``."""
-    _, sep, ior = str(name).rpartition("-ior")
-    return ior if sep and ior else DEFAULT_IOR
-
-
-def _object_base(name: str) -> str:
-    base, sep, ior = str(name).rpartition("-ior")
-    return base if sep and ior else str(name)
-
-
-def _axis_sort_key(label: str) -> tuple:
-    """Order of an axis' labels: :data:`DEFAULT_IOR` first, then numbers ascending, then text."""
-    if label == DEFAULT_IOR:
-        return (0, 0.0, "")
-    try:
-        return (1, float(label), "")
-    except ValueError:
-        return (2, 0.0, str(label))
-
-
-def swept_axes(df: pd.DataFrame, within: Sequence[str] = ()) -> dict[str, pd.Series]:
-    """The axes the cells sweep that no mean may average over.
-
-    Today one axis, ``"IOR"``: swept when one object (the folder name before ``-ior``) ran at two
-    or more IORs (:func:`ior_label`; an object folder without ``-ior`` counts as
-    :data:`DEFAULT_IOR`).
-
-    Args:
-        df: cells from ``collect``.
-        within: the columns a table groups the cells by (``["scene", "method"]``); an axis is
-            returned only where it varies within one of those groups (an IOR table grouped by
-            object never has it). Empty: every swept axis.
-
-    Returns:
-        ``{level name: the label of each cell (a Series aligned with df)}``, empty when nothing is
-        swept.
-    """
-    out: dict[str, pd.Series] = {}
-    if "object" not in df.columns or df.empty:
-        return out
-    objects = df["object"].astype(str)
-    labels = objects.map(ior_label)
-    per_object = pd.DataFrame({"base": objects.map(_object_base), "ior": labels}).groupby("base")["ior"].nunique()
-    if not (per_object > 1).any():
-        return out
-    keys = [c for c in within if c in df.columns]
-    varies = labels.groupby([df[c].astype(str) for c in keys]).nunique().gt(1).any() if keys else True
-    if varies:
-        out["IOR"] = labels
-    return out
-
-
-def _cells_of(df: pd.DataFrame, methods: Sequence[str]) -> list[list[str]]:
-    """Per method, the folders of its cells in ``df`` (every status)."""
+def _cells_of(df: pd.DataFrame, values: Sequence[str], column: str = "method") -> list[list[str]]:
+    """Per value of ``column`` (a method), the folders of its cells in ``df`` (every status)."""
     if "cell_dir" not in df.columns:
-        return [[] for _ in methods]
-    return [[str(d) for d in df.loc[df["method"] == m, "cell_dir"]] for m in methods]
-
-
-def _keep_swept(df: pd.DataFrame, build, within: Sequence[str]) -> pd.DataFrame:
-    """``build(df)``, or, where a swept axis varies within the groups ``within``, ``build`` of the
-    cells of each of its values, stacked under an outer index level named after the axis.
-
-    The stacked table keeps the attrs of ``build(df)`` (provenance and notes over every cell) with
-    ``cells`` per row, best and second best ranked within each block (``highlight``
-    ``"columns"`` becomes ``"blocks"``) and the caption saying which axis keeps rows apart.
-    """
-    whole = build(df)
-    axes = swept_axes(df, within)
-    if not axes:
-        return whole
-    names = list(axes)
-    labels = pd.DataFrame(axes)
-    keys = sorted(set(labels.itertuples(index=False, name=None)), key=lambda k: tuple(map(_axis_sort_key, k)))
-    parts, part_keys, cells = [], [], []
-    for key in keys:
-        sel = (labels == pd.Series(key, index=names)).all(axis=1)
-        part = build(df[sel.to_numpy()])
-        if len(part) == 0:
-            continue
-        parts.append(part.reindex(columns=whole.columns))
-        part_keys.append(key if len(key) > 1 else key[0])
-        cells += part.attrs.get("cells", [[] for _ in range(len(part))])
-    if not parts:
-        return whole
-    table = pd.concat(parts, keys=part_keys, names=names + list(whole.index.names))
-    if "n" in table.columns:
-        table["n"] = table["n"].fillna(0).astype(int)
-    highlight = whole.attrs.get("highlight")
-    caption = whole.attrs.get("caption", "")
-    what = " and ".join(names)
-    table.attrs = {
-        **whole.attrs,
-        "cells": cells,
-        "highlight": "blocks" if highlight == "columns" else highlight,
-        "caption": (caption + " " if caption else "") + f"One block per {what}: the cells sweep it.",
-    }
-    return table
+        return [[] for _ in values]
+    return [[str(d) for d in df.loc[df[column].astype(str) == v, "cell_dir"]] for v in values]
 
 
 def _group_order(values: Iterable[str], by: str) -> list[str]:
     values = sorted({str(v) for v in values})
-    if by != "object":
-        return values
-
-    def key(v):
-        name, ior = object_ior(v)
-        return (name, 0 if ior != ior else 1, 0.0 if ior != ior else ior)
-
-    return sorted(values, key=key)
+    return sorted(values, key=object_order) if by == "object" else values
 
 
 def _check(df: pd.DataFrame) -> None:
@@ -309,7 +193,7 @@ def method_table(
         )
         return table
 
-    return _keep_swept(df, build, ["method"])
+    return keep_swept(df, build, ["method"])
 
 
 def scene_table(df: pd.DataFrame, metric: str = "psnr", order: Sequence[str] | None = None) -> pd.DataFrame:
@@ -352,13 +236,11 @@ def scene_table(df: pd.DataFrame, metric: str = "psnr", order: Sequence[str] | N
             highlight="rows",
             metric=metric,
             methods=list(methods),
-            cells=[[str(c) for c in d.loc[d["scene"].astype(str) == sc, "cell_dir"]] for sc in scenes]
-            if "cell_dir" in d.columns
-            else [[] for _ in scenes],
+            cells=_cells_of(d, scenes, "scene"),
         )
         return table
 
-    return _keep_swept(df, build, ["scene", "method"])
+    return keep_swept(df, build, ["scene", "method"])
 
 
 def block_table(
@@ -420,7 +302,7 @@ def block_table(
         )
         return table
 
-    return _keep_swept(df, build, [by, "method"])
+    return keep_swept(df, build, [by, "method"])
 
 
 def ablation_table(df: pd.DataFrame, metrics: Sequence[str] = ABLATION_METRICS) -> pd.DataFrame:
@@ -456,7 +338,7 @@ def ablation_table(df: pd.DataFrame, metrics: Sequence[str] = ABLATION_METRICS) 
         )
         return table
 
-    return _keep_swept(df[df["method"].isin([m for m, _ in ABLATION_ROWS])], build, ["method"])
+    return keep_swept(df[df["method"].isin([m for m, _ in ABLATION_ROWS])], build, ["method"])
 
 
 def time_travel_table(df: pd.DataFrame, metrics: Sequence[str] = TIME_TRAVEL_METRICS) -> pd.DataFrame:
@@ -505,7 +387,7 @@ def time_travel_table(df: pd.DataFrame, metrics: Sequence[str] = TIME_TRAVEL_MET
         )
         return table
 
-    return _keep_swept(df[df["method"].isin([m for m, _, _ in TIME_TRAVEL_ROWS])], build, ["method"])
+    return keep_swept(df[df["method"].isin([m for m, _, _ in TIME_TRAVEL_ROWS])], build, ["method"])
 
 
 def _stage_time(df: pd.DataFrame) -> pd.Series:
@@ -538,9 +420,7 @@ def savings_table(
     axes = swept_axes(df, ["method"])
     if axes:
         summaries, per_cells = [], []
-        labels = pd.DataFrame(axes)
-        for key in sorted(set(labels.itertuples(index=False, name=None)), key=lambda k: tuple(map(_axis_sort_key, k))):
-            sel = (labels == pd.Series(key, index=list(axes))).all(axis=1).to_numpy()
+        for key, sel in swept_parts(axes):
             summary, per_cell = _savings(df[sel], reference, methods, method_labels(df))
             for frame, out in ((summary, summaries), (per_cell, per_cells)):
                 if not frame.empty:
@@ -614,71 +494,3 @@ def _savings(
         )
     per_cell = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame()
     return pd.DataFrame(summary), per_cell
-
-
-# --------------------------------------------------------------------------------------------
-# Ranking
-# --------------------------------------------------------------------------------------------
-
-
-def column_metric(table: pd.DataFrame, col) -> Metric | None:
-    """The metric of a value column: the table's ``attrs["metric"]`` for scene tables, else the
-    column's own; None for ``n`` and for columns that are not metrics."""
-    if col == "n" or col in MEASURES:
-        return None
-    if table.attrs.get("metric"):
-        return metric_spec(table.attrs["metric"])
-    if col in METRICS:
-        return METRICS[col]
-    spec = metric_spec(str(col))  # a user's metric, installed here (metrics.extra)
-    return None if spec.source == "unknown" else spec
-
-
-def rank_marks(table: pd.DataFrame) -> dict[tuple[int, int], int]:
-    """Best and second-best cells of a table.
-
-    Cells are ranked per column, per row when ``table.attrs["highlight"] == "rows"``, or per
-    column within each block of rows sharing every index level but the last when it is ``"blocks"``, in
-    the direction of their metric (:func:`column_metric`), on the values as displayed (rounded to the
-    metric's format), so ties share the rank. A column (row) with fewer than two values gets no
-    mark; ``n`` and non-metric columns are never ranked.
-
-    Args:
-        table: a table of this module.
-
-    Returns:
-        ``{(row position, column position): 1 for best, 2 for second best}``.
-    """
-    ranks: dict[tuple[int, int], int] = {}
-    highlight = table.attrs.get("highlight")
-    cols = list(table.columns)
-    if highlight == "rows":
-        groups = [[(i, j) for j in range(len(cols))] for i in range(len(table))]
-    elif highlight == "blocks":
-        first = [k[:-1] if isinstance(k, tuple) else k for k in table.index]
-        blocks: dict = {}
-        for i, b in enumerate(first):
-            blocks.setdefault(b, []).append(i)
-        groups = [[(i, j) for i in rows] for rows in blocks.values() for j in range(len(cols))]
-    else:
-        groups = [[(i, j) for i in range(len(table))] for j in range(len(cols))]
-    for cells in groups:
-        vals = []
-        for i, j in cells:
-            spec = column_metric(table, cols[j])
-            if spec is None:
-                continue
-            v = table.iat[i, j]
-            if v is None or pd.isna(v):
-                continue
-            shown = float(spec.fmt(float(v)))
-            vals.append(((i, j), shown if spec.higher_is_better else -shown))
-        if len(vals) < 2:
-            continue
-        distinct = sorted({v for _, v in vals}, reverse=True)
-        for ij, v in vals:
-            if v == distinct[0]:
-                ranks[ij] = 1
-            elif len(distinct) > 1 and v == distinct[1]:
-                ranks[ij] = 2
-    return ranks

@@ -6,7 +6,7 @@ The Markdown and LaTeX versions of a table from :mod:`.tables` carry a provenanc
 and scene source produced the numbers, how many cells) and notes listing every failed or skipped
 cell with its reason and every metric without a value in some averaged cells. The best value is
 **bold** (``\\textbf``), the second best _italic_ (``\\underline``), as ranked by
-:func:`~snell_bench.reports.tables.rank_marks`; a missing value is "—".
+:func:`~snell_bench.reports.ranking.rank_marks`; a missing value is "—".
 
 Every string that comes from the cells (names, labels, reasons, the experiment's name) is escaped
 for the format it goes into: :func:`~.text.md_escape` for Markdown (one line; ``|``, backticks,
@@ -28,8 +28,8 @@ import pandas as pd
 from snell_bench.utils.io import write_text
 
 from .collect import skipped_files
+from .ranking import column_metric, rank_marks
 from .spec import MEASURES, MISSING, metric_spec
-from .tables import column_metric, rank_marks
 from .text import is_missing, md_code, md_escape, one_line, tex_escape
 from .tradeoff import PRESET_AXIS, RECORD_METRICS, SPP_KEY, STAGES, TOTAL_NOTE, fidelity_column
 
