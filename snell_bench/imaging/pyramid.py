@@ -410,37 +410,37 @@ def pyramid_warp(
     """
     _check_levels(src, levels)
     c = prepare_map(coords, mask, src, wrap_x)
-    B = max(src.shape[0], c.shape[0])
     win = roi_window(c, levels, dest_wrap_x, roi_margin) if roi else None
+    opts = dict(wrap_x=wrap_x, collapse=collapse, match_scale=match_scale, src_pyramid=src_pyramid, gaussian=gaussian)
     if win is not None:
-        ys, xs, full_width = win
-        part = pyramid_warp(
-            src,
-            c[:, ys, xs],
-            levels=levels,
-            wrap_x=wrap_x,
-            collapse=collapse,
-            match_scale=match_scale,
-            dest_wrap_x=dest_wrap_x and full_width,
-            src_pyramid=src_pyramid,
-            gaussian=gaussian,
-        )
-        sizes = level_sizes(tuple(c.shape[1:3]), levels)
-        if collapse:
-            return paste_window(part[0], sizes[0], ys, xs, 0, 0.0), paste_window(part[1], sizes[0], ys, xs, 0, False)
-        return (
-            [paste_window(b, sizes[k], ys, xs, k, 0.0) for k, b in enumerate(part[0])],
-            [paste_window(m, sizes[k], ys, xs, k, False) for k, m in enumerate(part[1])],
-        )
-    opts = dict(wrap_x=wrap_x, match_scale=match_scale, dest_wrap_x=dest_wrap_x, src_pyramid=src_pyramid)
+        return _warp_window(src, c, win, levels, dest_wrap_x=dest_wrap_x, **opts)
+    return _warp_pyramid(src, c, levels, dest_wrap_x=dest_wrap_x, **opts)
+
+
+def _warp_window(src: torch.Tensor, c: torch.Tensor, win: tuple, levels: int, *, dest_wrap_x: bool, **opts):
+    """Warp the map ``c`` ``(B, H', W', 2)`` inside its :func:`roi_window` ``win``; pasted at full size, 0 outside."""
+    ys, xs, full_width = win
+    part = pyramid_warp(src, c[:, ys, xs], levels=levels, dest_wrap_x=dest_wrap_x and full_width, **opts)
+    sizes = level_sizes(tuple(c.shape[1:3]), levels)
+    if opts["collapse"]:
+        return paste_window(part[0], sizes[0], ys, xs, 0, 0.0), paste_window(part[1], sizes[0], ys, xs, 0, False)
+    return (
+        [paste_window(b, sizes[k], ys, xs, k, 0.0) for k, b in enumerate(part[0])],
+        [paste_window(m, sizes[k], ys, xs, k, False) for k, m in enumerate(part[1])],
+    )
+
+
+def _warp_pyramid(src: torch.Tensor, c: torch.Tensor, levels: int, *, collapse: bool, gaussian: bool, **opts):
+    """Warp the whole map ``c`` ``(B, H', W', 2)``: level 0 with ``collapse``, else ``levels`` levels, finest first."""
+    B = max(src.shape[0], c.shape[0])
     if collapse:  # the destination pyramid collapses exactly to its finest level
         return _warp_levels(src, [c], levels, **opts)[0], valid_mask(c, B)
     maps = [c]
     for _ in range(levels - 1):
-        maps.append(downsample_map(maps[-1], float(src.shape[-1]) if wrap_x else None))
+        maps.append(downsample_map(maps[-1], float(src.shape[-1]) if opts["wrap_x"] else None))
     warped = _warp_levels(src, maps, levels, **opts)
     masks = [valid_mask(ck, B) for ck in maps]
-    return (warped if gaussian else warped_bands(warped, masks, wrap_x=dest_wrap_x)), masks
+    return (warped if gaussian else warped_bands(warped, masks, wrap_x=opts["dest_wrap_x"])), masks
 
 
 def warped_bands(levels: Sequence[torch.Tensor], masks: Sequence, *, wrap_x: bool = False) -> list[torch.Tensor]:

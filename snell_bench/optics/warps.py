@@ -42,6 +42,18 @@ Region of interest:
     vertices can see it (perspective projection maps the convex hull into the convex hull of the
     projected vertices), so primary rays are cast there only; the warps are identical.
 
+Recipe switches of :func:`compute_warps` (:class:`~snell_bench.optics.options.Variant`):
+    - ``back_faces``: a refracted ray that ends on the back side of the depth mesh is valid in π^R (at
+      the pixel that shows the front of its end point), and π⁻¹'s occlusion test accepts either side
+      of the depth mesh (the authors' code); ``False``: such an end is unobserved.
+    - ``reflection_parallax``: π^-R is the panorama pixel of the mirror ray's end seen from the
+      panorama centre, where the centre sees it; ``False``: of the mirror direction alone.
+    - ``half_pixel_shift``: shift the source coordinates of π^R, the reflection warp and π by +0.5 px
+      and keep sources in ``[0, W - 1) x [0, H - 1)``
+      (:func:`~snell_bench.optics.conventions.shift_half_pixel`: the authors' sampling).
+    - ``pano_center``: the panorama's centre, ``bbox`` or ``centroid``; ``pano_axes``: its axes,
+      ``level`` or ``camera`` (:func:`~snell_bench.optics.conventions.panorama_pose`).
+
 Stages of :func:`compute_warps`:
     1. check the inputs, derive the options and the cache key, look the key up in the cache;
     2. build the ray-casting scene (far background, background mesh, tracer);
@@ -59,6 +71,7 @@ from __future__ import annotations
 
 import logging
 import os
+from pathlib import Path
 
 import numpy as np
 
@@ -156,25 +169,15 @@ def compute_warps(
         infinity_tolerance_px: treat background that moves no warp by more than this many pixels
             as at infinity (:mod:`~snell_bench.optics.far_field`); ``None`` keeps the exact geometry.
         recipe_max_bounces: a recipe's own interaction limit; replaces ``max_bounces`` when given.
-        back_faces: a refracted ray that ends on the back side of the depth mesh is valid in π^R (at
-            the pixel that shows the front of its end point), and π⁻¹'s occlusion test accepts
-            either side of the depth mesh (the authors' code); ``False``: such an end is unobserved.
-        reflection_parallax: π^-R is the panorama pixel of the mirror ray's end seen from the
-            panorama centre, where the centre sees it; ``False``: of the mirror direction alone.
-        half_pixel_shift: shift the source coordinates of π^R, the reflection warp and π by +0.5 px
-            and keep sources in ``[0, W - 1) x [0, H - 1)``
-            (:func:`~snell_bench.optics.conventions.shift_half_pixel`: the authors' sampling).
-        pano_center: the panorama's centre, ``bbox`` or ``centroid``
-            (:func:`~snell_bench.optics.conventions.panorama_pose`).
-        pano_axes: the panorama's axes, ``level`` or ``camera``.
+        back_faces, reflection_parallax, half_pixel_shift, pano_center, pano_axes: the recipe
+            switches (module docstring).
 
     Returns:
         The :class:`WarpSet` (from the cache if it holds one for these inputs).
 
     Raises:
-        ValueError: the depth map does not match the camera, ``pano_height``, ``up``,
-            ``pano_center``, ``pano_axes`` or ``infinity_tolerance_px`` is invalid, the object is not placed, not in front of the
-            camera or outside its view, or the depth map has no valid pixel.
+        ValueError: an invalid argument (:func:`~snell_bench.optics.options.warp_options`), the object is
+            not placed, not in front of the camera or outside its view, or no depth pixel is valid.
 
     Examples:
         >>> cam = Camera.from_fov(32, 24, 60.0)
@@ -190,50 +193,42 @@ def compute_warps(
     """
     # 1. inputs, options, cache
     depth = np.asarray(depth)
-    if recipe_max_bounces is not None:
-        max_bounces = recipe_max_bounces
+    max_bounces = max_bounces if recipe_max_bounces is None else recipe_max_bounces
     variant = Variant(back_faces, reflection_parallax, half_pixel_shift, pano_center, pano_axes)
-    up_vec, options = warp_options(
-        depth,
-        camera,
-        obj,
-        pano_height,
-        max_bounces=max_bounces,
-        normals=normals,
-        edge_threshold=edge_threshold,
-        up=up,
-        eps=eps,
-        verify_visibility=verify_visibility,
-        infinity_tolerance_px=infinity_tolerance_px,
-        roi=roi,
-        variant=variant,
-    )
-    pano_height = options["pano_height"]
+    tracing = dict(max_bounces=max_bounces, normals=normals, edge_threshold=edge_threshold, up=up, eps=eps, roi=roi)
+    checks = dict(verify_visibility=verify_visibility, infinity_tolerance_px=infinity_tolerance_px, variant=variant)
+    up_vec, options = warp_options(depth, camera, obj, pano_height, **tracing, **checks)
     key = warp_inputs_hash(depth, camera, obj, options)
     cache_path, cached = cache_lookup(cache_dir, key)
     if cached is not None:
         return cached
     check_object_in_view(obj, camera)
-    timer = Timer()
+    return _traced_warps(depth, camera, obj, up_vec, options, variant, key, cache_path)
 
+
+def _traced_warps(
+    depth: np.ndarray,
+    camera: Camera,
+    obj: GlassObject,
+    up_vec: np.ndarray,
+    options: dict,
+    variant: Variant,
+    key: str,
+    cache_path: Path | None,
+) -> WarpSet:
+    """Stages 2-8 from the hashed ``options`` alone (``up_vec`` (3,) unit, camera frame); saved to ``cache_path``."""
+    timer, roi, verify = Timer(), options.get("roi", True), options["verify_visibility"]
     # 2. the ray-casting scene
+    scene_args = {k: options[k] for k in ("max_bounces", "normals", "edge_threshold", "eps")}
     with timer("build"):
         scene = _build_scene(
-            depth,
-            camera,
-            obj,
-            infinity_tolerance_px,
-            pano_height,
-            edge_threshold=edge_threshold,
-            max_bounces=max_bounces,
-            normals=normals,
-            eps=eps,
+            depth, camera, obj, options.get("infinity_tolerance_px"), options["pano_height"], **scene_args
         )
     # 3. primary rays: which pixels see the object
     with timer("primary"):
         primary = _trace_primary(camera, obj, scene.tracer, roi)
-    pano = panorama_pose(obj, up_vec, pano_height, variant.pano_center, variant.pano_axes)
-    arrays = _trace_warps(scene, primary, camera, depth, pano, variant, verify_visibility, timer)
+    pano = panorama_pose(obj, up_vec, options["pano_height"], variant.pano_center, variant.pano_axes)
+    arrays = _trace_warps(scene, primary, camera, depth, pano, variant, verify, timer)
     # 8. masks, statistics, the WarpSet
     arrays["object_mask"] = primary.mask
     stats = _warp_stats(timer, scene, primary, roi)
