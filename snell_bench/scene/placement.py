@@ -86,15 +86,11 @@ def find_support_plane(
 ) -> SupportPlane:
     """Find a horizontal supporting surface with RANSAC (Open3D), near the optical axis or inside a region.
 
-    Points come from a central window of the image (``window`` = fraction of width, height), or,
-    when ``region`` is given, from the region alone (the window is then ignored: a segmented
-    surface may lie anywhere in the image). Planes are peeled off one at a time (up to
-    ``max_planes``). Candidates are horizontal, below the camera (seen from above) and hold at least
-    ``min_inlier_fraction`` of the window's (region's) points; ``prefer`` picks among them:
-    ``"highest"`` (a table top rather than the floor under it), ``"largest"`` (most points) or
-    ``"central"`` (nearest the image centre). The object stands at the median of the chosen plane's
-    points. ``distance_threshold`` is relative to the median depth of the points. Deterministic for
-    a given ``seed``; with ``region=None`` the result is the same as without the argument.
+    Points come from the central ``window`` or, when given, from ``region`` alone (a segmented
+    surface may lie anywhere in the image). Planes are peeled off one at a time; candidates are
+    horizontal, below the camera (seen from above) and hold at least ``min_inlier_fraction`` of the
+    points; ``prefer`` picks among them. The object stands at the median of the chosen plane's
+    points. Deterministic for a given ``seed``; ``region=None`` is the same as no argument.
 
     Args:
         depth: ``(H, W)`` z-depth; missing depth is 0, negative or not finite.
@@ -108,7 +104,8 @@ def find_support_plane(
             valid depth are used. ``None``: the central ``window``.
         distance_threshold: RANSAC inlier distance, as a fraction of the median depth of the points.
         min_inlier_fraction: the smallest share of the points a candidate plane must hold.
-        prefer: ``"highest"``, ``"largest"`` or ``"central"``. ``None`` (default): ``"highest"``
+        prefer: ``"highest"`` (a table top rather than the floor under it), ``"largest"`` (most
+            points) or ``"central"`` (nearest the image centre). ``None`` (default): ``"highest"``
             without a region and ``"largest"`` with one (the region *is* the surface, so its
             dominant plane is; "highest" would pick the top of a small thing lying on it).
         max_planes: the most planes peeled off.
@@ -128,8 +125,34 @@ def find_support_plane(
     depth = np.asarray(depth, np.float64)
     if depth.shape != camera.shape:
         raise ValueError(f"depth has shape {depth.shape} but the camera is {camera.height}x{camera.width}")
-    up = np.asarray(up_hint, np.float64)
-    up = up / np.linalg.norm(up)
+    up = _unit(up_hint)
+    sub, where, prefer = _search_setup(depth, region, window, prefer)
+    pts, xs, ys = _search_points(depth, camera, sub, region is not None, max_points, seed)
+    cos_tilt = math.cos(math.radians(max_tilt_deg))
+    candidates = [
+        _candidate(pts, xs, ys, inl, n, up, camera)
+        for inl, n in _peel_planes(pts, up, distance_threshold, min_inlier_fraction, max_planes, num_iterations, seed)
+        # horizontal and seen from above (below the camera): something can stand on it
+        if len(inl) >= min_inlier_fraction * len(pts) and n @ up >= cos_tilt and float(-pts[inl].mean(axis=0) @ n) > 0
+    ]
+    if not candidates:
+        raise ValueError(
+            f"no horizontal supporting surface found {where} (tried {max_planes} planes; a plane "
+            f"counts as horizontal within {max_tilt_deg} deg of up_hint={np.round(up, 3).tolist()}). Pass up_hint "
+            "for a tilted camera, widen `window` (or check the region: config group `segment`), or place the "
+            "object explicitly with GlassObject.from_mesh"
+        )
+    return _chosen_plane(candidates, prefer, camera)
+
+
+def _unit(v) -> np.ndarray:
+    """``v`` as a float64 array scaled to unit length."""
+    v = np.asarray(v, np.float64)
+    return v / np.linalg.norm(v)
+
+
+def _search_setup(depth: np.ndarray, region, window, prefer: str | None) -> tuple[np.ndarray, str, str]:
+    """``(mask, where, prefer)``: bool ``(H, W)`` pixels searched (window or region), their name in errors, the rule."""
     H, W = depth.shape
     if region is None:
         fx, fy = window
@@ -145,96 +168,83 @@ def find_support_plane(
         if sub.shape != depth.shape:
             raise ValueError(f"region has shape {sub.shape} but the depth is {H}x{W}")
         where = "inside the supporting-surface region"
-    sel = sub & valid_depth_mask(depth)
-    ys, xs = np.nonzero(sel)
     if prefer is None:
         prefer = "highest" if region is None else "largest"
     if prefer not in ("highest", "largest", "central"):
         raise ValueError(f"prefer must be 'highest', 'largest' or 'central', got {prefer!r}")
+    return sub, where, prefer
+
+
+def _search_points(depth, camera: Camera, sub: np.ndarray, is_region: bool, max_points: int, seed: int):
+    """``(pts (N, 3), xs, ys)``: camera-frame points of ``sub``'s valid pixels, at most ``max_points`` (by ``seed``)."""
+    sel = sub & valid_depth_mask(depth)
+    ys, xs = np.nonzero(sel)
     if len(ys) < 3:
-        if region is not None:
+        if is_region:
             raise ValueError(
                 f"the supporting surface has no valid depth: its region has {int(sub.sum())} pixels, {len(ys)} of "
                 "them with valid depth (3 are needed). Check the segmentation (config group `segment`: the "
                 "surface phrase `scene.surface`, or the mask file `segment.mask`) and the depth map (`scene.depth`)"
             )
         raise ValueError("no valid depth near the image centre to find a supporting surface on")
-    rng = np.random.default_rng(seed)
     if len(ys) > max_points:
-        keep = np.sort(rng.choice(len(ys), max_points, replace=False))
+        keep = np.sort(np.random.default_rng(seed).choice(len(ys), max_points, replace=False))
         ys, xs = ys[keep], xs[keep]
-    pts = camera.unproject(np.where(sel, depth, 0.0))[ys, xs]
+    return camera.unproject(np.where(sel, depth, 0.0))[ys, xs], xs, ys
+
+
+def _peel_planes(pts, up, distance_threshold, min_fraction, max_planes, iterations, seed):
+    """Yield ``(inlier indices, unit normal towards up)`` of RANSAC planes peeled off ``pts`` one at a time."""
     thr = distance_threshold * float(np.median(pts[:, 2]))
     o3d.utility.random.seed(int(seed))
-
     remaining = np.arange(len(pts))
-    cos_tilt = math.cos(math.radians(max_tilt_deg))
-    centre = np.array([(W - 1) / 2.0, (H - 1) / 2.0])
-    candidates = []
     for _ in range(max_planes):
-        if len(remaining) < max(3, min_inlier_fraction * len(pts)):
+        if len(remaining) < max(3, min_fraction * len(pts)):
             break
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts[remaining]))
         # probability=1 runs every iteration: Open3D's early stop in its parallel loop makes the
         # result depend on thread timing (the same seed gave different planes within one process)
-        model, inl = pc.segment_plane(
-            distance_threshold=thr, ransac_n=3, num_iterations=num_iterations, probability=1.0
-        )
+        model, inl = pc.segment_plane(distance_threshold=thr, ransac_n=3, num_iterations=iterations, probability=1.0)
         inl = remaining[np.asarray(inl, np.int64)]
-        n = np.asarray(model[:3], np.float64)
-        n = n / np.linalg.norm(n)
-        if n @ up < 0:
-            n = -n
-        below_camera = float(-pts[inl].mean(axis=0) @ n) > 0  # seen from above: something can stand on it
-        if len(inl) >= min_inlier_fraction * len(pts) and n @ up >= cos_tilt and below_camera:
-            # refine the normal by least squares on the inliers
-            q = pts[inl]
-            c = q.mean(axis=0)
-            _, _, vt = np.linalg.svd(q - c, full_matrices=False)
-            n2 = vt[-1] if vt[-1] @ up > 0 else -vt[-1]
-            pix = np.stack([xs[inl], ys[inl]], -1).astype(np.float64)
-            dist_centre = float(np.min(np.linalg.norm(pix - centre, axis=1)))
-            candidates.append((dist_centre, -len(inl), n2, q, pix))
+        n = _unit(model[:3])
+        yield inl, (-n if n @ up < 0 else n)
         remaining = np.setdiff1d(remaining, inl, assume_unique=True)
-    if not candidates:
-        raise ValueError(
-            f"no horizontal supporting surface found {where} (tried {max_planes} planes; a plane "
-            f"counts as horizontal within {max_tilt_deg} deg of up_hint={np.round(up, 3).tolist()}). Pass up_hint "
-            "for a tilted camera, widen `window` (or check the region: config group `segment`), or place the "
-            "object explicitly with GlassObject.from_mesh"
-        )
+
+
+def _candidate(pts, xs, ys, inl: np.ndarray, n: np.ndarray, up: np.ndarray, camera: Camera) -> tuple:
+    """``(nearest inlier pixel's distance to the centre, -count, least-squares normal, points, pixels)``."""
+    centre = np.array([(camera.width - 1) / 2.0, (camera.height - 1) / 2.0])
+    q = pts[inl]
+    _, _, vt = np.linalg.svd(q - q.mean(axis=0), full_matrices=False)
+    n2 = vt[-1] if vt[-1] @ up > 0 else -vt[-1]
+    pix = np.stack([xs[inl], ys[inl]], -1).astype(np.float64)
+    dist_centre = float(np.min(np.linalg.norm(pix - centre, axis=1)))
+    return dist_centre, -len(inl), n2, q, pix
+
+
+def _chosen_plane(candidates: list, prefer: str, camera: Camera) -> SupportPlane:
+    """The ``prefer`` candidate as a plane through the median of its inliers (projected onto it)."""
     if prefer == "highest":  # a table top rather than the floor under it
         candidates.sort(key=lambda c: (-round(float(c[3].mean(axis=0) @ c[2]), 6), c[1]))
     elif prefer == "largest":
         candidates.sort(key=lambda c: (c[1], round(c[0], 6)))
     else:  # central
         candidates.sort(key=lambda c: (round(c[0], 6), c[1]))
-    _, neg_count, normal, q, pix = candidates[0]
+    _, neg_count, normal, q, _ = candidates[0]
     # the centre of the visible supporting region: median of the inliers, projected onto the plane
     c = np.median(q, axis=0)
     c = c - ((c - q.mean(axis=0)) @ normal) * normal
-    px, _ = camera.project(c[None])
-    return SupportPlane(point=c, normal=normal, inliers=-neg_count, pixel=px[0])
+    return SupportPlane(point=c, normal=normal, inliers=-neg_count, pixel=camera.project(c[None])[0][0])
 
 
 def placement_transform(size: float, point: np.ndarray, up: np.ndarray, yaw_deg: float = 0.0) -> np.ndarray:
     """4x4 transform from an object's canonical frame (y up, bottom centre at the origin, unit
     size) to the camera frame: scaled to ``size``, bottom centre at ``point``, local y along ``up``,
     local +z towards the camera (turned by ``yaw_deg`` about ``up``)."""
-    up = np.asarray(up, np.float64)
-    up = up / np.linalg.norm(up)
+    up = _unit(up)
     point = np.asarray(point, np.float64)
-    to_cam = -point - (-point @ up) * up  # horizontal direction from the object to the camera
-    if np.linalg.norm(to_cam) < 1e-9:
-        to_cam = np.cross(up, [1.0, 0.0, 0.0])
-    z = to_cam / np.linalg.norm(to_cam)
-    if yaw_deg:
-        a = math.radians(yaw_deg)
-        z = math.cos(a) * z + math.sin(a) * np.cross(up, z)
-    x = np.cross(up, z)
-    R = np.stack([x, up, z], axis=1)
     T = np.eye(4)
-    T[:3, :3] = R * float(size)
+    T[:3, :3] = _frame(-point - (-point @ up) * up, up, yaw_deg) * float(size)  # z: horizontal, to the camera
     T[:3, 3] = point
     return T
 
@@ -286,8 +296,7 @@ def centre_ray_support(
     Raises:
         ValueError: if the ray meets no depth (a hole or a cut depth edge), naming the keys.
     """
-    up = np.asarray(up_hint, np.float64)
-    up = up / np.linalg.norm(up)
+    up = _unit(up_hint)
     verts, faces, _ = depth_to_mesh(depth, camera, edge_threshold)
     px = np.asarray(pixel, np.float64).reshape(2)
     d = camera.pixel_rays(px[None], normalize=False)[0]
@@ -304,8 +313,7 @@ def centre_ray_support(
             "(scene.depth, depth.edge_rtol), or stand the object on a fitted plane (object.anchor=plane)"
         )
     a, b, c = verts[faces[prim]].astype(np.float64)
-    n = np.cross(b - a, c - a)
-    n = n / np.linalg.norm(n)
+    n = _unit(np.cross(b - a, c - a))
     point = d * float(n @ a) / float(n @ d)
     if n @ up < 0:
         n = -n
@@ -317,10 +325,8 @@ def centre_ray_support(
     return SupportPlane(point=point, normal=n, inliers=1, pixel=px)
 
 
-def _camera_aligned(up: np.ndarray, yaw_deg: float) -> np.ndarray:
-    """3x3 columns ``(x, up, z)``: ``z`` is the camera's -z made perpendicular to ``up`` (the
-    object faces the camera's axis, not the camera), turned by ``yaw_deg`` about ``up``."""
-    z = np.array([0.0, 0.0, -1.0]) - (-up[2]) * up
+def _frame(z: np.ndarray, up: np.ndarray, yaw_deg: float) -> np.ndarray:
+    """3x3 columns ``(up x z, up, z)``, ``z`` (``up x e_x`` if ~0) normalised and turned ``yaw_deg`` about ``up``."""
     if np.linalg.norm(z) < 1e-9:
         z = np.cross(up, [1.0, 0.0, 0.0])
     z = z / np.linalg.norm(z)
@@ -332,9 +338,8 @@ def _camera_aligned(up: np.ndarray, yaw_deg: float) -> np.ndarray:
 
 def _centre_ray_terms(vertices, point, normal, up, yaw_deg, lift):
     """``(base, coef, R, B, bottom, mean)``: a canonical vertex v lands at ``base + size * coef(v)``."""
-    up = np.asarray(up, np.float64) / np.linalg.norm(up)
-    normal = np.asarray(normal, np.float64) / np.linalg.norm(normal)
-    B = _camera_aligned(up, yaw_deg)
+    up, normal = _unit(up), _unit(normal)
+    B = _frame(np.array([0.0, 0.0, -1.0]) - (-up[2]) * up, up, yaw_deg)  # faces the camera's axis, not the camera
     v = np.asarray(vertices, np.float64)
     bottom = v[v[:, 1] == v[:, 1].min()].mean(axis=0)  # the mean of the lowest vertices (exactly the lowest)
     mean = v.mean(axis=0)
@@ -395,8 +400,7 @@ def _check_fits(obj, camera: Camera, p: np.ndarray, coef: np.ndarray, *, size: f
             f"{_size_keys(largest, dist)}: set object.size or object.relative_size at most that"
         )
     pix, _ = camera.project(p + size * coef)
-    lo = np.clip(np.nanmin(pix, axis=0), -0.5, [camera.width - 0.5, camera.height - 0.5])
-    hi = np.clip(np.nanmax(pix, axis=0), -0.5, [camera.width - 0.5, camera.height - 0.5])
+    lo, hi = (np.clip(f(pix, axis=0), -0.5, [camera.width - 0.5, camera.height - 0.5]) for f in (np.nanmin, np.nanmax))
     extent = float(np.min(hi - lo))
     if extent < MIN_EXTENT_PX:
         full = float(np.min(np.nanmax(pix, axis=0) - np.nanmin(pix, axis=0)))
@@ -425,18 +429,16 @@ def place_object(
 ) -> GlassObject:
     """Put a canonical object on the supporting surface.
 
-    ``size`` is the object's largest bounding-box side in scene units; by default
-    ``relative_size`` times the distance from the camera to the placement point. With
-    ``anchor="plane"`` ``lift`` raises it by that fraction of its size along the plane's normal, so
-    it stands on the surface instead of touching it; ``anchor="centre_ray"`` is the authors' pose
-    (:func:`centre_ray_support`, :func:`centre_ray_transform`, :data:`CENTRE_RAY_LIFT` along up;
-    ``lift`` unused).
+    With ``anchor="plane"`` ``lift`` raises it by that fraction of its size along the plane's normal,
+    so it stands on the surface instead of touching it; ``anchor="centre_ray"`` is the authors' pose
+    (:func:`centre_ray_support`, :func:`centre_ray_transform`, :data:`CENTRE_RAY_LIFT` along up).
 
     Args:
         obj: the canonical (unplaced) object.
         depth: ``(H, W)`` z-depth of the scene.
         camera: the camera of ``depth``.
-        size: the object's largest bounding-box side; ``None``: ``relative_size`` x distance.
+        size: the object's largest bounding-box side in scene units; ``None``: ``relative_size`` x
+            the distance from the camera to the placement point.
         relative_size: see ``size``.
         plane: the supporting plane; ``None``: :func:`find_support_plane` (``region`` and
             ``plane_kwargs`` are used only then).
@@ -458,20 +460,9 @@ def place_object(
         raise ValueError(f"{obj.name} is already placed in camera coordinates")
     if anchor not in ANCHORS:
         raise ValueError(f"object.anchor={anchor!r}: use one of {', '.join(ANCHORS)}")
-    up = np.asarray(plane_kwargs.get("up_hint", (0.0, -1.0, 0.0)), np.float64)
-    up = up / np.linalg.norm(up)
-    if plane is None and anchor == "centre_ray":
-        keep = {k: plane_kwargs.pop(k) for k in ("max_tilt_deg", "edge_threshold") if k in plane_kwargs}
-        # without a region the ray aims where the fitted plane's centre is seen (the image centre
-        # often shows a wall)
-        pixel = (
-            anchor_pixel(region, camera)
-            if region is not None
-            else find_support_plane(depth, camera, max_tilt_deg=keep.get("max_tilt_deg", 30.0), **plane_kwargs).pixel
-        )
-        plane = centre_ray_support(depth, camera, pixel, up_hint=up, **keep)
-    elif plane is None:
-        plane = find_support_plane(depth, camera, region=region, **plane_kwargs)
+    up = _unit(plane_kwargs.get("up_hint", (0.0, -1.0, 0.0)))
+    if plane is None:
+        plane = _support(depth, camera, region, anchor, up, plane_kwargs)
     dist = float(np.linalg.norm(plane.point))
     if size is None:
         if not relative_size > 0:
@@ -480,9 +471,8 @@ def place_object(
     if not (size > 0 and math.isfinite(size)):
         raise ValueError(f"size must be finite and > 0, got {size}")
     if anchor == "centre_ray":
-        base, coef, *_ = _centre_ray_terms(obj.vertices, plane.point, plane.normal, up, yaw_deg, CENTRE_RAY_LIFT)
-        T = centre_ray_transform(obj.vertices, size, plane.point, plane.normal, up, yaw_deg)
-        point = base
+        point, coef, *_ = _centre_ray_terms(obj.vertices, plane.point, plane.normal, up, yaw_deg, CENTRE_RAY_LIFT)
+        base, T = point, centre_ray_transform(obj.vertices, size, plane.point, plane.normal, up, yaw_deg)
     else:
         point = plane.point + lift * size * plane.normal
         T = placement_transform(size, point, plane.normal, yaw_deg)
@@ -493,3 +483,17 @@ def place_object(
     placed = obj.transformed(T, up=plane.normal)
     log.info("placed %s (size %.3g) at %s, normal %s", obj.name, size, np.round(point, 3), np.round(plane.normal, 3))
     return placed
+
+
+def _support(depth, camera: Camera, region, anchor: str, up: np.ndarray, plane_kwargs: dict) -> SupportPlane:
+    """The supporting plane :func:`place_object` finds for ``anchor`` (``plane_kwargs`` as it was given)."""
+    if anchor != "centre_ray":
+        return find_support_plane(depth, camera, region=region, **plane_kwargs)
+    keep = {k: plane_kwargs.pop(k) for k in ("max_tilt_deg", "edge_threshold") if k in plane_kwargs}
+    # without a region the ray aims where the fitted plane's centre is seen (the image centre often shows a wall)
+    pixel = (
+        anchor_pixel(region, camera)
+        if region is not None
+        else find_support_plane(depth, camera, max_tilt_deg=keep.get("max_tilt_deg", 30.0), **plane_kwargs).pixel
+    )
+    return centre_ray_support(depth, camera, pixel, up_hint=up, **keep)

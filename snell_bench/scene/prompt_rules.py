@@ -348,72 +348,12 @@ def decompose(text: str, *, pano: str | None = None, surface: str | None = None,
         'A cozy living room with a polished wooden coffee table close to the camera, with a big glass fox on top, surrounded by a beige sofa.'
     """
     before, phrase, after = _split_marked(text)
-    full = before + phrase + after
-
-    core = phrase.rstrip(" \t\n,.;:")
-    tail = phrase[len(core) :]
-    lead = core[: len(core) - len(core.lstrip())]
-    core = core.strip()
-    with_word = ""
-    m_with = re.match(r"with\s+", core, re.IGNORECASE)
-    if m_with:
-        with_word, core = core[: m_with.end()], core[m_with.end() :]
-
-    m = _PLACEMENT.search(core)
-    other = None if m else _OTHER_PLACEMENT.search(core)
-    obj = (core[: m.start()] if m else core[: other.start()] if other else core).strip()
-    if not obj:
-        raise _error(text, "the marked phrase names no object before its placement words")
+    lead, with_word, core, tail = _phrase_parts(phrase)
+    m, obj = _placement(core, text)
     words = obj.split()
-    noun = words[-1]
-    materials = tuple(w for w in words[:-1] if w.lower() in MATERIAL_WORDS)
-
-    derived_minus: str | None = None
-    surface_np: str | None = None  # the surface as written, with its determiner
-    if m and m.group("top") and not m.group("top_np"):
-        derived_minus = "its clean, empty top"
-        surface_np = _antecedent(before, lambda w: w in SUPPORT_NOUNS)
-        if surface_np is None and surface is None:
-            raise ValueError(
-                f"the object phrase {phrase.strip()!r} says 'on top' but no supporting surface (one of "
-                f"{', '.join(sorted(SUPPORT_NOUNS))}) precedes it in the prompt {text!r} (config key {TEXT_KEY}); "
-                f"name the surface explicitly (surface=..., config key {SURFACE_KEY})"
-            )
-    elif m:
-        np_text = (m.group("top_np") or m.group("np")).strip()
-        det, _, rest = np_text.partition(" ")
-        det_l = det.lower()
-        head = _singular(np_text.split()[-1])
-        is_ground = head in GROUND_NOUNS
-        if m.group("top_np"):
-            derived_minus = f"the clean, empty top of {np_text}"
-        elif det_l in _DETERMINERS and rest:
-            if is_ground:
-                derived_minus = f"the clean, empty {rest} in front"
-            elif det_l in ("a", "an"):
-                derived_minus = f"a clean, empty {rest}"
-            else:
-                derived_minus = f"the clean, empty {rest} top"
-        else:
-            derived_minus = f"the clean, empty {np_text} in front" if is_ground else f"the clean, empty {np_text} top"
-        surface_np = np_text
-        if det_l not in ("a", "an"):
-            surface_np = _antecedent(before, lambda w: w == head) or _lower_determiner(np_text)
-
+    derived_minus, surface_np = _minus_and_surface(m, before, phrase, text, surface)
     if minus is None:
-        if derived_minus is None:
-            raise ValueError(
-                f"the object phrase {phrase.strip()!r} has no placement words the rules know ('on top', "
-                f"'on top of <surface>', 'on <surface>') in the prompt {text!r} (config key {TEXT_KEY}); rephrase "
-                f"it, or give the object-free prompt explicitly (minus=..., config key {MINUS_KEY})"
-            )
-        if with_word:
-            derived_minus = with_word + derived_minus
-        at_start = not before.strip() or before.rstrip().endswith((".", "!", "?"))
-        if at_start:
-            derived_minus = derived_minus[0].upper() + derived_minus[1:]
-        minus = before + lead + derived_minus + tail + after
-
+        minus = _minus_prompt(derived_minus, before, lead, with_word, tail, after, phrase, text)
     if surface is not None:
         surface_np = _SPACE.sub(" ", surface).strip()
         if not surface_np:
@@ -426,22 +366,85 @@ def decompose(text: str, *, pano: str | None = None, surface: str | None = None,
             f"{TEXT_KEY}); name it explicitly (surface=..., config key {SURFACE_KEY})"
         )
     bare_surface = _bare(surface_np)
-
     scene = _scene_phrase(before + after)
     if pano is None:
         if _singular(bare_surface.split()[-1]) in GROUND_NOUNS:
             pano = f"{PANO_PREFIX} from the {bare_surface} of {scene}."
         else:
             pano = f"{PANO_PREFIX} on top of {surface_np} in {scene}."
+    materials = tuple(w for w in words[:-1] if w.lower() in MATERIAL_WORDS)
+    return Prompts(before + phrase + after, minus, pano, obj, words[-1], bare_surface, materials, scene, text)
 
-    return Prompts(
-        full=full,
-        minus=minus,
-        pano=pano,
-        object_phrase=obj,
-        noun=noun,
-        surface=bare_surface,
-        materials=materials,
-        scene=scene,
-        text=text,
-    )
+
+def _phrase_parts(phrase: str) -> tuple[str, str, str, str]:
+    """``(lead, with_word, core, tail)``: the phrase's leading space, leading "with ", rest, trailing punctuation."""
+    core = phrase.rstrip(" \t\n,.;:")
+    tail = phrase[len(core) :]
+    lead = core[: len(core) - len(core.lstrip())]
+    core = core.strip()
+    with_word = ""
+    m_with = re.match(r"with\s+", core, re.IGNORECASE)
+    if m_with:
+        with_word, core = core[: m_with.end()], core[m_with.end() :]
+    return lead, with_word, core, tail
+
+
+def _placement(core: str, text: str) -> tuple[re.Match | None, str]:
+    """``(match of the known placement words or None, object phrase)``: the core phrase split at its placement."""
+    m = _PLACEMENT.search(core)
+    other = None if m else _OTHER_PLACEMENT.search(core)
+    obj = (core[: m.start()] if m else core[: other.start()] if other else core).strip()
+    if not obj:
+        raise _error(text, "the marked phrase names no object before its placement words")
+    return m, obj
+
+
+def _minus_and_surface(m: re.Match | None, before: str, phrase: str, text: str, surface: str | None):
+    """``(p⁻ wording of the placement, surface with its determiner)``; ``None`` where the rules give none."""
+    if not m:
+        return None, None
+    if m.group("top") and not m.group("top_np"):
+        surface_np = _antecedent(before, lambda w: w in SUPPORT_NOUNS)
+        if surface_np is None and surface is None:
+            raise ValueError(
+                f"the object phrase {phrase.strip()!r} says 'on top' but no supporting surface (one of "
+                f"{', '.join(sorted(SUPPORT_NOUNS))}) precedes it in the prompt {text!r} (config key {TEXT_KEY}); "
+                f"name the surface explicitly (surface=..., config key {SURFACE_KEY})"
+            )
+        return "its clean, empty top", surface_np
+    np_text = (m.group("top_np") or m.group("np")).strip()
+    det, _, rest = np_text.partition(" ")
+    det_l = det.lower()
+    head = _singular(np_text.split()[-1])
+    is_ground = head in GROUND_NOUNS
+    if m.group("top_np"):
+        derived_minus = f"the clean, empty top of {np_text}"
+    elif det_l in _DETERMINERS and rest:
+        if is_ground:
+            derived_minus = f"the clean, empty {rest} in front"
+        elif det_l in ("a", "an"):
+            derived_minus = f"a clean, empty {rest}"
+        else:
+            derived_minus = f"the clean, empty {rest} top"
+    else:
+        derived_minus = f"the clean, empty {np_text} in front" if is_ground else f"the clean, empty {np_text} top"
+    surface_np = np_text
+    if det_l not in ("a", "an"):
+        surface_np = _antecedent(before, lambda w: w == head) or _lower_determiner(np_text)
+    return derived_minus, surface_np
+
+
+def _minus_prompt(derived_minus, before, lead, with_word, tail, after, phrase, text) -> str:
+    """p⁻: the prompt, the phrase replaced by ``derived_minus`` ("with " kept, capitalised at a sentence start)."""
+    if derived_minus is None:
+        raise ValueError(
+            f"the object phrase {phrase.strip()!r} has no placement words the rules know ('on top', "
+            f"'on top of <surface>', 'on <surface>') in the prompt {text!r} (config key {TEXT_KEY}); rephrase "
+            f"it, or give the object-free prompt explicitly (minus=..., config key {MINUS_KEY})"
+        )
+    if with_word:
+        derived_minus = with_word + derived_minus
+    at_start = not before.strip() or before.rstrip().endswith((".", "!", "?"))
+    if at_start:
+        derived_minus = derived_minus[0].upper() + derived_minus[1:]
+    return before + lead + derived_minus + tail + after
