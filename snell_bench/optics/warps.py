@@ -150,6 +150,9 @@ def compute_warps(
 ) -> WarpSet:
     """Trace the camera's rays through ``obj`` placed in the scene of ``depth`` and return every warp.
 
+    The recipe switches ``back_faces``, ``reflection_parallax``, ``half_pixel_shift``, ``pano_center``
+    and ``pano_axes`` are described in the module docstring.
+
     Args:
         depth: ``(H, W)`` z-depth of the object-free image I⁻ (NaN, inf or <= 0 where unknown).
         camera: the camera of I⁻ (its size must match ``depth``).
@@ -169,8 +172,6 @@ def compute_warps(
         infinity_tolerance_px: treat background that moves no warp by more than this many pixels
             as at infinity (:mod:`~snell_bench.optics.far_field`); ``None`` keeps the exact geometry.
         recipe_max_bounces: a recipe's own interaction limit; replaces ``max_bounces`` when given.
-        back_faces, reflection_parallax, half_pixel_shift, pano_center, pano_axes: the recipe
-            switches (module docstring).
 
     Returns:
         The :class:`WarpSet` (from the cache if it holds one for these inputs).
