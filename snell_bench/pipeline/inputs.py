@@ -34,8 +34,9 @@ from snell_bench.pipeline.pool import ModelPool
 from snell_bench.render import render_reference as render
 from snell_bench.render import render_true
 from snell_bench.scene import sources
-from snell_bench.scene.image_source import fit_to_block, load_frame, load_photo, photo_info
+from snell_bench.scene.image_source import load_frame, load_photo, photo_info
 from snell_bench.scene.objects import GlassObject
+from snell_bench.scene.photo_size import fit_to_block
 from snell_bench.scene.placement import place_object
 from snell_bench.scene.sources import SceneInputs
 from snell_bench.utils.paths import data_path

@@ -73,7 +73,7 @@ def estimate_depth(
     Raises:
         ValueError: no intrinsics (neither given nor estimated) or no valid depth.
     """
-    from snell_bench.scene.image_source import camera_from
+    from snell_bench.scene.photo_camera import camera_from
 
     H, W = image.shape[:2]
     est = estimator(image)

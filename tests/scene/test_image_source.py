@@ -11,24 +11,23 @@ import numpy as np
 import pytest
 from PIL import Image, ImageOps
 
-from snell_bench.scene import image_source
+from snell_bench.scene import depth_values, image_source, photo_camera, photo_file, photo_size
 from snell_bench.scene.camera import Camera
-from snell_bench.scene.image_source import (
-    RGBDFrame,
-    camera_from,
-    fit_to_block,
-    load_depth,
-    load_frame,
-    load_image,
-    read_pfm,
-)
+from snell_bench.scene.depth_files import read_pfm
+from snell_bench.scene.depth_values import load_depth
+from snell_bench.scene.image_source import RGBDFrame, load_frame
+from snell_bench.scene.photo_camera import camera_from
+from snell_bench.scene.photo_file import load_image
+from snell_bench.scene.photo_size import fit_to_block
 
 TUM = Path(__file__).resolve().parents[2] / "snell_bench" / "datasets" / "rgbd" / "tum_fr3_office"
 TUM_INTRINSICS = [525.0, 525.0, 319.5, 239.5]
 
 
-def test_doctests():
-    assert doctest.testmod(image_source, optionflags=doctest.ELLIPSIS).failed == 0
+@pytest.mark.parametrize("module", [image_source, photo_file, photo_camera, photo_size, depth_values])
+def test_doctests(module):
+    result = doctest.testmod(module, optionflags=doctest.ELLIPSIS)
+    assert result.failed == 0 and result.attempted > 0
 
 
 # ---------------------------------------------------------------------------------------------- images

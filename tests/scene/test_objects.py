@@ -1,5 +1,6 @@
 """Glass objects: primitives, files, materials, validation, shading normals."""
 
+import doctest
 import math
 from pathlib import Path
 
@@ -7,9 +8,18 @@ import numpy as np
 import pytest
 import trimesh
 
-from snell_bench.scene.objects import MATERIALS, GlassObject, resolve_ior, self_crossings, sniff_mesh_format
+from snell_bench.scene import mesh_checks, mesh_format
+from snell_bench.scene.mesh_checks import self_crossings
+from snell_bench.scene.mesh_format import sniff_mesh_format
+from snell_bench.scene.objects import MATERIALS, GlassObject, resolve_ior
 
 MESHES = Path(__file__).resolve().parents[2] / "snell_bench" / "datasets" / "meshes"
+
+
+@pytest.mark.parametrize("module", [mesh_checks, mesh_format])
+def test_doctests(module):
+    result = doctest.testmod(module)
+    assert result.failed == 0 and result.attempted > 0
 
 
 @pytest.mark.parametrize("make", [GlassObject.sphere, GlassObject.cylinder, GlassObject.pyramid])
