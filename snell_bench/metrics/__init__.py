@@ -1,7 +1,8 @@
 """Image metrics: masked fidelity (PSNR, MAE, LPIPS) and text-image alignment (CLIP, ImageReward).
 
 - :mod:`~snell_bench.metrics.functional`: masked PSNR and MAE as pure functions, grayscale, masked
-  histogram matching, the protocols.
+  histogram matching, the protocols; :mod:`~snell_bench.metrics.authors` (the authors' evaluation)
+  and :mod:`~snell_bench.metrics.common` (the protocol check, :class:`MetricUnavailable`) behind it.
 - :mod:`~snell_bench.metrics.fidelity`: their class forms (batch accumulators) and masked LPIPS.
 - :mod:`~snell_bench.metrics.alignment`: CLIP score, ImageReward and :func:`score_all`.
 - :mod:`~snell_bench.metrics.registry`: one :class:`MetricSpec` per metric (label, direction, format,

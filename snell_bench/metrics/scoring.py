@@ -10,6 +10,26 @@ of one cell with the reason for each missing one.
   evaluation protocol (config key ``metrics.protocol``: ``"paper"`` or ``"authors"``, see
   :mod:`snell_bench.metrics.functional` and :mod:`snell_bench.metrics.fidelity`), recorded in its
   result.
+
+Convention (:func:`score_cell`):
+    - With a reference, the metrics of :func:`~snell_bench.metrics.alignment.metric_names`
+      (``protocol``) are those of :func:`score_all` under ``protocol`` (PSNR, MAE, LPIPS: masked;
+      ``"paper"``: grayscale, histogram-matched PSNR and MAE, LPIPS of the RGB images averaged over
+      the mask of its spatial map; ``"authors"``: the authors' evaluation on the 8-bit images, with
+      ``lpips_box``, their bounding-box LPIPS, after ``lpips``; CLIP and ImageReward: the full image
+      against the prompt), each computed as its :class:`~snell_bench.metrics.registry.MetricSpec`
+      says (:func:`~snell_bench.metrics.registry.compute_metrics`). Users' metrics (``extra``)
+      follow. With a true render, ``psnr_true`` is the masked PSNR (same protocol) of the image
+      against it over the object mask.
+    - Missing values: a metric whose scorer could not be built is None with the scorer's reason;
+      without a reference, PSNR, MAE and LPIPS are None with the reason given (default
+      ``"no reference"``), and CLIP and ImageReward, which need the prompt alone, are still scored.
+    - Every metric is a finite float or None (never NaN or inf): every PSNR above
+      :data:`PSNR_CEILING_DB` (identical pixels: ``inf``) is recorded at the ceiling with a note in
+      ``notes``, so a perfect match counts in every mean; any other NaN or infinite value becomes
+      None, with its reason in ``missing``.
+    - ``protocol`` is recorded in the result as given (reports show it); it changes PSNR, MAE, LPIPS
+      and ``psnr_true``, never CLIP or ImageReward.
 """
 
 from __future__ import annotations
@@ -192,6 +212,44 @@ def _hwc(image: Any) -> Any:
     return image
 
 
+def _as_scored(generated: Any, reference: Any, mask: Any, path: Any, files: str, reference_is_jpeg: bool) -> tuple:
+    """The generated image, the reference, the mask and the generated image's file as the metrics
+    read them.
+
+    Args:
+        generated: the image, numpy or torch (:func:`_hwc`).
+        reference: the reference render, or None.
+        mask: the metric mask, or None.
+        path: the saved generated image, or None.
+        files: ``"png"`` or ``"jpeg"`` (config key ``metrics.files``).
+        reference_is_jpeg: the reference already decodes its JPEG.
+
+    Returns:
+        ``(generated, reference, mask, path)``: the generated image as numpy ``(H, W, 3)``; with
+        ``files="jpeg"`` the three images after the authors' JPEG round trips
+        (:func:`~snell_bench.metrics.files.evaluated_files`) and no path (ImageReward then reads the
+        decoded JPEG, not the PNG file); else the others as given.
+    """
+    gen = _hwc(generated)
+    if check_files(files) == "jpeg":
+        gen, reference, mask = evaluated_files(gen, reference, mask, files, reference_is_jpeg=reference_is_jpeg)
+        path = None
+    return gen, reference, mask, path
+
+
+def _finite(metrics: dict, missing: dict) -> dict[str, str]:
+    """Every PSNR of ``metrics`` at most :data:`PSNR_CEILING_DB`, then every other NaN or infinite
+    value None with its reason added to ``missing``, in place; returns the notes of the clamped PSNRs
+    (``{name: note}``)."""
+    notes: dict[str, str] = {}
+    _apply_psnr_ceiling(metrics, notes)
+    for name, value in metrics.items():
+        if not _is_finite(value):
+            metrics[name] = None
+            missing.setdefault(name, _non_finite_reason(value))
+    return notes
+
+
 def score_cell(
     generated: Any,
     reference: np.ndarray | None,
@@ -209,27 +267,10 @@ def score_cell(
     reference_is_jpeg: bool = False,
     extra: Sequence[str] = (),
 ) -> CellScores:
-    """Every metric of one generated image, each a float or None with the reason.
-
-    With a reference, the metrics of :func:`~snell_bench.metrics.alignment.metric_names`
-    (``protocol``) are those of :func:`score_all` under ``protocol`` (PSNR, MAE, LPIPS: masked;
-    ``"paper"``: grayscale, histogram-matched PSNR and MAE, LPIPS of the RGB images averaged over the
-    mask of its spatial map; ``"authors"``: the authors' evaluation on the 8-bit images, with
-    ``lpips_box``, their bounding-box LPIPS, after ``lpips``; CLIP and ImageReward: the full image
-    against ``prompt``), each computed as its :class:`~snell_bench.metrics.registry.MetricSpec` says
-    (:func:`~snell_bench.metrics.registry.compute_metrics`). A metric whose scorer could not be built
-    is None with the scorer's reason; without a reference (``reference is None``) PSNR, MAE and LPIPS
-    are None with ``reference_reason`` (default ``"no reference"``), and CLIP and ImageReward, which
-    need the prompt alone, are still scored. Users' metrics (``extra``) follow. With ``true_render``,
-    ``psnr_true`` is the masked PSNR (same protocol) of the image against it over ``object_mask``.
-    Last, every PSNR above :data:`PSNR_CEILING_DB` (identical pixels: ``inf``) is recorded at the
-    ceiling with a note in ``notes``, so a perfect match counts in every mean; any other NaN or
-    infinite value becomes None, with a reason.
-
-    Convention:
-        Every metric is a finite float or None (never NaN or inf); a value turned into None gets its
-        reason in ``missing``; PSNR is at most :data:`PSNR_CEILING_DB`. ``protocol`` is recorded in the result as given (reports show it); it changes PSNR, MAE,
-        LPIPS and ``psnr_true``, never CLIP or ImageReward.
+    """Every metric of one generated image, each a float or None with the reason (see the module's
+    conventions): those of :func:`~snell_bench.metrics.alignment.metric_names` (``protocol``) against
+    the reference and the prompt, users' metrics (``extra``), then ``psnr_true`` against the true
+    render over ``object_mask``.
 
     Args:
         generated: the image, numpy ``(H, W, 3)`` in [0, 1] or torch ``(1, 3, H, W)`` / ``(3, H, W)``.
@@ -259,9 +300,8 @@ def score_cell(
 
     Returns:
         ``{"metrics": {name: float | None}, "missing": {name: reason}, "notes": {name: note},
-        "protocol": protocol}``: the
-        names of ``metric_names(protocol)`` in order (``lpips_box`` under ``"authors"`` only), then
-        ``psnr_true`` when ``true_render`` is given.
+        "protocol": protocol}``: the names of ``metric_names(protocol)`` in order (``lpips_box``
+        under ``"authors"`` only), then ``psnr_true`` when ``true_render`` is given.
 
     Raises:
         ValueError: ``true_render`` without ``object_mask``; an unknown ``protocol``, ``files`` or
@@ -272,10 +312,7 @@ def score_cell(
     if true_render is not None and object_mask is None:
         raise ValueError("score_cell: true_render needs the object_mask it is scored over")
     scorers = scorers if isinstance(scorers, Scorers) else Scorers(scorers or {})
-    gen = _hwc(generated)
-    if check_files(files) == "jpeg":  # ImageReward then reads the decoded JPEG, not the PNG file
-        gen, reference, mask = evaluated_files(gen, reference, mask, files, reference_is_jpeg=reference_is_jpeg)
-        generated_path = None
+    gen, reference, mask, path = _as_scored(generated, reference, mask, generated_path, files, reference_is_jpeg)
     inputs = ScoreInputs(
         gen,
         reference,
@@ -285,14 +322,9 @@ def score_cell(
         true_render=true_render,
         protocol=protocol,
         scorers=scorers,
-        generated_path=generated_path,
+        generated_path=path,
         lpips_box_range=lpips_box_range,
     )
     metrics, missing = compute_metrics(metrics_for(protocol, extra), inputs, reference_reason=reference_reason)
-    notes: dict[str, str] = {}
-    _apply_psnr_ceiling(metrics, notes)
-    for name, value in metrics.items():
-        if not _is_finite(value):
-            metrics[name] = None
-            missing.setdefault(name, _non_finite_reason(value))
+    notes = _finite(metrics, missing)
     return {"metrics": metrics, "missing": missing, "notes": notes, "protocol": protocol}

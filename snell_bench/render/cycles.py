@@ -303,26 +303,17 @@ def render_cycles(
     if lighting not in ("authors", "unlit"):
         raise ValueError(f"lighting must be 'authors' or 'unlit', got {lighting!r}")
     python = find_blender_python(blender_python)
-    img = np.clip(np.asarray(i_minus, np.float32), 0.0, 1.0)
-    if img.shape != (*camera.shape, 3) or np.asarray(depth).shape != camera.shape:
-        raise ValueError(
-            f"i_minus {img.shape} and depth {np.asarray(depth).shape} must match the camera {camera.shape}"
-        )
-    if not obj.placed:
-        raise ValueError(f"{obj.name}: the object is in its canonical frame; place it first")
+    img = _checked_image(i_minus, depth, camera, obj)
     glass_ior = float(obj.ior if ior is None else ior)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    bv, bf, bn, buv = _background_arrays(depth, camera, edge_threshold, obj)
-    ov, of, on = object_arrays(obj)
-    lights = None if lighting == "unlit" else scene_lighting(img, camera, (bv, bf), obj)
-    zmin = float(np.min(np.asarray(depth)[valid_depth_mask(depth)]))
-    clip = (1e-3 * min(zmin, float(np.asarray(obj.vertices)[:, 2].min())), 10.0 * float(np.abs(bv).max()) + 10.0)
-    settings = _settings(camera, spp, seed, glass_ior, lighting, lights, clip)
-    mask, silhouette = authors_mask(camera, (bv, bf), (obj.vertices, obj.faces), ior=glass_ior)
+    background, obj_arrays, settings = _scene_inputs(
+        img, depth, camera, obj, edge_threshold, lighting, glass_ior, spp, seed
+    )
+    mask, silhouette = authors_mask(camera, background[:2], (obj.vertices, obj.faces), ior=glass_ior)
     timings["geometry"] = time.perf_counter() - t0
     with tempfile.TemporaryDirectory(prefix="snell_cycles_") as folder:
-        _write_inputs(folder, img, (bv, bf, bn, buv), (ov, of, on), settings)
+        _write_inputs(folder, img, background, obj_arrays, settings)
         t0 = time.perf_counter()
         info = _run(python, folder, timeout_s)
         timings["image"] = time.perf_counter() - t0
@@ -341,6 +332,51 @@ def render_cycles(
         int(mask.sum()),
         {k: round(v, 2) for k, v in timings.items()},
     )
+    return _reference_render(image, mask, silhouette, info, camera, spp, seed, timings)
+
+
+def _checked_image(i_minus: np.ndarray, depth: np.ndarray, camera: Camera, obj: GlassObject) -> np.ndarray:
+    """I⁻ as float32 clipped to [0, 1], checked against ``depth`` and ``camera`` (same size) and
+    ``obj`` (placed); ``ValueError`` otherwise."""
+    img = np.clip(np.asarray(i_minus, np.float32), 0.0, 1.0)
+    if img.shape != (*camera.shape, 3) or np.asarray(depth).shape != camera.shape:
+        raise ValueError(
+            f"i_minus {img.shape} and depth {np.asarray(depth).shape} must match the camera {camera.shape}"
+        )
+    if not obj.placed:
+        raise ValueError(f"{obj.name}: the object is in its canonical frame; place it first")
+    return img
+
+
+def _scene_inputs(
+    img: np.ndarray,
+    depth: np.ndarray,
+    camera: Camera,
+    obj: GlassObject,
+    edge_threshold: float,
+    lighting: str,
+    ior: float,
+    spp: int,
+    seed: int,
+) -> tuple[tuple, tuple, dict]:
+    """What the Blender script reads, in the camera frame: the background ``(v, f, n, uv)``
+    (:func:`_background_arrays`), the object ``(v, f, n)``
+    (:func:`~snell_bench.render.geometry.object_arrays`) and the settings (:func:`_settings`: the
+    light of :func:`scene_lighting` unless ``lighting="unlit"``, the clip planes around the depth
+    and the object)."""
+    bv, bf, bn, buv = _background_arrays(depth, camera, edge_threshold, obj)
+    ov, of, on = object_arrays(obj)
+    lights = None if lighting == "unlit" else scene_lighting(img, camera, (bv, bf), obj)
+    zmin = float(np.min(np.asarray(depth)[valid_depth_mask(depth)]))
+    clip = (1e-3 * min(zmin, float(np.asarray(obj.vertices)[:, 2].min())), 10.0 * float(np.abs(bv).max()) + 10.0)
+    return (bv, bf, bn, buv), (ov, of, on), _settings(camera, spp, seed, ior, lighting, lights, clip)
+
+
+def _reference_render(
+    image: np.ndarray, mask: np.ndarray, silhouette: np.ndarray, info: dict, camera: Camera, spp, seed, timings: dict
+) -> ReferenceRender:
+    """:func:`render_cycles`' result: the decoded ``image``, the authors' ``mask``, the object's
+    ``silhouette``, what the Blender script reported (``info``) and the stages' ``timings``."""
     return ReferenceRender(
         image=image,
         linear=srgb_to_linear(image).astype(np.float32),

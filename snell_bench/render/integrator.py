@@ -24,6 +24,9 @@ Convention:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 
 from snell_bench.render.pieces import sensor, square_pixels
@@ -73,15 +76,9 @@ def render_linear(
         The linear float32 image of the window, ``(y1 - y0, x1 - x0, 3)`` (``(H, W, 3)`` without a
         window); a list of them, one per seed, when ``seed`` is a sequence.
     """
-    H, W = camera.shape
     many = isinstance(seed, (list, tuple))
-    seeds = [int(s) for s in seed] if many else [int(seed)]
-    counts = [int(n) for n in spp] if isinstance(spp, (list, tuple)) else [int(spp)] * len(seeds)
-    if len(counts) != len(seeds):
-        raise ValueError(f"{len(counts)} sample counts for {len(seeds)} seeds")
-    wx0, wy0, wx1, wy1 = (0, 0, W, H) if window is None else tuple(map(int, window))
-    if not (0 <= wx0 < wx1 <= W and 0 <= wy0 < wy1 <= H):
-        raise ValueError(f"window {window} is empty or not inside the {W}x{H} image")
+    seeds, counts, (wx0, wy0, wx1, wy1) = _runs(camera, spp, seed, window)
+    H, W = camera.shape
     full = (wx0, wy0, wx1, wy1) == (0, 0, W, H)
     scene_dict = {
         "type": "scene",
@@ -90,44 +87,82 @@ def render_linear(
         "sensor": sensor(mi, camera, counts[0], *clip, rect=None if full else (wx0, wy0, wx1, wy1), sampler=sampler),
     }
     scene_dict.update(shapes)
-    scene = mi.load_dict(scene_dict)
+    loaded = _Loaded(mi, mi.load_dict(scene_dict), camera, clip, sampler, (wx0, wy0, wx1, wy1))
+    python_sensor = not square_pixels(camera)
+    images = [_render_window(loaded, python_rect, python_sensor, s, n) for s, n in zip(seeds, counts)]
+    return images if many else images[0]
 
-    def render(rect, s, n):
-        if rect == (wx0, wy0, wx1, wy1):
-            sen = scene.sensors()[0]
+
+def _runs(camera: Camera, spp, seed, window) -> tuple[list[int], list[int], tuple[int, int, int, int]]:
+    """The seeds, the sample count of each and the render window ``(x0, y0, x1, y1)`` of
+    :func:`render_linear`'s ``spp``, ``seed`` and ``window``, checked (``ValueError`` for as many
+    counts as seeds, or a window empty or not inside the image)."""
+    H, W = camera.shape
+    seeds = [int(s) for s in seed] if isinstance(seed, (list, tuple)) else [int(seed)]
+    counts = [int(n) for n in spp] if isinstance(spp, (list, tuple)) else [int(spp)] * len(seeds)
+    if len(counts) != len(seeds):
+        raise ValueError(f"{len(counts)} sample counts for {len(seeds)} seeds")
+    wx0, wy0, wx1, wy1 = (0, 0, W, H) if window is None else tuple(map(int, window))
+    if not (0 <= wx0 < wx1 <= W and 0 <= wy0 < wy1 <= H):
+        raise ValueError(f"window {window} is empty or not inside the {W}x{H} image")
+    return seeds, counts, (wx0, wy0, wx1, wy1)
+
+
+@dataclass(frozen=True)
+class _Loaded:
+    """A loaded scene and what its renders share: the ``mitsuba`` module, the scene (its sensor
+    covering ``window``), the camera, the ``(near, far)`` clip, the sampler, the render window
+    ``(x0, y0, x1, y1)``."""
+
+    mi: Any
+    scene: Any
+    camera: Camera
+    clip: tuple
+    sampler: Any
+    window: tuple
+
+    def render(self, rect, s, n) -> np.ndarray:
+        """The linear float32 image ``(y1 - y0, x1 - x0, 3)`` of ``rect`` (end exclusive), ``n``
+        samples per pixel with seed ``s``: by the scene's sensor for the whole window, else by a
+        sensor cropped to ``rect``."""
+        mi = self.mi
+        if rect == self.window:
+            sen = self.scene.sensors()[0]
         else:
-            sen = mi.load_dict(sensor(mi, camera, n, *clip, rect=rect, sampler=sampler))
-        return np.array(mi.render(scene, sensor=sen, spp=n, seed=s), dtype=np.float32)[..., :3]
+            sen = mi.load_dict(sensor(mi, self.camera, n, *self.clip, rect=rect, sampler=self.sampler))
+        return np.array(mi.render(self.scene, sensor=sen, spp=n, seed=s), dtype=np.float32)[..., :3]
 
-    def one_thread(rect, s, n):
+    def one_thread(self, rect, s, n) -> np.ndarray:
+        """:meth:`render` with Dr.Jit on one thread (its thread count restored after)."""
         import drjit as dr
 
         threads = dr.thread_count()
         dr.set_thread_count(1)
         try:
-            return render(rect, s, n)
+            return self.render(rect, s, n)
         finally:
             dr.set_thread_count(threads)
 
-    python_sensor = not square_pixels(camera)
 
-    def render_window(s, n):
-        if not mi.variant().startswith("scalar") or (python_rect is None and not python_sensor):
-            return render((wx0, wy0, wx1, wy1), s, n)
-        if python_sensor:
-            return one_thread((wx0, wy0, wx1, wy1), s, n)
-        # the Python BSDF's pixels (clipped to the window) on one thread, the rest tile by tile
-        x0, y0, x1, y1 = python_rect
-        x0, x1 = min(max(x0, wx0), wx1), min(max(x1, wx0), wx1)
-        y0, y1 = min(max(y0, wy0), wy1), min(max(y1, wy0), wy1)
-        out = np.zeros((wy1 - wy0, wx1 - wx0, 3), np.float32)
-        tiles = ((wx0, wy0, wx1, y0), (wx0, y1, wx1, wy1), (wx0, y0, x0, y1), (x1, y0, wx1, y1))
-        for rx0, ry0, rx1, ry1 in tiles:
-            if rx1 > rx0 and ry1 > ry0:
-                out[ry0 - wy0 : ry1 - wy0, rx0 - wx0 : rx1 - wx0] = render((rx0, ry0, rx1, ry1), s, n)
-        if x1 > x0 and y1 > y0:
-            out[y0 - wy0 : y1 - wy0, x0 - wx0 : x1 - wx0] = one_thread((x0, y0, x1, y1), s, n)
-        return out
-
-    images = [render_window(s, n) for s, n in zip(seeds, counts)]
-    return images if many else images[0]
+def _render_window(loaded: _Loaded, python_rect, python_sensor: bool, s, n) -> np.ndarray:
+    """The window of ``loaded``, ``n`` samples per pixel with seed ``s``, split between threads as
+    :func:`render_linear` says: on CPU (``scalar_*``) variants the pixels of ``python_rect``
+    (clipped to the window) on one thread and the rest tile by tile, or all on one thread with a
+    Python sensor (``python_sensor``)."""
+    wx0, wy0, wx1, wy1 = loaded.window
+    if not loaded.mi.variant().startswith("scalar") or (python_rect is None and not python_sensor):
+        return loaded.render((wx0, wy0, wx1, wy1), s, n)
+    if python_sensor:
+        return loaded.one_thread((wx0, wy0, wx1, wy1), s, n)
+    # the Python BSDF's pixels (clipped to the window) on one thread, the rest tile by tile
+    x0, y0, x1, y1 = python_rect
+    x0, x1 = min(max(x0, wx0), wx1), min(max(x1, wx0), wx1)
+    y0, y1 = min(max(y0, wy0), wy1), min(max(y1, wy0), wy1)
+    out = np.zeros((wy1 - wy0, wx1 - wx0, 3), np.float32)
+    tiles = ((wx0, wy0, wx1, y0), (wx0, y1, wx1, wy1), (wx0, y0, x0, y1), (x1, y0, wx1, y1))
+    for rx0, ry0, rx1, ry1 in tiles:
+        if rx1 > rx0 and ry1 > ry0:
+            out[ry0 - wy0 : ry1 - wy0, rx0 - wx0 : rx1 - wx0] = loaded.render((rx0, ry0, rx1, ry1), s, n)
+    if x1 > x0 and y1 > y0:
+        out[y0 - wy0 : y1 - wy0, x0 - wx0 : x1 - wx0] = loaded.one_thread((x0, y0, x1, y1), s, n)
+    return out

@@ -104,53 +104,66 @@ def render_true(
         ValueError: ``spp`` is not a positive integer (or not a square with ``jitter=False``), or
             the object is not placed.
     """
-    from snell_bench.optics.tracer import HitKind, SceneTracer
-
     if int(spp) != spp or spp < 1:
         raise ValueError(f"spp must be a positive integer, got {spp!r}")
     if not obj.placed:
         raise ValueError(
             f"{obj.name}: the object is in its canonical frame; place it first (snell_bench.scene.place_object)"
         )
+    tracer = _tracer(scene, obj, max_bounces)
+    H, W = camera.shape
+    grid = camera.pixel_grid()
+    rng = np.random.default_rng(seed)
+    acc = np.zeros((H * W, 3), np.float64)
+    for off in _sample_offsets(int(spp), jitter, rng, (H, W)):
+        acc += _sample_colours(scene, tracer, camera.pixel_rays(grid + off).reshape(-1, 3))
+    linear = (acc / spp).reshape(H, W, 3)
+    return linear_to_srgb(np.clip(linear, 0.0, 1.0)).astype(np.float32)
+
+
+def _tracer(scene, obj: GlassObject, max_bounces: int):
+    """The :class:`~snell_bench.optics.tracer.SceneTracer` of ``obj`` in ``scene``: the background is
+    the scene's mesh and a box around it, the object and the camera (the origin)."""
+    from snell_bench.optics.tracer import SceneTracer
+
     m = scene.mesh()
     sv = np.asarray(m.vertices, np.float32)
     lo, hi = obj.mesh.bounds
     box_v, box_f = bounding_box_mesh(np.concatenate([sv, np.zeros((1, 3), np.float32), np.stack([lo, hi])]))
     background = BackgroundMesh(sv, np.asarray(m.faces, np.uint32), box_v, box_f, 0, 0)
-    tracer = SceneTracer(background, obj, max_bounces=max_bounces)
+    return SceneTracer(background, obj, max_bounces=max_bounces)
 
-    H, W = camera.shape
-    grid = camera.pixel_grid()
-    rng = np.random.default_rng(seed)
-    acc = np.zeros((H * W, 3), np.float64)
+
+def _sample_colours(scene, tracer, d: np.ndarray) -> np.ndarray:
+    """The linear RGB colour ``(N, 3)`` float64 of the camera rays ``d`` ``(N, 3)`` (from the origin),
+    as :func:`render_true` says: ``R c_refl + (1 - R) c_refr`` where the ray meets the object first,
+    the scene's radiance elsewhere."""
+    from snell_bench.optics.tracer import HitKind
+
     exited = (HitKind.OBSERVED, HitKind.UNOBSERVED, HitKind.ESCAPED)
-    for off in _sample_offsets(int(spp), jitter, rng, (H, W)):
-        d = camera.pixel_rays(grid + off).reshape(-1, 3)
-        t_obj = tracer.cast_camera_object(d)
-        cand = np.flatnonzero(np.isfinite(t_obj))
-        if len(cand):
-            t_scene = tracer.cast_background(np.zeros((len(cand), 3)), d[cand]).t
-            cand = cand[t_obj[cand] < t_scene]
-        on = np.zeros(len(d), bool)
-        on[cand] = True
-        col = np.zeros((len(d), 3), np.float64)
-        if (~on).any():
-            col[~on] = scene.radiance(np.zeros(3), d[~on])[0]
-        if len(cand):
-            tr = tracer.trace(np.zeros((len(cand), 3)), d[cand])
-            refr = np.zeros((len(cand), 3))
-            ok = np.isin(tr.kind, exited)
-            if ok.any():
-                refr[ok] = scene.radiance(tr.origin[ok], tr.direction[ok])[0]
-            ng = tr.first_geometric_normal
-            side = np.where(np.einsum("ij,ij->i", tr.reflected, ng) >= 0, 1.0, -1.0)
-            refl = scene.radiance(tr.first_point + (tracer.eps * side)[:, None] * ng, tr.reflected)[0]
-            R = tr.fresnel[:, None]
-            # Not snell_bench.imaging.blend.fresnel_combine: that one mixes sRGB colours (decode,
-            # R (refl - refr) + refr, encode, clamping to [0, 1] on the way). Here the radiance is
-            # linear and unclipped (lights exceed 1) and is averaged over samples before encoding;
-            # the sRGB round trip and the clamping would change the result.
-            col[cand] = R * refl + (1.0 - R) * refr
-        acc += col
-    linear = (acc / spp).reshape(H, W, 3)
-    return linear_to_srgb(np.clip(linear, 0.0, 1.0)).astype(np.float32)
+    t_obj = tracer.cast_camera_object(d)
+    cand = np.flatnonzero(np.isfinite(t_obj))
+    if len(cand):
+        t_scene = tracer.cast_background(np.zeros((len(cand), 3)), d[cand]).t
+        cand = cand[t_obj[cand] < t_scene]
+    on = np.zeros(len(d), bool)
+    on[cand] = True
+    col = np.zeros((len(d), 3), np.float64)
+    if (~on).any():
+        col[~on] = scene.radiance(np.zeros(3), d[~on])[0]
+    if len(cand):
+        tr = tracer.trace(np.zeros((len(cand), 3)), d[cand])
+        refr = np.zeros((len(cand), 3))
+        ok = np.isin(tr.kind, exited)
+        if ok.any():
+            refr[ok] = scene.radiance(tr.origin[ok], tr.direction[ok])[0]
+        ng = tr.first_geometric_normal
+        side = np.where(np.einsum("ij,ij->i", tr.reflected, ng) >= 0, 1.0, -1.0)
+        refl = scene.radiance(tr.first_point + (tracer.eps * side)[:, None] * ng, tr.reflected)[0]
+        R = tr.fresnel[:, None]
+        # Not snell_bench.imaging.blend.fresnel_combine: that one mixes sRGB colours (decode,
+        # R (refl - refr) + refr, encode, clamping to [0, 1] on the way). Here the radiance is
+        # linear and unclipped (lights exceed 1) and is averaged over samples before encoding;
+        # the sRGB round trip and the clamping would change the result.
+        col[cand] = R * refl + (1.0 - R) * refr
+    return col
