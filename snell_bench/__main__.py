@@ -2,8 +2,7 @@
 :mod:`snell_bench.experiment`; ``--help`` lists them (:mod:`snell_bench.config.help`).
 
 Exit status:
-    - ``0``: done; also a sweep whose cells failed with ``grid.allow_failures=true``
-      (``tradeoff.allow_failures=true`` for ``job=tradeoff``). Skipped cells (a method that cannot
+    - ``0``: done; also a sweep whose cells failed with ``grid.allow_failures=true``. Skipped cells (a method that cannot
       run here) are never failures.
     - ``1``: an error stopped the run, said in one line where it is a setting: a config value or
       folder refused before any work (:class:`~snell_bench.config.preflight.Preflight`), a job that

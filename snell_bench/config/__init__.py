@@ -11,7 +11,7 @@ values across nodes, files, devices), :mod:`.preflight` (the checks as a Hydra c
 any folder is created). Nothing here imports a stage package except the ``prompts`` resolver.
 """
 
-from snell_bench.config.checks import check_config, check_grid_entries, check_tradeoff_entries, max_levels, unknown_keys
+from snell_bench.config.checks import check_config, check_grid_entries, max_levels, unknown_keys
 from snell_bench.config.choices import (
     METHOD_ENTRY_POINTS,
     METHOD_KINDS,
@@ -43,7 +43,6 @@ from snell_bench.config.schema import (
     SceneConfig,
     SegmentConfig,
     TrackerConfig,
-    TradeoffConfig,
     WarpConfig,
 )
 
@@ -76,11 +75,9 @@ __all__ = [
     "SegmentConfig",
     "Source",
     "TrackerConfig",
-    "TradeoffConfig",
     "WarpConfig",
     "check_config",
     "check_grid_entries",
-    "check_tradeoff_entries",
     "compose",
     "config_context",
     "group_options",

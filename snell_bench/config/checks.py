@@ -8,7 +8,7 @@ reported together in one :class:`ConfigError`.
 
 - **Unknown keys.** Hydra's ``+key=value`` adds a key even in struct mode; a key that no schema
   (:mod:`snell_bench.config`) knows would be ignored silently. Free-form nodes (``_target_``
-  nodes such as ``object.factory``, ``tradeoff.axes``) may hold anything; ``method.sampler`` and
+  nodes such as ``object.factory``, ``grid.axes``) may hold anything; ``method.sampler`` and
   ``method.warps`` are checked against the ``sampler`` and ``warps`` schemas they override.
 - **Values.** Choices are enums of the schema, checked when the config is composed; here each
   node's dataclass checks its ranges (``__post_init__``, the warps with ``method.warps`` applied,
@@ -35,16 +35,15 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import InterpolationResolutionError, OmegaConfBaseException
 
 from snell_bench.config.camera import MAX_FOV_DEG, fov_problem
 from snell_bench.config.choices import DTYPE_NAMES, METHOD_KINDS, Job, Source, dtype_name
-from snell_bench.config.compose import plugin_methods, searchpath_overrides
-from snell_bench.config.errors import MAX_SEED, ConfigError, Problems, is_int, is_number
-from snell_bench.config.grid import axis_settings, check_names, check_unique, object_dir_name, parse_object_spec
-from snell_bench.config.materials import MATERIALS, ior_out_of_range, ior_range_problem, resolve_ior
-from snell_bench.config.names import NAME_MAX, folder_name_problem, setting_slug
+from snell_bench.config.compose import plugin_methods
+from snell_bench.config.errors import ConfigError, Problems, is_int, is_number
+from snell_bench.config.grid_checks import check_grid_entries
+from snell_bench.config.names import folder_name_problem
 from snell_bench.config.sampler import SamplerSettings
 from snell_bench.config.schema import CHECKED_NODES, Config
 from snell_bench.utils.paths import data_path
@@ -55,7 +54,6 @@ __all__ = [
     "unknown_keys",
     "max_levels",
     "check_grid_entries",
-    "check_tradeoff_entries",
 ]
 
 # ---------------------------------------------------------------------------- unknown keys
@@ -374,148 +372,6 @@ def _devices(cfg: DictConfig, out: list[str]) -> None:
             )
 
 
-def check_grid_entries(cfg: DictConfig) -> list[str]:
-    """Problems of ``grid.variations`` and ``grid.objects`` entries (integers >= 0; object specs
-    ``name`` or ``name:ior`` with a number or a material name)."""
-    out: list[str] = []
-    g = cfg.grid
-    for key in ("scenes", "variations", "objects", "methods"):
-        if not isinstance(g.get(key), ListConfig) or len(g.get(key)) == 0:
-            out.append(f"grid.{key}={g.get(key)!r}: must be a non-empty list, e.g. grid.{key}=[...]")
-    if out:
-        return out
-    for group, key, names in (
-        ("method", "grid.methods", list(g.methods)),
-        ("scene", "grid.scenes", list(g.scenes)),
-        ("object", "grid.objects", [parse_object_spec(o)[0] for o in g.objects]),
-    ):
-        try:
-            check_names(group, names, key, _searchpath(cfg))
-        except ValueError as e:
-            out.append(str(e))
-    for key, values, name in (
-        ("grid.methods", list(g.methods), str),
-        ("grid.scenes", list(g.scenes), str),
-        ("grid.variations", list(g.variations), str),
-        ("grid.objects", [str(o) for o in g.objects], object_dir_name),
-    ):
-        try:
-            check_unique(values, key, name=name)
-        except ValueError as e:
-            out.append(str(e))
-    for v in g.variations:
-        if not is_int(v) or not 0 <= v <= MAX_SEED:
-            out.append(
-                f"grid.variations: entry {v!r} is not an integer >= 0 (a variation seeds its scene; at most 2**63 - 1); "
-                "e.g. grid.variations=[0,1,2]"
-            )
-    ior_range = _get(cfg, "object.ior_range")
-    for spec in g.objects:
-        name, ior = parse_object_spec(spec)
-        if ior is not None:
-            try:
-                value = resolve_ior(ior)
-            except ValueError:
-                out.append(
-                    f"grid.objects: entry {str(spec)!r}: {ior!r} is neither a number (the IOR) nor a material; "
-                    f"write {name}:1.45 or {name}:<material> with one of {sorted(MATERIALS)}"
-                )
-                continue
-            if ior_range_problem(ior_range) is None:
-                problem = ior_out_of_range(value, ior_range)
-                if problem:
-                    out.append(f"grid.objects: entry {str(spec)!r}: IOR {value:g} is {problem}")
-        folder = folder_name_problem(object_dir_name(str(spec)), f"grid.objects entry {str(spec)!r}", example=name)
-        if folder:
-            out.append(folder)
-    return out
-
-
-def check_tradeoff_entries(cfg: DictConfig) -> list[str]:
-    """Problems of the ``tradeoff`` lists: scenes (non-empty, known, no repeats), the object spec,
-    the method, the variation, ``only`` (names of ``axes``) and the presets."""
-    out: list[str] = []
-    t = cfg.tradeoff
-    scenes = [str(x) for x in (t.scenes or [])]
-    if not scenes:
-        out.append("tradeoff.scenes is empty; give at least one scene, e.g. tradeoff.scenes=[living_room]")
-    name, ior = parse_object_spec(str(t.object))
-    for group, key, names in (
-        ("scene", "tradeoff.scenes", scenes),
-        ("object", "tradeoff.object", [name]),
-        ("method", "tradeoff.method", [str(t.method)]),
-        ("preset", "tradeoff.presets", [str(x) for x in (t.presets or [])]),
-    ):
-        try:
-            check_names(group, names, key, _searchpath(cfg))
-        except ValueError as e:
-            out.append(str(e))
-    for key, values in (("tradeoff.scenes", scenes), ("tradeoff.presets", [str(x) for x in (t.presets or [])])):
-        try:
-            check_unique(values, key)
-        except ValueError as e:
-            out.append(str(e))
-    ior_range = _get(cfg, "object.ior_range") if ior_range_problem(_get(cfg, "object.ior_range")) is None else None
-    if ior is not None:
-        try:
-            value = resolve_ior(ior)
-        except ValueError as e:
-            out.append(f"tradeoff.object={str(t.object)!r}: {e}")
-        else:
-            if ior_range is not None and ior_out_of_range(value, ior_range):
-                out.append(f"tradeoff.object={str(t.object)!r}: IOR {value:g} is {ior_out_of_range(value, ior_range)}")
-    axes = OmegaConf.to_container(t.axes, resolve=True) if isinstance(t.axes, DictConfig) else dict(t.axes or {})
-    if t.only is not None:
-        unknown = [str(a) for a in t.only if str(a) not in axes]
-        if unknown:
-            out.append(f"tradeoff.only: unknown axes {unknown}; choose from {list(axes)}")
-    for name in [str(a) for a in t.only if str(a) in axes] if t.only is not None else list(axes):
-        out += _axis_problems(str(name), axes[name], ior_range)
-    return out
-
-
-def _axis_problems(name: str, spec: Any, ior_range) -> list[str]:
-    """Problems of one axis of the speed/accuracy sweep: its form (:func:`~snell_bench.config.grid.axis_settings`),
-    its settings' folder names (``<axis>=<value>``, at most :data:`~snell_bench.config.names.NAME_MAX`
-    bytes) and any IOR it sweeps (``object.ior=...``, inside ``object.ior_range``)."""
-    try:
-        settings = axis_settings(name, spec)
-    except ValueError as e:
-        return [str(e)]
-    out = []
-    for label, overrides in settings:
-        slug = setting_slug(label)
-        if len(slug.encode()) > NAME_MAX:
-            out.append(
-                f"tradeoff.axes.{name}: the setting {label[:40]!r}... names a folder of {len(slug.encode())} bytes, "
-                f"longer than the {NAME_MAX} a file system takes; give it a shorter label (a mapping label -> "
-                "[override, ...])"
-            )
-        for override in overrides:
-            key, _, value = override.partition("=")
-            if key.lstrip("+~") != "object.ior":
-                continue
-            try:
-                ior = resolve_ior(value.strip().strip("'\""))
-            except ValueError as e:
-                out.append(f"tradeoff.axes.{name}: {override!r}: {e}")
-                continue
-            problem = ior_out_of_range(ior, ior_range) if ior_range is not None else None
-            if problem:
-                out.append(f"tradeoff.axes.{name}: {override!r}: IOR {ior:g} is {problem}")
-    return out
-
-
-def _searchpath(cfg: DictConfig) -> list[str]:
-    """The run's ``hydra.searchpath`` as an override: from its recorded ``overrides`` (a composed
-    config), else from its ``hydra`` node (the config Hydra's callbacks see)."""
-    found = searchpath_overrides(cfg.get("overrides") or [])
-    paths = OmegaConf.select(cfg, "hydra.searchpath", default=None) if "hydra" in cfg else None
-    if not found and paths:
-        found = ["hydra.searchpath=[" + ",".join(str(p) for p in paths) + "]"]
-    return found
-
-
 def _method(cfg: DictConfig, out: list[str]) -> None:
     """``method.kind`` names a built-in kind or an installed plugin's (the ``snell_bench.methods``
     entry points), unless ``method._target_`` names the class; ``method._target_`` imports. (The
@@ -572,8 +428,6 @@ def check_config(cfg: DictConfig, *, grid: bool | None = None) -> DictConfig:
     job = _get(cfg, "job")
     if grid if grid is not None else job == Job.grid:
         problems += check_grid_entries(cfg)
-    if grid is None and job == Job.tradeoff:
-        problems += check_tradeoff_entries(cfg)
     if problems:
         raise ConfigError(problems)
     return cfg

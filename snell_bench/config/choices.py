@@ -62,7 +62,6 @@ class Job(Choice):
     preview = "preview"
     generate = "generate"
     grid = "grid"
-    tradeoff = "tradeoff"
     report = "report"
     plan = "plan"
     status = "status"
@@ -71,7 +70,7 @@ class Job(Choice):
 
 #: Jobs whose output is an experiment folder under ``runs_dir`` (their logs go to
 #: ``runs/<experiment>/logs/``).
-SWEEP_JOBS = (Job.grid, Job.tradeoff, Job.report, Job.export)
+SWEEP_JOBS = (Job.grid, Job.report, Job.export)
 
 
 class Source(Choice):
@@ -167,8 +166,7 @@ class RefMask(Choice):
 
 
 class OnChange(Choice):
-    """What a sweep does with a finished cell computed with other settings (``grid.on_change``,
-    ``tradeoff.on_change``)."""
+    """What a sweep does with a finished cell computed with other settings (``grid.on_change``)."""
 
     error = "error"
     recompute = "recompute"

@@ -1,6 +1,6 @@
-"""The entries of the grid's and the sweep's lists: object specs (``sphere``, ``sphere:1.333``,
-``sphere:water``), names of config-group options, no repeats, and the settings of the sweep's
-axes."""
+"""The entries of the grid's lists: object specs (``sphere``, ``sphere:1.333``, ``sphere:water``),
+names of config-group options, no repeats, the named override sets of its axes (the
+speed/accuracy sweep, ``grid.axes``), and one cell's identity (:class:`CellId`)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from snell_bench.config.compose import group_options
+from snell_bench.config.names import setting_slug
 
 __all__ = [
     "parse_object_spec",
@@ -18,6 +19,10 @@ __all__ = [
     "object_dir_name",
     "group_id",
     "CellId",
+    "Setting",
+    "BASELINE",
+    "PRESET_AXIS",
+    "grid_settings",
     "check_names",
     "check_unique",
     "axis_settings",
@@ -61,27 +66,66 @@ def group_id(scene: str, variation: int, object_dir: str) -> str:
 
 
 @dataclass(frozen=True)
+class Setting:
+    """A named override set of the grid's axes (``grid.axes``, ``grid.presets``): one point of the
+    speed/accuracy sweep, crossed with every method.
+
+    Examples:
+        >>> s = Setting("steps=8", "steps", 8, ("sampler.steps=8",))
+        >>> s.slug, Setting("preset:fast", PRESET_AXIS, "fast", ("preset=fast",)).slug
+        ('steps=8', 'preset-fast')
+    """
+
+    label: str
+    #: The axis; ``None`` for the baseline, :data:`PRESET_AXIS` for a preset.
+    axis: str | None = None
+    #: The axis value (typed as Hydra types it), a mapping's label, or the preset's name.
+    value: Any = None
+    #: Hydra override strings, applied after the cell's own.
+    overrides: tuple = ()
+
+    @property
+    def slug(self) -> str:
+        """The label as a folder name (every character outside ``[A-Za-z0-9._=+-]`` -> ``-``)."""
+        return setting_slug(self.label)
+
+
+#: The setting without overrides: the run's config as is.
+BASELINE = "baseline"
+#: The axis of the settings that apply a whole preset (``preset:<name>``).
+PRESET_AXIS = "preset"
+
+
+@dataclass(frozen=True)
 class CellId:
-    """One cell of the grid, ``grid.scenes x grid.variations x grid.objects x grid.methods``: what
-    selects it (:meth:`overrides`) and where it lives (:meth:`folder`,
-    ``<run>/<scene>-<variation>/<object folder>/<method>``).
+    """One cell of the grid, ``grid.scenes x grid.variations x grid.objects x grid.methods`` (x the
+    settings of ``grid.axes`` and ``grid.presets`` when there are): what selects it
+    (:meth:`overrides`) and where it lives (:meth:`folder`,
+    ``<run>/<scene>-<variation>/<object folder>/<entry>``, the entry being the method, or
+    ``<method>@<setting slug>``).
 
     Examples:
         >>> c = CellId("kitchen", 0, "sphere:1.333", "t2i")
         >>> c.group, c.name, c.overrides()
         ('kitchen-0/sphere-ior1.333', 'kitchen-0/sphere-ior1.333/t2i', ['scene=kitchen', 'scene.variation=0', 'object=sphere', 'object.ior=1.333', 'method=t2i'])
+        >>> s = CellId("kitchen", 0, "sphere", "snellcaster", Setting("steps=8", "steps", 8, ("sampler.steps=8",)))
+        >>> s.entry, s.overrides()[-2:]
+        ('snellcaster@steps=8', ['method=snellcaster', 'sampler.steps=8'])
     """
 
     scene: str
     variation: int
     object: str  #: the object spec, as ``grid.objects`` gives it (``sphere``, ``sphere:1.333``)
     method: str
+    setting: Setting | None = None
 
     @classmethod
     def grid(cls, g: Any) -> Iterator[CellId]:
-        """Every cell of the grid node ``g``, in the runner's order (methods innermost)."""
+        """Every cell of the grid node ``g``, in the runner's order (methods, then settings, innermost)."""
+        settings = grid_settings(g) or [None]
         for scene, variation, spec, method in itertools.product(g.scenes, g.variations, g.objects, g.methods):
-            yield cls(str(scene), int(variation), str(spec), str(method))
+            for setting in settings:
+                yield cls(str(scene), int(variation), str(spec), str(method), setting)
 
     @property
     def object_dir(self) -> str:
@@ -92,17 +136,67 @@ class CellId:
         return group_id(self.scene, self.variation, self.object_dir)
 
     @property
+    def entry(self) -> str:
+        """The cell's entry of the method axis: the method, or ``<method>@<setting slug>``."""
+        return self.method if self.setting is None else f"{self.method}@{self.setting.slug}"
+
+    @property
     def name(self) -> str:
-        return f"{self.group}/{self.method}"
+        return f"{self.group}/{self.entry}"
 
     def folder(self, root: str | Path) -> Path:
         """The cell's folder under the run folder ``root``."""
-        return Path(root) / self.group / self.method
+        return Path(root) / self.group / self.entry
 
     def overrides(self) -> list[str]:
-        """The overrides that select this cell."""
+        """The overrides that select this cell (a setting's last, so they win)."""
         scene = [f"scene={self.scene}", f"scene.variation={self.variation}"]
-        return [*scene, *object_overrides(self.object), f"method={self.method}"]
+        own = [] if self.setting is None else list(self.setting.overrides)
+        return [*scene, *object_overrides(self.object), f"method={self.method}", *own]
+
+
+def grid_settings(g: Any) -> list[Setting]:
+    """The settings of the grid node ``g``: none without ``axes`` and ``presets``; else
+    :data:`BASELINE`, the settings of the axes named by ``only`` (all, when null) in order
+    (:func:`axis_settings`), then one per preset (``preset:<name>``, the override
+    ``preset=<name>``).
+
+    Raises:
+        ValueError: naming the key, for an unknown axis in ``only``, a reserved axis name, an axis
+            :func:`axis_settings` rejects, or two settings with the same label or folder.
+    """
+    from omegaconf import OmegaConf
+
+    axes = g.axes if isinstance(g.axes, dict) else OmegaConf.to_container(g.axes, resolve=True)
+    axes = axes or {}
+    only = [str(a) for a in g.only] if g.only is not None else list(axes)
+    unknown = [a for a in only if a not in axes]
+    if unknown:
+        raise ValueError(f"grid.only: unknown axes {unknown}; choose from {list(axes)}")
+    presets = [str(p) for p in (g.presets or [])]
+    if not only and not presets:
+        return []
+    settings = [Setting(BASELINE)]
+    for name in only:
+        if name in (BASELINE, PRESET_AXIS):
+            raise ValueError(f"grid.axes.{name}: {name!r} is reserved; rename the axis")
+        spec = axes[name]
+        for label, overrides in axis_settings(name, spec):
+            value = label.split("=", 1)[1]  # "steps=8" -> 8 (typed as Hydra types it); a mapping's label as is
+            settings.append(Setting(label, name, _typed(value) if isinstance(spec, str) else value, tuple(overrides)))
+    settings += [Setting(f"{PRESET_AXIS}:{p}", PRESET_AXIS, p, (f"preset={p}",)) for p in presets]
+    for what, names in (("label", [s.label for s in settings]), ("folder name", [s.slug for s in settings])):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"grid.axes: duplicate setting {what}(s) {dup}; give the axis distinct values or labels")
+    return settings
+
+
+def _typed(text: str) -> Any:
+    """A sweep value as Hydra types it (``"8"`` -> 8)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    return OverridesParser.create().parse_override(f"x={text}").value()
 
 
 def check_names(group: str, names: Sequence[str], key: str, overrides: Sequence[str] = ()) -> None:
@@ -135,26 +229,26 @@ def check_unique(values: Sequence, key: str, name=str) -> None:
 
 
 def axis_settings(name: str, spec: Any) -> list[tuple[str, list[str]]]:
-    """``(label, overrides)`` of each setting of the speed/accuracy sweep's axis ``name``.
+    """``(label, overrides)`` of each setting of the grid's axis ``name`` (``grid.axes``).
 
     ``spec`` is a Hydra override (``"sampler.steps=4,8,12"``: one setting per value, labelled
     ``steps=4``, ...) or a mapping ``label -> [override, ...]`` (labelled ``name=label``).
 
     Args:
-        name: the axis (``tradeoff.axes.<name>``).
+        name: the axis (``grid.axes.<name>``).
         spec: its value, as plain Python (lists, dicts, strings).
 
     Returns:
         The settings in order.
 
     Raises:
-        ValueError: naming ``tradeoff.axes.<name>``, for a spec of neither form, an override that
+        ValueError: naming ``grid.axes.<name>``, for a spec of neither form, an override that
             Hydra cannot parse, or no values.
     """
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import HydraException
 
-    where = f"tradeoff.axes.{name}"
+    where = f"grid.axes.{name}"
     if isinstance(spec, str):
         try:
             ov = OverridesParser.create().parse_override(spec)

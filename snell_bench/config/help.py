@@ -34,7 +34,6 @@ JOB_LINES = {
     Job.preview: "the refraction preview of one scene and object: what Snell's law alone says the glass must show",
     Job.generate: "one generated image: one scene, one object, one method",
     Job.grid: "an experiment grid: every (scene, variation, object, method) cell, then its report",
-    Job.tradeoff: "the speed/accuracy sweep: each cost knob varied on its own, timed and scored",
     Job.report: "rebuild the report of an experiment's finished cells (reports/<experiment>/)",
     Job.plan: "what a grid will do on this machine (cells, models, time, memory) before doing it; writes nothing",
     Job.status: "where a grid stands across all the jobs working on it (done, running, failed, left); writes nothing",

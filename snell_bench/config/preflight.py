@@ -38,7 +38,7 @@ __all__ = [
 ]
 
 #: Jobs that write under ``runs_dir`` and ``reports_dir``.
-_RUNS_JOBS = (Job.grid, Job.tradeoff)
+_RUNS_JOBS = (Job.grid,)
 
 #: Jobs that only print: no folder, no file, no log (:func:`write_nothing`).
 PRINT_JOBS = (Job.plan, Job.status)
@@ -104,8 +104,7 @@ def _scene_sources(cfg: DictConfig) -> set[str]:
     read, so that its cache folder is checked)."""
     sources = {str(OmegaConf.select(cfg, "scene.source"))}
     job = cfg.get("job")
-    grid = job in (Job.grid, Job.export)
-    names = OmegaConf.select(cfg, "grid.scenes") if grid else OmegaConf.select(cfg, "tradeoff.scenes")
+    names = OmegaConf.select(cfg, "grid.scenes")
     if job not in (*_RUNS_JOBS, Job.export) or not names:
         return sources
     from hydra.core.global_hydra import GlobalHydra
@@ -140,11 +139,11 @@ def output_folders(cfg: DictConfig) -> list[tuple[str, Any, str]]:
     name = str(cfg.get("experiment_name"))
     if job in _RUNS_JOBS:
         add("runs_dir", Path(str(cfg.runs_dir)) / name, cfg.runs_dir)
-    if job in (Job.tradeoff, Job.report) or (job == Job.grid and OmegaConf.select(cfg, "grid.report") is not False):
+    if job == Job.report or (job == Job.grid and OmegaConf.select(cfg, "grid.report") is not False):
         add("reports_dir", Path(str(cfg.reports_dir)) / name, cfg.reports_dir)
     if job == Job.export:
         add("export.dir", Path(str(cfg.export.dir)) / name, cfg.export.dir)
-    if job in (Job.preview, Job.generate, Job.grid, Job.export):  # a sweep of the tradeoff traces without a cache
+    if job in (Job.preview, Job.generate, Job.grid, Job.export):
         method_warps = OmegaConf.select(cfg, "method.warps") or {}
         key = "method.warps.cache_dir" if "cache_dir" in method_warps else "warps.cache_dir"
         add(key, OmegaConf.select(cfg, key))
@@ -200,10 +199,8 @@ def write_nothing(config: DictConfig) -> None:
 
 
 def has_records(folder: Path) -> bool:
-    """Whether ``folder`` holds a cell record (a grid's ``metrics.json``, a trade-off sweep's ``result.json``)."""
-    return (
-        next(folder.rglob("metrics.json"), None) is not None or next(folder.glob("*/*/result.json"), None) is not None
-    )
+    """Whether ``folder`` holds a cell record (``metrics.json``)."""
+    return next(folder.rglob("metrics.json"), None) is not None
 
 
 def nothing_to_report(runs_dir: str | Path, name: str, why: str) -> str:
@@ -227,8 +224,8 @@ def nothing_to_report(runs_dir: str | Path, name: str, why: str) -> str:
     have = f"; other experiments with cells in {runs}: {', '.join(others)}" if others else ""
     return (
         f"job=report: nothing to report for experiment_name={name}: {why}. Run its cells first "
-        f"(python -m snell_bench +experiment=<experiment> experiment_name={name}, or job=tradeoff for a "
-        f"speed/accuracy sweep), or choose another experiment_name{have}"
+        f"(python -m snell_bench +experiment=<experiment> experiment_name={name}), or "
+        f"choose another experiment_name{have}"
     )
 
 

@@ -1,9 +1,9 @@
-"""Jobs run by ``python -m snell_bench``: the refraction preview, generation, the experiment grid,
-the speed/accuracy sweep, the report, the plan of a grid (what it will do here, before doing it),
+"""Jobs run by ``python -m snell_bench``: the refraction preview, generation, the experiment grid
+(the speed/accuracy sweep is one), the report, the plan of a grid (what it will do here, before doing it),
 its status across the jobs working on it, and the benchmark kit of its groups (``job=export``).
 
 :func:`run_job` returns the job's exit status: 0, or 3 when cells of a sweep failed (unless
-``grid.allow_failures`` / ``tradeoff.allow_failures``; :data:`~.cells.CELLS_FAILED_EXIT`). A job
+``grid.allow_failures``; :data:`~.cells.CELLS_FAILED_EXIT`). A job
 that cannot do what it was asked raises :class:`JobError`, one line saying what to run instead;
 :class:`CellsFailed` is what a job of a multirun raises for its failed cells
 (:mod:`snell_bench.__main__` turns both into the process's exit status)."""
@@ -53,12 +53,6 @@ def _grid(cfg: DictConfig) -> int:
     return int(run_grid(cfg)["exit_status"])
 
 
-def _tradeoff(cfg: DictConfig) -> int:
-    from snell_bench.experiment.tradeoff import run_tradeoff
-
-    return int(run_tradeoff(cfg)["exit_status"])
-
-
 def _report(cfg: DictConfig) -> None:
     from snell_bench.reports import NoCells, build_reports, summary_line
 
@@ -66,18 +60,13 @@ def _report(cfg: DictConfig) -> None:
     out = Path(cfg.reports_dir) / name
     root = Path(cfg.runs_dir) / name
     try:
-        if next(root.rglob("result.json"), None) is not None and next(root.rglob("metrics.json"), None) is None:
-            from snell_bench.experiment.tradeoff import build_tradeoff_report  # a speed/accuracy sweep
+        from snell_bench.experiment.runner import check_same_settings
 
-            paths = build_tradeoff_report(root, out)
-        else:
-            from snell_bench.experiment.runner import check_same_settings
-
-            try:
-                check_same_settings(root)
-            except ValueError as e:  # cells of other settings: the message says what to run
-                raise JobError(f"job=report: {e}") from None
-            paths = build_reports(root, out, name)
+        try:
+            check_same_settings(root)
+        except ValueError as e:  # cells of other settings: the message says what to run
+            raise JobError(f"job=report: {e}") from None
+        paths = build_reports(root, out, name)
     except NoCells as e:
         raise JobError(nothing_to_report(cfg.runs_dir, name, str(e))) from None
     print(summary_line(out, paths))
@@ -105,7 +94,6 @@ JOBS = {
     Job.preview: _preview,
     Job.generate: _generate,
     Job.grid: _grid,
-    Job.tradeoff: _tradeoff,
     Job.report: _report,
     Job.plan: _plan,
     Job.status: _status,
@@ -122,7 +110,7 @@ def run_job(cfg: DictConfig) -> int:
 
     Returns:
         The job's exit status: 0, or :data:`~snell_bench.experiment.cells.CELLS_FAILED_EXIT` when
-        cells of a sweep (``job=grid``, ``job=tradeoff``) failed and its ``allow_failures`` is false.
+        cells of a grid failed and its ``allow_failures`` is false.
 
     Raises:
         JobError: the job cannot do what it was asked (e.g. ``job=report`` without cells).

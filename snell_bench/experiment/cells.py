@@ -1,10 +1,10 @@
 """The one cell loop of every sweep: plan, resume, shared inputs, failures, atomic records, summary.
 
 A *cell* is one unit of work with its own folder (a grid cell: scene x variation x object x
-method; a sweep setting: scene x setting). :func:`run_cells` runs a list of them:
+method, or x a setting of the grid's axes; a group of the benchmark kit). :func:`run_cells` runs a list of them:
 
 - a cell is identified by its folder (a grid cell by scene, variation, object and method); it is
-  done, and skipped, when its record file (``metrics.json`` or ``result.json``) is a record
+  done, and skipped, when its record file (``metrics.json``) is a record
   (:func:`~snell_bench.reports.records.load_record`: a UTF-8 JSON object matching the
   sweep's ``schema``; any other file is warned about, naming it and the problem, and the cell
   computed again), says ``ok`` or ``skipped``, every file the record lists (``files``: size and SHA-256) is there unchanged, and
@@ -206,7 +206,7 @@ class Policy:
 
     @classmethod
     def of(cls, node: Any, name: str, claims: Any = None, **fixed: Any) -> Policy:
-        """The policy of the config node ``node`` named ``name`` (``grid``, ``tradeoff``, ``export``):
+        """The policy of the config node ``node`` named ``name`` (``grid``, ``export``):
         its ``recompute`` and ``on_change``, the claims (``lock``, ``lease_ttl_s``) of ``claims``
         (the ``grid`` node; ``node`` itself when None), and ``fixed`` values over them."""
         claims = node if claims is None else claims

@@ -22,17 +22,16 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from snell_bench.config import Source, compose
+from snell_bench.config.grid import CellId
 from snell_bench.experiment.cells import Cell, cell_state
 from snell_bench.experiment.order import cell_models
 from snell_bench.experiment.plan import (
     NOT_RESULT_KEYS,
     flatten,
-    object_dir_name,
     object_overrides,
     result_settings,
     settings_hash,
 )
-from snell_bench.kit.schema import kit_id
 from snell_bench.methods import method_of
 from snell_bench.pipeline import apply_method
 from snell_bench.pipeline.cell import node_key
@@ -163,7 +162,7 @@ class CellState:
 
     @property
     def name(self) -> str:
-        return f"{self.scene}-{self.variation}/{object_dir_name(self.object)}/{self.method}"
+        return "/".join(self.folder.parts[-3:])  # <scene>-<variation>/<object>/<method or method@setting>
 
     @property
     def done(self) -> bool:
@@ -173,25 +172,22 @@ class CellState:
 def cell_states(cfg: DictConfig, parts: GridParts) -> list[CellState]:
     """Every cell of ``cfg.grid`` in the runner's order, with its state (:class:`CellState`, by
     :func:`snell_bench.experiment.cells.cell_state`, the runner's own rule); nothing is written."""
-    g = cfg.grid
     root = Path(cfg.runs_dir) / str(cfg.experiment_name)
-    out = []
-    for scene in g.scenes:
-        for variation in g.variations:
-            for spec in g.objects:
-                for method in g.methods:
-                    ident = (str(scene), int(variation), str(spec), str(method))
-                    folder = root / f"{scene}-{variation}" / object_dir_name(str(spec)) / str(method)
-                    out.append(_state(ident, folder, parts, bool(g.recompute)))
-    return out
+    return [_state(cell, root, parts, bool(cfg.grid.recompute)) for cell in CellId.grid(cfg.grid)]
 
 
-def _state(ident: tuple, folder: Path, parts: GridParts, recompute: bool) -> CellState:
-    c = parts.method(ident[3])
-    group = kit_id(ident[0], ident[1], object_dir_name(ident[2]))
+def _state(cell_id: CellId, root: Path, parts: GridParts, recompute: bool) -> CellState:
+    ident = (cell_id.scene, cell_id.variation, cell_id.object, cell_id.method)
+    folder = cell_id.folder(root)
+    c = parts.method(cell_id.method)
+    group = cell_id.group
 
     def current() -> tuple[dict, str]:
-        settings = parts.settings(*ident)
+        if cell_id.setting is None:
+            settings = parts.settings(*ident)
+        else:  # a named override set may change any key: the cell composed whole
+            own = [*cell_id.overrides()]
+            settings = result_settings(apply_method(parts._compose([*parts.cfg.overrides, *own])))
         return settings, settings_hash(settings)
 
     cell = Cell(name=folder.name, folder=folder, config=None, record={})  # the identity the state reads
@@ -203,4 +199,5 @@ def _state(ident: tuple, folder: Path, parts: GridParts, recompute: bool) -> Cel
         recompute=recompute,
         stale=lambda cell, record: method_of(c).stale(c, record, folder, group),
     )
-    return CellState(*ident, folder, "new" if st.kind == "damaged" else st.kind, st.reason, st.diff)
+    kind = "new" if st.kind == "damaged" else st.kind
+    return CellState(*ident, folder, kind, st.reason, st.diff)

@@ -82,8 +82,6 @@ then an upper bound of the host's.
 from __future__ import annotations
 
 import logging
-import math
-import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -270,7 +268,8 @@ def _gb(b: float) -> str:
 def _photo(cfg: DictConfig) -> dict | None:
     """:func:`~snell_bench.scene.image_source.inspect_photo` of the cell's photo (``None`` when the
     photo is not an image Pillow reads: its cell reports that)."""
-    from snell_bench.scene.image_source import inspect_photo, read_photo_header
+    from snell_bench.scene.image_source import inspect_photo
+    from snell_bench.scene.photo_file import read_photo_header
     from snell_bench.utils.paths import data_path
 
     sc = cfg.scene
@@ -330,24 +329,11 @@ def estimate_memory(cfg: DictConfig) -> MemoryEstimate | None:
 
 # ---------------------------------------------------------------------------------------------- budget
 def machine_memory() -> tuple[float, str]:
-    """This machine's memory in bytes and where the figure comes from: psutil's total (else
-    ``os.sysconf``, else ``/proc/meminfo``), lowered to the cgroup's memory limit where one is set
-    (a container, a Slurm job)."""
-    total, where = math.inf, "unknown"
-    try:
-        import psutil
+    """This machine's memory in bytes and where the figure comes from: psutil's total, lowered to
+    the cgroup's memory limit where one is set (a container, a Slurm job)."""
+    import psutil
 
-        total, where = float(psutil.virtual_memory().total), "this machine's memory"
-    except ImportError:
-        try:
-            total, where = float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")), "this machine's memory"
-        except (ValueError, OSError, AttributeError):
-            try:
-                with open("/proc/meminfo") as f:
-                    kb = next(int(line.split()[1]) for line in f if line.startswith("MemTotal:"))
-                total, where = kb * 1024.0, "this machine's memory"
-            except (OSError, StopIteration, ValueError):
-                pass
+    total, where = float(psutil.virtual_memory().total), "this machine's memory"
     for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
         try:
             with open(path) as f:

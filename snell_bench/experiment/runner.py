@@ -1,4 +1,6 @@
-"""The experiment grid (``job=grid``): cells = (scene, variation, object, method).
+"""The experiment grid (``job=grid``): cells = (scene, variation, object, method), and with
+``grid.axes`` / ``grid.presets`` each method at every named override set (the speed/accuracy
+sweep, :mod:`snell_bench.experiment.sweep`).
 
 Layout of an experiment ``E`` under ``runs/``::
 
@@ -6,6 +8,9 @@ Layout of an experiment ``E`` under ``runs/``::
     runs/E/<scene>-<variation>/<object>/<method>/    image.png reference.png mask.png metrics.json
                                                      config.yaml I_minus.png depth.npy camera.json object.ply
                                                      panorama.png (methods with the panorama branch)
+    runs/E/<scene>-<variation>/<object>/<method>@<setting>/    a cell of a setting (grid.axes)
+    runs/E/<scene>-<variation>/<object>/_shared/               inputs of settings that change them,
+                                                               converged references (grid.converged_spp)
 
 - ``metrics.json`` holds the scores, the timings, the warps' statistics, the ``recipe`` and the
   metrics ``protocol`` of the cell's config and, under ``reference``,
@@ -60,6 +65,7 @@ from snell_bench.config import ConfigError, check_grid_entries, compose
 from snell_bench.config.grid import CellId
 from snell_bench.config.schema import GridConfig
 from snell_bench.experiment.cells import Cell, Hooks, Policy, SharedCache, failures_verdict, run_cells
+from snell_bench.experiment.converged import ConvergedReferences
 from snell_bench.experiment.estimate_cells import GridParts
 from snell_bench.experiment.files import save_inputs
 from snell_bench.experiment.memory import check_memory
@@ -71,6 +77,7 @@ from snell_bench.experiment.plan import (
     result_settings,
 )
 from snell_bench.experiment.prefetch import Prefetcher, settings_of
+from snell_bench.experiment.sweep import inputs_key, setting_record, share_folder, warm_up, with_total
 from snell_bench.experiment.tracking import log_cell, make_tracker
 from snell_bench.kit.schema import kit_id
 from snell_bench.methods import method_of
@@ -114,9 +121,18 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
     if problems:
         raise ConfigError(problems)
     root = Path(cfg.runs_dir) / str(cfg.experiment_name)
-    cells, problems = [], []
-    for cell in CellId.grid(g):
-        raw = compose_cell(cfg, cell.overrides(), method=False)
+    cells, problems, first_key = [], [], {}
+    for order, cell in enumerate(CellId.grid(g)):
+        try:
+            raw = compose_cell(cfg, cell.overrides(), method=False)
+        except ConfigError:
+            raise
+        except Exception as e:  # Hydra's: a setting's unknown key or a value of the wrong type
+            if cell.setting is None:
+                raise
+            first = str(e).splitlines()[0] if str(e) else type(e).__name__
+            problems.append(f"grid setting {cell.setting.label!r} ({list(cell.setting.overrides)}): {first}")
+            continue
         c = apply_method(raw)
         try:
             method = method_of(c)  # the kind (or _target_) loads, its params fit
@@ -131,8 +147,8 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
             "variation": cell.variation,
             "object": cell.object_dir,
             "object_spec": cell.object,
-            "method": cell.method,
-            "method_label": method.row_label(c),
+            "method": cell.entry,
+            "method_label": method.row_label(c) + ("" if cell.setting is None else f" ({cell.setting.label})"),
             "method_kind": str(c.method.kind),
             "model": str(c.model.name),
             "scene_source": str(c.scene.source),
@@ -141,7 +157,12 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
             **recipe_and_protocol(c),
         }
         folder = cell.folder(root)
-        cells.append(Cell(cell.name, folder, c, record, shares=folder.parent, extra={"inputs_config": raw, "id": cell}))
+        share = folder.parent
+        if cell.setting is not None:  # the settings that change the inputs share their own
+            key = inputs_key(raw)
+            share = share_folder(folder.parent, key, first_key)
+            record.update(setting_record(cell, c, order, key, share, folder.parent))
+        cells.append(Cell(cell.name, folder, c, record, shares=share, extra={"inputs_config": raw, "id": cell}))
     if problems:
         raise ConfigError(list(dict.fromkeys(problems)))
     return cells
@@ -159,7 +180,7 @@ def _group_inputs(
         if prefetch is not None:
             return prefetch.inputs(cell)
         inputs = pipeline.prepare_inputs(cell.extra["inputs_config"], pool=pool)
-        return inputs, save_inputs(inputs, cell.shares / "_inputs")
+        return inputs, save_inputs(inputs, cell.shares / "_inputs", arrays="setting" in cell.record)
 
     return shared.get(cell.shares, compute, by=cell.name)
 
@@ -171,11 +192,13 @@ def run_cell(
     pool: ModelPool,
     order: ModelMajor | None = None,
     prefetch: Prefetcher | None = None,
+    converged: ConvergedReferences | None = None,
 ) -> dict:
     """One grid cell: shared inputs linked into its folder, the method run and scored, with the
     models of the sweep's pool; in model-major ``order`` the inputs are read back and a relit
     cell finishes the result sampled ahead. References that a ``prefetch`` worker renders while
-    the cell samples are waited for only before it is scored."""
+    the cell samples are waited for only before it is scored; with ``converged`` the image is
+    also scored against the converged reference (:mod:`~snell_bench.experiment.converged`)."""
     if order is None:
         inputs, files = _group_inputs(cell, shared, pool, prefetch)
         sampled = None
@@ -195,13 +218,18 @@ def run_cell(
     res = pipeline.finish_method(cell.config, inputs, sampled, scorers=scorers, image_path=image_path)
     if res.panorama is not None:  # listed in the record's files with the image: resume checks it
         save_png(cell.folder / PANORAMA_FILE, bchw_to_hwc(res.panorama))
+    scores, timings = res.scores, {k: round(v, 3) for k, v in {**inputs.timings, **res.timings}.items()}
+    if converged is not None:  # an evaluation on top: not part of the cell's cost
+        conv = converged.score(cell.config, inputs, res.image, scorers, cell.folder.parent)
+        scores = {**scores, "metrics": {**scores["metrics"], **conv.pop("metrics")}}
+        scores = {**scores, "missing": {**scores["missing"], **conv.pop("missing")}, **conv}
     return {
         **({"scene_info": inputs.scene.info} if inputs.scene.info else {}),
         **initial_noise_record(inputs.scene.info, res.stats.get("decisions")),
-        **res.scores,
+        **scores,
         # the reference's settings and self-noise: the ceiling of the cell's masked PSNR
         **({"reference": inputs.reference.summary()} if inputs.reference is not None else {}),
-        "timings_s": {k: round(v, 3) for k, v in {**inputs.timings, **res.timings}.items()},
+        "timings_s": timings if "setting" not in cell.record else with_total(timings),
         **res.stats,
         "warps": {k: res.warps.stats[k] for k in WARP_STATS if k in res.warps.stats},
     }
@@ -214,13 +242,26 @@ def identity_defaults() -> Callable[[str, int, str, str], dict]:
     return GridParts(compose([])).settings
 
 
+def _without_setting(mine: dict, base: dict, rec: dict, spec: str) -> dict:
+    """A setting's cell's settings without the keys its setting changes (``setting_overrides``
+    composed over the cell's identity, against ``base``, the identity alone)."""
+    ident = CellId(str(rec["scene"]), int(rec["variation"]), str(spec), str(rec["method_name"]))
+    own = result_settings(apply_method(compose([*ident.overrides(), *rec["setting_overrides"]])))
+    return {k: (v if own.get(k, ABSENT) == base.get(k, ABSENT) else _OWN) for k, v in mine.items()}
+
+
+#: A key a cell's setting changes (:func:`_without_setting`): never compared.
+_OWN = "<the setting's own>"
+
+
 def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") -> None:
     """Raise ``ValueError`` if the finished cells under ``root`` were computed with different
     settings, so that no report averages them.
 
     A cell's own settings are its recorded ``config.yaml``; the run's are where it differs from
     what the cell's identity alone (scene, variation, object, method) composes. Every cell must
-    agree on every key any run changed."""
+    agree on every key any run changed, but for the keys a cell's setting (``grid.axes``,
+    ``grid.presets``) changes."""
     defaults = identity_defaults()
     stored: dict[str, dict] = {}
     changed: set[str] = set()
@@ -232,17 +273,22 @@ def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") ->
             name, sep, ior = str(rec["object"]).partition("-ior")
             spec = rec.get("object_spec") or (f"{name}:{ior}" if sep else name)
             mine = result_settings(OmegaConf.load(path.parent / "config.yaml"))
-            base = defaults(str(rec["scene"]), int(rec["variation"]), str(spec), str(rec["method"]))
+            method = str(rec.get("method_name", rec["method"]))
+            base = defaults(str(rec["scene"]), int(rec["variation"]), str(spec), method)
+            if "setting" in rec:  # the keys its named override set changes are its own: not compared
+                mine = _without_setting(mine, base, rec, spec)
         except Exception as e:  # noqa: BLE001 - a cell of an older layout or a removed entry: not compared
             log.debug("not comparing %s: %s", path.parent, e)
             continue
         cell = str(path.parent.relative_to(root))
         stored[cell] = mine
-        changed |= {k for k, v in mine.items() if base.get(k, ABSENT) != v}
+        changed |= {k for k, v in mine.items() if v != _OWN and base.get(k, ABSENT) != v}
     conflicts = []
     for key in sorted(changed):
         by_value: dict[str, list[str]] = {}
         for cell, mine in stored.items():
+            if mine.get(key) == _OWN:
+                continue
             by_value.setdefault(repr(mine.get(key, ABSENT)), []).append(cell)
         if len(by_value) > 1:
             parts = [
@@ -391,11 +437,14 @@ def _compute(cfg: DictConfig, g: GridConfig, cells: list[Cell], summary_root: Pa
     model_major = pool.budget is not None  # the models may not fit together
     prefetch = Prefetcher(pool, ahead, workers, keep=model_major) if ahead > 0 else None
     order = ModelMajor(pool, prefetch, lock=g.lock, lease_ttl_s=g.lease_ttl_s) if model_major else None
+    converged = ConvergedReferences(g.converged_spp) if g.converged_spp else None
+    if g.warm_up and cells and (g.recompute or any(not (c.folder / "metrics.json").is_file() for c in cells)):
+        warm_up(cfg, cells[0].extra["id"].overrides())
     finished = False
     try:
         summary = run_cells(
             cells if order is None else order.order(cells),
-            lambda c, s: run_cell(c, s, scorers, pool, order, prefetch),
+            lambda c, s: run_cell(c, s, scorers, pool, order, prefetch, converged),
             root=summary_root,
             policy=Policy.of(cfg.grid, "grid"),
             schema=GRID_RECORD,

@@ -91,7 +91,7 @@ def grid_status(cfg: DictConfig) -> GridStatus:
         elif state == "failed":
             failed.append((s.name, reason))
         counts[state] += 1
-        by_method.setdefault(s.method, Counter())[state] += 1
+        by_method.setdefault(s.folder.name, Counter())[state] += 1
         if s.name in shard_of:
             per_shard.setdefault(shard_of[s.name], Counter())[state] += 1
     jobs = []

@@ -2,11 +2,11 @@
 
 A grid experiment's run directory holds one folder per cell,
 ``<scene>-<variation>/<object>/<method>/``, with ``image.png``, ``reference.png``, ``mask.png`` and
-``metrics.json``; a speed/accuracy sweep's holds ``<scene>-<variation>/<setting>/result.json``.
+``metrics.json``; a speed/accuracy sweep is a grid whose cells are ``<method>@<setting>``.
 The reports read those files and nothing else:
 
 - :mod:`.records`: what a record file must hold to be a cell (the JSON Schemas
-  :data:`GRID_RECORD` and :data:`TRADEOFF_RECORD`) and :func:`load_record`, which reads one and
+  :data:`GRID_RECORD`) and :func:`load_record`, which reads one and
   says what is wrong with it; a file that is not a cell record is left out of every report, with a
   warning naming it, and listed in the report's "Files skipped" section.
 - :mod:`.collect`: :func:`collect` gathers every cell into a DataFrame, one row per cell.
@@ -18,8 +18,8 @@ The reports read those files and nothing else:
   :func:`provenance_line` and :func:`cell_notes` say where the numbers come from and which cells
   or values are missing; :func:`rank_marks` ranks best and second best.
 - :mod:`.writers`: :func:`to_markdown` (a pipe table by :meth:`pandas.DataFrame.to_markdown`),
-  :func:`to_latex` and :func:`to_csv` write a table; :func:`tradeoff_markdown` and
-  :func:`stdout_table` a sweep's per-setting table.
+  :func:`to_latex` and :func:`to_csv` write a table; :mod:`.tradeoff_text`
+  (:func:`tradeoff_markdown`) the speed/accuracy part's per-setting table.
 - :mod:`.text`: the helpers every module shares: missing values, reasons on one line, slugs, and
   escaping every string from the cells for its format (:func:`md_escape`, :func:`md_code`,
   :func:`tex_escape`; the HTML page's templates escape every string themselves).
@@ -56,7 +56,7 @@ Conventions:
       two or more IORs): where it varies within a row's cells, it is the table's outer index level.
 """
 
-from .build import NoCells, Written, build_reports, build_tradeoff_report, summary_line
+from .build import NoCells, Written, build_reports, summary_line
 from .collect import collect, recipe_and_protocol, skipped_files
 from .figures import (
     clip_outliers,
@@ -72,7 +72,7 @@ from .figures import (
 from .gallery import error_map, gallery
 from .html import table_view, write_grid_page, write_tradeoff_page
 from .plots import axis_plots, pareto_plot, tradeoff_axis_plot
-from .records import GRID_RECORD, TRADEOFF_RECORD, load_record
+from .records import GRID_RECORD, load_record
 from .spec import (
     ABLATION_METRICS,
     ABLATION_ROWS,
@@ -122,16 +122,14 @@ from .tradeoff import (
     pareto_front,
     reference_psnr_vs_max_spp,
     tradeoff_table,
-    update_spp_records,
 )
+from .tradeoff_text import tradeoff_markdown
 from .writers import (
     pipe_table,
     plain_markdown,
-    stdout_table,
     to_csv,
     to_latex,
     to_markdown,
-    tradeoff_markdown,
 )
 
 __all__ = [
@@ -156,7 +154,6 @@ __all__ = [
     "collect",
     "skipped_files",
     "GRID_RECORD",
-    "TRADEOFF_RECORD",
     "load_record",
     "recipe_and_protocol",
     "provenance_line",
@@ -213,11 +210,8 @@ __all__ = [
     "pareto_front",
     "collect_tradeoff",
     "reference_psnr_vs_max_spp",
-    "update_spp_records",
     "tradeoff_table",
     "tradeoff_markdown",
-    "stdout_table",
     "fidelity_column",
     "pareto_figure",
-    "build_tradeoff_report",
 ]

@@ -41,18 +41,16 @@ from .tables import (
 )
 from .text import md_code, md_escape, slug
 from .tradeoff import collect_tradeoff, tradeoff_table
+from .tradeoff_text import tradeoff_markdown, tradeoff_notes, tradeoff_summary
 from .writers import (
     plain_markdown,
     skipped_markdown,
     to_csv,
     to_latex,
     to_markdown,
-    tradeoff_markdown,
-    tradeoff_notes,
-    tradeoff_summary,
 )
 
-__all__ = ["build_reports", "build_tradeoff_report", "NoCells", "Written", "summary_line"]
+__all__ = ["build_reports", "NoCells", "Written", "summary_line"]
 
 
 class NoCells(FileNotFoundError):
@@ -84,7 +82,7 @@ def summary_line(out_dir: str | os.PathLike, written: Sequence[Path]) -> str:
     line = f"reports: {out_dir} ({len(written)} files); open {out_dir / PAGE}"
     n = len(getattr(written, "skipped", ()))
     if n:
-        where = "README.md" if (out_dir / "README.md").is_file() else "tradeoff.md"
+        where = "README.md"
         line += f"; {n} record file{'s' if n != 1 else ''} skipped (not cell records): see {out_dir / where}"
     return line
 
@@ -250,10 +248,18 @@ def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -
             )
         )
     written += [p for _, p in figures]
-
+    sweep = collect_tradeoff(run_dir)  # the cells of named override sets (grid.axes): the speed/accuracy part
     src = Path(os.path.relpath(run_dir.resolve(), out_dir.resolve())).as_posix()
-    written += _write_page(df, run_dir, out_dir, name, src, tables, savings, qualitative + panoramas, figures, ior)
+    pages = qualitative + panoramas
+    written += _write_page(df, run_dir, out_dir, name, src, tables, savings, pages, figures, ior, not sweep.empty)
+    if not sweep.empty:  # after the grid's page, which removes Plotly's script when it has no plot
+        written += _write_tradeoff_report(sweep, run_dir, out_dir)
+    written.append(_write_readme(df, out_dir, name, src, tables, savings, qualitative, panoramas, figures, max_rows))
+    return written
 
+
+def _write_readme(df, out_dir, name, src, tables, savings, qualitative, panoramas, figures, max_rows) -> Path:
+    """``README.md`` of :func:`build_reports`: every file linked, with the provenance line."""
     lines = [
         f"# Reports: {md_escape(name)}",
         "",
@@ -280,11 +286,15 @@ def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -
         lines.append("- Main image and its panorama: no cell has a panorama.png")
     for title, path in figures:
         lines.append(f"- {title}: [{path.name}]({path.name})")
+    if (out_dir / "tradeoff.md").is_file() and (out_dir / "tradeoff.html").is_file():
+        lines.append(
+            "- Speed/accuracy trade-off (per setting, Pareto front): [tradeoff.html](tradeoff.html) · "
+            "[tradeoff.md](tradeoff.md) · [tradeoff.csv](tradeoff.csv) · [pareto.png](pareto.png)"
+        )
     lines += ["", to_markdown(tables[0][2], tables[0][1])]
     lines += [f"![qualitative comparison]({qualitative[0].name})", ""] if qualitative else []
     lines += skipped_markdown(skipped_files(df), "##")
-    written.append(write_text(out_dir / "README.md", "\n".join(lines)))
-    return written
+    return write_text(out_dir / "README.md", "\n".join(lines))
 
 
 def _write_page(
@@ -298,6 +308,7 @@ def _write_page(
     pages: list[Path],
     figures: list[tuple[str, Path]],
     ior: bool,
+    sweep: bool = False,
 ) -> list[Path]:
     """``index.html`` of :func:`build_reports` (:func:`~.html.write_grid_page`) with its images:
     the tables as written beside it, the figure pages and figures linked; the paths written."""
@@ -321,6 +332,7 @@ def _write_page(
     files += [("Time saved against fidelity lost", f) for f in saving_files] if savings is not None else []
     files += [(p.stem.replace("_", ", page ").capitalize(), p.name) for p in pages]
     files += [(title, p.name) for title, p in figures] + [("Reports in Markdown", "README.md")]
+    files += [("Speed/accuracy trade-off", "tradeoff.html")] if sweep else []
     page = write_grid_page(
         out_dir,
         name=name,
@@ -344,34 +356,11 @@ def _remove_stale_pages(out_dir: Path, stems: tuple[str, ...]) -> None:
                 path.unlink()
 
 
-def build_tradeoff_report(runs_root: str | os.PathLike, out_dir: str | os.PathLike) -> list[Path]:
-    """Write the report of a speed/accuracy sweep from its run folder alone.
-
-    Args:
-        runs_root: the sweep's run folder.
-        out_dir: where to write (created if needed).
-
-    Returns:
-        The written paths: ``tradeoff.csv`` (one row per scene x setting), ``tradeoff.md`` (per
-        setting, means over the scenes where it succeeded), ``pareto.png``, ``index.html`` (the
-        per-setting table, sortable; fidelity against each setting and the Pareto plot, with
-        Plotly) and ``plotly.min.js``.
-
-    Raises:
-        NoCells: there is no setting's record below ``runs_root`` (or no ``runs_root``); a
-            ``FileNotFoundError``.
-    """
-    runs_root, out_dir = Path(runs_root), Path(out_dir)
-    df = collect_tradeoff(runs_root)
-    if df.empty:
-        raise _no_cells(runs_root, "result.json", skipped_files(df))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with hold(out_dir):
-        return Written(_write_tradeoff_report(df, runs_root, out_dir), skipped_files(df))
-
-
 def _write_tradeoff_report(df, runs_root: Path, out_dir: Path) -> list[Path]:
-    """The body of :func:`build_tradeoff_report`, while it holds ``out_dir``."""
+    """The speed/accuracy part of a report whose cells hold settings (``grid.axes``):
+    ``tradeoff.csv`` (one row per cell of a setting), ``tradeoff.md`` (per setting, means over the
+    groups where it succeeded), ``pareto.png`` and ``tradeoff.html`` (the per-setting table,
+    sortable; fidelity against each setting and the Pareto plot, with Plotly)."""
     table = tradeoff_table(df)
     csv = out_dir / "tradeoff.csv"
     atomic_write_bytes(csv, df.to_csv(index=False, lineterminator="\n").encode())

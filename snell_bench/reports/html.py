@@ -433,8 +433,9 @@ def write_tradeoff_page(
     notes: Sequence[str],
     files: Sequence[tuple[str, str]],
     skipped: Sequence[tuple[str, str]] = (),
+    page: str = "tradeoff.html",
 ) -> list[Path]:
-    """Write a speed/accuracy sweep's ``index.html`` and ``plotly.min.js``.
+    """Write a speed/accuracy sweep's page and ``plotly.min.js``.
 
     Args:
         out_dir: the report folder.
@@ -445,9 +446,10 @@ def write_tradeoff_page(
         notes: failed settings and missing metrics with their reasons.
         files: ``(title, relative path)`` of the other files of the report folder.
         skipped: the record files left out, ``(path relative to the run folder, problem)``.
+        page: its file name in ``out_dir`` (the grid's page, ``index.html``, links it).
 
     Returns:
-        The paths written: ``index.html``, then ``plotly.min.js``.
+        The paths written: the page, then ``plotly.min.js``.
     """
     out_dir = Path(out_dir)
     written: list[Path] = []
@@ -466,5 +468,5 @@ def write_tradeoff_page(
             skipped=list(skipped),
         )
     )
-    written.insert(0, write_text(out_dir / PAGE, html))
+    written.insert(0, write_text(out_dir / page, html))
     return written

@@ -1,20 +1,20 @@
 """What a cell's record file must hold to count as a cell: the JSON Schemas of a grid cell's
-``metrics.json`` (:data:`GRID_RECORD`) and of a speed/accuracy setting's ``result.json``
-(:data:`TRADEOFF_RECORD`), and :func:`load_record`, which reads one and says what is wrong with it.
+``metrics.json`` (:data:`GRID_RECORD`), and :func:`load_record`, which reads one and says what is wrong with it.
 
 The reports and the cell loop read a record only through :func:`load_record`: a file that is not
 UTF-8, not JSON, not an object, or that breaks its schema is *not a cell*. The reports leave it out
 with a warning naming its path and the problem, and count it (their "files skipped" section); the
 cell loop computes that cell again. A record is data only: nothing in it is ever run.
 
-Conventions (both schemas):
+Conventions:
     - ``status`` is ``"ok"``, ``"failed"`` or ``"skipped"``; ``reason`` is a string (why) or null,
       and a string for ``failed`` and ``skipped``.
     - The identity keys are required: ``scene`` (string) and ``variation`` (integer >= 0), then
-      ``object`` and ``method`` (grid) or ``setting`` (sweep), strings.
+      ``object`` and ``method``, strings; a cell of a setting (``grid.axes``) also names its
+      ``setting``, ``method_name`` and ``setting_overrides``.
     - An ``ok`` record holds ``metrics``, a mapping of metric name to a number or null (a JSON
       ``NaN`` or ``Infinity`` is a number here; the reports show it as missing, "not finite in the
-      record"); a sweep's ``ok`` record also holds ``timings_s``.
+      record").
     - A PSNR is at most the scorer's ceiling (80 dB; identical pixels are recorded there), with
       the reason in ``notes`` (metric name -> string).
     - Every other key the reports read has its type (``missing``: strings or null; ``timings_s``:
@@ -29,7 +29,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-__all__ = ["GRID_RECORD", "TRADEOFF_RECORD", "load_record", "record_problem", "non_finite"]
+__all__ = ["GRID_RECORD", "load_record", "record_problem", "non_finite"]
 
 _STR = {"type": "string"}
 _OPT_STR = {"type": ["string", "null"]}
@@ -98,31 +98,24 @@ GRID_RECORD: dict[str, Any] = {
         "random_weights": {"type": "boolean"},
         "warps": _OBJECT,
         "scene_info": _OBJECT,
-    },
-    "allOf": [_REASON_WHEN_NOT_OK, _ok_requires("metrics")],
-}
-
-#: JSON Schema (draft 2020-12) of a speed/accuracy setting's ``result.json``.
-TRADEOFF_RECORD: dict[str, Any] = {
-    "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "title": "result.json of a speed/accuracy setting",
-    "type": "object",
-    "required": ["status", "scene", "variation", "setting"],
-    "properties": {
-        **_COMMON_PROPERTIES,
+        # a cell of a setting (grid.axes, grid.presets): snell_bench.experiment.sweep
         "setting": _STR,
+        "method_name": _STR,
         "slug": _STR,
         "order": {"type": "integer"},
         "axis": _OPT_STR,
         "overrides": _OBJECT,
+        "setting_overrides": {"type": "array", "items": _STR},
         "knobs": _OBJECT,
         "inputs_key": _STR,
         "inputs_dir": _STR,
-        "inputs_reused_from": _OPT_STR,
         "converged_reference": _OPT_OBJECT,
-        "reference_psnr_vs_max_spp": {"type": ["number", "null"]},
     },
-    "allOf": [_REASON_WHEN_NOT_OK, _ok_requires("metrics", "timings_s")],
+    "allOf": [
+        _REASON_WHEN_NOT_OK,
+        _ok_requires("metrics"),
+        {"if": {"required": ["setting"]}, "then": {"required": ["method_name", "setting_overrides"]}},
+    ],
 }
 
 _VALIDATORS: dict[int, Any] = {}
@@ -149,7 +142,7 @@ def record_problem(record: Any, schema: dict | None) -> str | None:
 
     Args:
         record: the parsed JSON value.
-        schema: :data:`GRID_RECORD`, :data:`TRADEOFF_RECORD`, or ``None`` (only "an object" is
+        schema: :data:`GRID_RECORD` or ``None`` (only "an object" is
             checked).
 
     Returns:
@@ -195,8 +188,8 @@ def load_record(path: str | Path, schema: dict | None = None) -> tuple[dict | No
     """Read a record file and check it against its schema.
 
     Args:
-        path: the file (``metrics.json`` or ``result.json``).
-        schema: its schema (:data:`GRID_RECORD`, :data:`TRADEOFF_RECORD`); ``None``: any JSON
+        path: the file (``metrics.json``).
+        schema: its schema (:data:`GRID_RECORD`); ``None``: any JSON
             object is a record.
 
     Returns:

@@ -1,14 +1,13 @@
-"""The speed/accuracy sweep's numbers, a pure function of its run folder: one row per scene x
-setting, the per-setting means, the Pareto front and the reference convergence (written by
-:mod:`.writers`, plotted by :mod:`.figures`).
+"""The speed/accuracy sweep's numbers, a pure function of its run folder: one row per cell of a
+setting (``grid.axes``, ``grid.presets``), the per-setting means, the Pareto front and the
+reference convergence (written by :mod:`.writers`, plotted by :mod:`.figures`).
 
-A sweep's run folder holds ``<scene>-<variation>/<setting slug>/result.json`` per setting and the
-shared inputs under ``<scene>-<variation>/_shared/``; :mod:`snell_bench.experiment.tradeoff`
-describes the layout and the meaning of every field. Folders whose name starts with "." or "_"
-are not settings. A ``result.json`` that is not a setting's record (:func:`~.records.load_record`
-against :data:`~.records.TRADEOFF_RECORD`) is left out with a warning naming it and the problem,
-and listed in ``DataFrame.attrs["skipped_files"]``; a metric recorded as NaN or ±inf is warned
-about and has no value ("not finite in the record").
+The cells of a setting are grid cells, ``<scene>-<variation>/<object>/<method>@<setting>/metrics.json``,
+whose record names its ``setting`` (:mod:`snell_bench.experiment.sweep` describes the fields);
+their inputs are under the group's ``_inputs/`` or ``_shared/<key>/_inputs/``. A record that is not
+a cell's (:func:`~.records.load_record` against :data:`~.records.GRID_RECORD`) is left out with a
+warning naming it and the problem, and listed in ``DataFrame.attrs["skipped_files"]``; a metric
+recorded as NaN or ±inf is warned about and has no value ("not finite in the record").
 """
 
 from __future__ import annotations
@@ -17,17 +16,16 @@ import json
 import logging
 import math
 import os
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from snell_bench.config.grid import PRESET_AXIS
 from snell_bench.metrics.registry import BUILTIN_METRICS
-from snell_bench.utils.io import write_json
 
-from .records import TRADEOFF_RECORD, load_record, non_finite
+from .records import GRID_RECORD, load_record, non_finite
 from .text import as_float
 
 log = logging.getLogger(__name__)
@@ -44,7 +42,6 @@ __all__ = [
     "complete_front",
     "collect_tradeoff",
     "reference_psnr_vs_max_spp",
-    "update_spp_records",
     "tradeoff_table",
     "fidelity_column",
 ]
@@ -60,7 +57,8 @@ TOTAL_NOTE = (
     "(procedural-only evaluation) and generator (building the model once) are not included"
 )
 
-#: The metrics a setting also scores against the converged reference (``<metric>_converged``).
+#: The metrics a setting also scores against the converged reference (``<metric>_converged``,
+#: :mod:`snell_bench.experiment.converged`).
 CONVERGED_METRICS = ("psnr", "mae", "lpips")
 
 #: The metrics a setting records: the built-in metrics of the reference and the true render (CLIP
@@ -70,30 +68,33 @@ RECORD_METRICS = tuple(m.name for m in BUILTIN_METRICS if "prompt" not in m.need
     f"{m}_converged" for m in CONVERGED_METRICS
 )
 
-#: The axis of the settings that apply a whole preset (``preset:<name>``).
-PRESET_AXIS = "preset"
-_SCENE_DIR_RE = re.compile(r"^(?P<scene>.+)-(?P<variation>\d+)$")
-
 
 # ---------------------------------------------------------------------------- reference convergence
 def _load_records(root: Path, skipped: list | None = None) -> list[dict]:
-    """Every setting's record below ``root`` (``<scene>-<variation>/<slug>/result.json``), each with
-    ``_dir`` (its folder relative to ``root``). A file that is not a setting's record is left out
-    with a warning, and appended to ``skipped`` as ``(path relative to root, problem)``."""
+    """Every record of a setting's cell below ``root`` (``<scene>-<variation>/<object>/<entry>/metrics.json``
+    with a ``setting``), each with ``_dir`` (its folder relative to ``root``) and ``_group`` (its
+    group's). A file that is not a cell's record is left out with a warning, and appended to
+    ``skipped`` as ``(path relative to root, problem)``."""
     out = []
-    for p in sorted(Path(root).glob("*/*/result.json")):
+    for p in sorted(Path(root).glob("*/*/*/metrics.json")):
         rel = p.parent.relative_to(root)
         if any(part.startswith((".", "_")) for part in rel.parts):
             continue
-        rec, problem = load_record(p, TRADEOFF_RECORD)
+        rec, problem = load_record(p, GRID_RECORD)
         if problem is not None:
             if skipped is not None:  # warned once, by the reader that reports it
-                log.warning("%s is not a setting's record, left out of the report: %s", p, problem)
+                log.warning("%s is not a cell's record, left out of the report: %s", p, problem)
                 skipped.append((p.relative_to(root).as_posix(), problem))
             continue
-        rec["_dir"] = rel.as_posix()
-        out.append(rec)
+        if "setting" in rec:
+            rec["_dir"], rec["_group"] = rel.as_posix(), rel.parent.as_posix()
+            out.append(rec)
     return out
+
+
+def has_settings(root: str | os.PathLike) -> bool:
+    """Whether a run folder holds cells of a setting (``grid.axes``, ``grid.presets``)."""
+    return bool(_load_records(Path(root)))
 
 
 def _is_spp_record(rec: dict) -> bool:
@@ -125,14 +126,14 @@ def reference_psnr_vs_max_spp(
     groups: dict[tuple, list[dict]] = {}
     for r in records:
         if r.get("status") == "ok" and _is_spp_record(r):
-            groups.setdefault((r["_dir"].split("/")[0], r["axis"]), []).append(r)
+            groups.setdefault((r["_group"], r.get("method_name"), r["axis"]), []).append(r)
     out: dict[str, float | None] = {}
 
     def load(r, name):
-        p = root / r["_dir"].split("/")[0] / str(r.get("inputs_dir", "")) / name
+        p = root / r["_group"] / str(r.get("inputs_dir", "")) / name
         return np.load(p) if p.is_file() else None
 
-    for (_, _), recs in groups.items():
+    for recs in groups.values():
         best = max(recs, key=lambda r: float((r.get("overrides") or {})[SPP_KEY]))
         ref_max, mask = load(best, "reference.npy"), load(best, "metric_mask.npy")
         for r in recs:
@@ -147,31 +148,6 @@ def reference_psnr_vs_max_spp(
                         val = None
             out[r["_dir"]] = val
     return out
-
-
-def update_spp_records(scene_dir: Path) -> None:
-    """Write ``reference_psnr_vs_max_spp`` into the spp-axis records of one scene.
-
-    Each ``result.json`` is rewritten (atomically) only if its value changed.
-
-    Args:
-        scene_dir: the scene's folder, ``<root>/<scene>-<variation>``; nothing happens if it does
-            not exist.
-    """
-    if not scene_dir.is_dir():
-        return
-    root = scene_dir.parent
-    records = [r for r in _load_records(root) if r["_dir"].split("/")[0] == scene_dir.name]
-    values = reference_psnr_vs_max_spp(root, records)
-    for r in records:
-        if r["_dir"] not in values:
-            continue
-        v = values[r["_dir"]]
-        if "reference_psnr_vs_max_spp" in r and r["reference_psnr_vs_max_spp"] == v:
-            continue
-        rec = {k: val for k, val in r.items() if k != "_dir"}
-        rec["reference_psnr_vs_max_spp"] = v
-        write_json(root / r["_dir"] / "result.json", rec)
 
 
 # ---------------------------------------------------------------------------- Pareto front
@@ -253,7 +229,8 @@ def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
         reasons, ``reference_psnr_vs_max_spp`` (recomputed from the saved references),
         ``converged_spp``, ``reference_self_noise_db`` (the setting's reference against its own
         noise-free limit, from its two halves; NaN without halves) and ``dir``; sorted by scene, then the setting's order in the sweep.
-        Empty when there is no ``result.json``. ``attrs["skipped_files"]`` lists the files left out
+        Empty when there is no cell of a setting. With several methods a setting is
+        ``<method>@<setting>``; ``group`` is the cell's scene/object group. ``attrs["skipped_files"]`` lists the files left out
         (not a setting's record) as ``(path relative to root, problem)``; a metric recorded as NaN or
         ±inf is NaN with ``missing.<metric>`` = "not finite in the record (inf)".
     """
@@ -265,11 +242,13 @@ def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
     for r in records:
         bad = non_finite(r.get("metrics"))
         for name, value in bad.items():
-            path = root / r["_dir"] / "result.json"
+            path = root / r["_dir"] / "metrics.json"
             log.warning("setting %s: metric %s is %s in %s: not finite, shown as missing", r["_dir"], name, value, path)
         row = {
             "scene": r.get("scene"),
             "variation": r.get("variation"),
+            "group": r["_group"],
+            "method": r.get("method_name"),
             "setting": r.get("setting"),
             "slug": r.get("slug"),
             "order": r.get("order"),
@@ -302,6 +281,8 @@ def collect_tradeoff(root: str | os.PathLike) -> pd.DataFrame:
         row["dir"] = r["_dir"]
         rows.append(row)
     df = pd.DataFrame(rows)
+    if not df.empty and df["method"].nunique() > 1:
+        df["setting"] = df["method"].astype(str) + "@" + df["setting"].astype(str)
     if not df.empty:
         df["order"] = pd.to_numeric(df["order"], errors="coerce")
         df = df.sort_values(["scene", "order", "setting"], na_position="last", kind="mergesort").reset_index(drop=True)
@@ -327,8 +308,8 @@ def tradeoff_table(df: pd.DataFrame) -> pd.DataFrame:
         FileNotFoundError: ``df`` is empty.
     """
     if df.empty:
-        raise FileNotFoundError("no settings (result.json) to tabulate")
-    n_scenes = df["scene"].nunique()
+        raise FileNotFoundError("no cells of a setting to tabulate")
+    n_scenes = df["group"].nunique() if "group" in df else df["scene"].nunique()
     ok = df[df["status"] == "ok"]
     cols = [f"timings_s.{k}" for k in STAGES + ("total",)] + [
         "psnr",

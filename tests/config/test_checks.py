@@ -143,16 +143,22 @@ def test_an_explicit_cuda_device_without_cuda_is_an_error():
 @pytest.mark.parametrize(
     "overrides,expected",
     [
-        (["tradeoff.scenes=[kitchen,kitchen]"], "tradeoff.scenes lists 'kitchen' more than once"),
-        (["tradeoff.scenes=[]"], "tradeoff.scenes is empty"),
-        (["tradeoff.scenes=[nope]"], "tradeoff.scenes: unknown scene 'nope'"),
-        (["tradeoff.presets=[fast,fast]"], "tradeoff.presets lists 'fast' more than once"),
-        (["tradeoff.object=sphere:abc"], "tradeoff.object='sphere:abc': unknown material 'abc'"),
-        (["tradeoff.variation=-1"], "tradeoff.variation=-1: must be an integer >= 0"),
-        (["tradeoff.only=[nope]"], "tradeoff.only: unknown axes ['nope']"),
+        (["grid.scenes=[kitchen,kitchen]"], "grid.scenes lists 'kitchen' more than once"),
+        (["grid.scenes=[]"], "grid.scenes=[]: must be a non-empty list"),
+        (["grid.scenes=[nope]"], "grid.scenes: unknown scene 'nope'"),
+        (["grid.presets=[fast,fast]"], "grid.presets lists 'fast' more than once"),
+        (["grid.presets=[quick]"], "grid.presets: unknown preset 'quick'"),
+        (["grid.objects=[sphere:abc]"], "grid.objects: entry 'sphere:abc': 'abc' is neither a number"),
+        (["grid.variations=[-1]"], "grid.variations: entry -1 is not an integer >= 0"),
+        (["grid.only=[nope]"], "grid.only: unknown axes ['nope']"),
+        (
+            ["+grid.axes.baseline='sampler.steps=4'", "grid.only=[baseline]"],
+            "grid.axes.baseline: 'baseline' is reserved",
+        ),
+        (["grid.axes.steps='sampler.steps=4,4'", "grid.only=[steps]"], "duplicate setting label(s) ['steps=4']"),
     ],
 )
-def test_tradeoff_entries_are_checked(overrides, expected):
+def test_sweep_entries_are_checked(overrides, expected):
     with pytest.raises(ConfigError) as e:
         check_config(compose(["+experiment=tradeoff", *overrides]))
     assert expected in str(e.value), str(e.value)
@@ -164,10 +170,9 @@ def test_tradeoff_entries_are_checked(overrides, expected):
         ("reference.sampler=sobol", "orthogonal"),
         ("model.pano_prior=nope", "observed"),
         ("grid.on_change=ignore", "recompute"),
-        ("tradeoff.on_change=ignore", "recompute"),
         ("scene.source=photo", "generated"),
         ("scene.depth_kind=disparity", "range"),
-        ("job=nope", "tradeoff"),
+        ("job=nope", "export"),
         ("metrics.protocol=ours", "authors"),
         ("metrics.clip_text=both", "object"),
         ("method.prompt=both", "object"),

@@ -72,10 +72,10 @@ def test_the_length_limit_is_the_file_systems(tmp_path):
         (
             [
                 "+experiment=tradeoff",
-                "+tradeoff.axes.long={" + "a" * 260 + ": ['sampler.steps=4']}",
-                "tradeoff.only=[long]",
+                "+grid.axes.long={" + "a" * 260 + ": ['sampler.steps=4']}",
+                "grid.only=[long]",
             ],
-            "tradeoff.axes.long: the setting 'long=aaaa",
+            "grid.axes.long: the setting 'long=aaaa",
         ),
     ],
 )

@@ -28,7 +28,7 @@ def run_cli(tmp_path, *args):
         (["job=preview", "+object.iorr=3"], "did you mean object.ior?"),
         (["job=preview", "scene.width=0"], "scene.width=0: must be a positive multiple"),
         (["+experiment=smoke", "grid.methods=[nope]"], "grid.methods: unknown method 'nope'"),
-        (["+experiment=tradeoff", "tradeoff.scenes=[nope]"], "tradeoff.scenes: unknown scene 'nope'"),
+        (["+experiment=tradeoff", "grid.scenes=[nope]"], "grid.scenes: unknown scene 'nope'"),
         (["+experiment=smoke", "warps.pano_height=100"], "use warps.pano_height=96 (96x192) or warps.pano_height=104"),
     ],
 )
@@ -99,6 +99,7 @@ def test_procfs_is_not_writable_even_for_root():
         (["+experiment=smoke", "tracker=tensorboard"], ["runs_dir", "reports_dir", "warps.cache_dir", "tracker.dir"]),
         (["+experiment=smoke", "tracker=mlflow"], ["runs_dir", "reports_dir", "warps.cache_dir", "tracker.uri"]),
         (["+experiment=tradeoff", "scene.source=generated"], ["runs_dir", "reports_dir", "scene.cache_dir"]),
+        (["+experiment=tradeoff", "grid.report=false"], ["runs_dir"]),  # its warps are traced, never cached
         (["job=report"], ["reports_dir"]),
         (["job=plan"], []),
     ],

@@ -200,10 +200,10 @@ def test_an_ior_below_the_range_says_how_to_model_a_bubble():
         (["object.ior_range=[1,inf]"], "object.ior_range=[1, inf]: must be [low, high]"),
         (["+experiment=smoke", "grid.objects=[sphere:0.5]"], "grid.objects: entry 'sphere:0.5': IOR 0.5 is below"),
         (["+experiment=smoke", "grid.objects=[sphere:9]"], "grid.objects: entry 'sphere:9': IOR 9 is above"),
-        (["+experiment=tradeoff", "tradeoff.object=sphere:0.2"], "tradeoff.object='sphere:0.2': IOR 0.2 is below"),
+        (["+experiment=tradeoff", "grid.objects=[sphere:0.2]"], "grid.objects: entry 'sphere:0.2': IOR 0.2 is below"),
         (
-            ["+experiment=tradeoff", "+tradeoff.axes.ior='object.ior=1.5,4'", "tradeoff.only=[ior]"],
-            "tradeoff.axes.ior: 'object.ior=4': IOR 4 is above object.ior_range=[1.0, 3.0]",
+            ["+experiment=tradeoff", "+grid.axes.ior='object.ior=1.5,4'", "grid.only=[ior]"],
+            "grid.axes.ior: 'object.ior=4': IOR 4 is above object.ior_range=[1.0, 3.0]",
         ),
     ],
 )
@@ -236,7 +236,7 @@ def test_iors_inside_the_range_pass():
         (["method.guidance=inf"], "method.guidance=inf: must be a number >= 0.0 or null"),
         (["relight.steps=0"], "relight.steps=0: must be an integer >= 1"),
         (["relight.lora_scale=nan"], "relight.lora_scale=nan: must be a finite number"),
-        (["tradeoff.converged_spp=0"], "tradeoff.converged_spp=0: must be an integer >= 1"),
+        (["grid.converged_spp=0"], "grid.converged_spp=0: must be an integer >= 1"),
         (["scene=tum_office", "scene.max_side=0"], "scene.max_side=0: must be an integer >= 1"),
         (["scene=tum_office", "scene.max_side=4"], "scene.max_side=4: the photo's sides are cropped to multiples"),
         (["scene.kind=attic"], "scene.kind='attic': no procedural scene of this kind; use one of"),

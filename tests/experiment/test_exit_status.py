@@ -66,7 +66,7 @@ def run_cli(tmp_path, monkeypatch):
 def test_failures_verdict_counts_failed_cells_only():
     assert failures_verdict(0, False, "grid.allow_failures") == (0, "")  # skipped cells are not counted
     assert failures_verdict(1, False, "grid.allow_failures")[0] == CELLS_FAILED_EXIT == 3
-    assert failures_verdict(5, True, "tradeoff.allow_failures") == (0, " (exit status 0: tradeoff.allow_failures=true)")
+    assert failures_verdict(5, True, "grid.allow_failures") == (0, " (exit status 0: grid.allow_failures=true)")
 
 
 def test_a_sweep_whose_cells_failed_exits_3_after_its_report(run_cli, open_box, tmp_path, capsys):

@@ -1,4 +1,5 @@
-"""The speed/accuracy sweep: settings, resolved knobs, model calls, reuse, resume, report, Pareto front."""
+"""The speed/accuracy sweep, a grid of named override sets: settings, resolved knobs, model calls, reuse,
+resume, report, Pareto front."""
 
 import json
 import math
@@ -28,12 +29,12 @@ TINY_PRESET = OmegaConf.to_container(
 for _name, _node in (("tiny_base", TINY_BASE), ("tiny", TINY_PRESET)):
     ConfigStore.instance().store(group="preset", name=_name, node=_node, package="_global_")
 
-TINY = ["preset=tiny_base", "tradeoff.converged_spp=3"]
+TINY = ["preset=tiny_base", "grid.converged_spp=3"]
 SCENES = ["living_room", "kitchen"]
 AXES = [
-    "tradeoff.axes.steps='sampler.steps=3,5'",  # 5 is the base value
-    "tradeoff.axes.spp='reference.spp=1,2'",  # 1 is the base value
-    "tradeoff.only=[steps,spp]",
+    "grid.axes.steps='sampler.steps=3,5'",  # 5 is the base value
+    "grid.axes.spp='reference.spp=1,2'",  # 1 is the base value
+    "grid.only=[steps,spp]",
 ]
 SETTINGS = ["baseline", "steps=3", "steps=5", "spp=1", "spp=2", "preset:tiny"]
 
@@ -47,24 +48,32 @@ def make_cfg(tmp_path, overrides=(), axes=AXES, presets=("tiny",), scenes=SCENES
             f"reports_dir={tmp_path / 'reports'}",
             f"output_dir={tmp_path}",
             *axes,
-            f"tradeoff.presets=[{','.join(presets)}]",
-            f"tradeoff.scenes=[{','.join(scenes)}]",
+            f"grid.presets=[{','.join(presets)}]",
+            f"grid.scenes=[{','.join(scenes)}]",
             *overrides,
         ]
     )
 
 
 def results(root: Path) -> dict:
-    return {str(p.parent.relative_to(root)): json.loads(p.read_text()) for p in sorted(root.glob("*/*/result.json"))}
+    """``{"<scene>-0/<setting slug>": record}`` of the sweep's cells (``<scene>-0/sphere/snellcaster@<slug>``)."""
+    out = {}
+    for p in sorted(root.glob("*/sphere/*/metrics.json")):
+        out[f"{p.parent.parent.parent.name}/{p.parent.name.split('@', 1)[1]}"] = json.loads(p.read_text())
+    return out
+
+
+def run(cfg):
+    from snell_bench.experiment.runner import run_grid
+
+    return run_grid(cfg)
 
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
-    from snell_bench.experiment.tradeoff import run_tradeoff
-
     tmp = tmp_path_factory.mktemp("tradeoff")
     cfg = make_cfg(tmp)
-    return tmp, cfg, run_tradeoff(cfg)
+    return tmp, cfg, run(cfg)
 
 
 # ---------------------------------------------------------------------------- Pareto front
@@ -86,7 +95,7 @@ def brute_force_front(cost, score):
 
 
 def test_pareto_front_matches_brute_force_with_ties_and_nan():
-    from snell_bench.experiment.tradeoff import pareto_front
+    from snell_bench.reports import pareto_front
 
     rng = np.random.default_rng(0)
     for trial in range(300):
@@ -110,26 +119,36 @@ def test_pareto_front_matches_brute_force_with_ties_and_nan():
 
 # ---------------------------------------------------------------------------- settings and errors
 def test_axes_formats_labels_and_presets(tmp_path):
-    from snell_bench.experiment.tradeoff import build_settings
+    from snell_bench.config.grid import CellId, grid_settings
 
     cfg = make_cfg(
         tmp_path,
         axes=[
-            "+tradeoff.axes.pano='warps.pano_height=256'",
-            "+tradeoff.axes.res={320x180:['scene.width=320','scene.height=180']}",
-            "tradeoff.only=[res,pano]",
+            "+grid.axes.pano='warps.pano_height=256'",
+            "+grid.axes.res={320x180:['scene.width=320','scene.height=180']}",
+            "grid.only=[res,pano]",
         ],
         presets=("fast",),
     )
-    s = build_settings(cfg)
+    s = grid_settings(cfg.grid)
     assert [x.label for x in s] == ["baseline", "res=320x180", "pano=256", "preset:fast"]
     assert s[1].overrides == ("scene.width=320", "scene.height=180") and s[1].value == "320x180"
-    assert s[1].override_values() == {"scene.width": 320, "scene.height": 180}
     assert s[2].value == 256 and s[3].slug == "preset-fast" and s[3].overrides == ("preset=fast",)
-    assert [x.label for x in build_settings(make_cfg(tmp_path))] == SETTINGS
+    assert [x.label for x in grid_settings(make_cfg(tmp_path).grid)] == SETTINGS
+    # crossed with the methods, innermost; a setting's overrides last, so they win
+    cells = list(CellId.grid(cfg.grid))
+    assert [c.entry for c in cells[:4]] == [
+        "snellcaster@baseline",
+        "snellcaster@res=320x180",
+        "snellcaster@pano=256",
+        "snellcaster@preset-fast",
+    ]
+    assert cells[1].overrides()[-3:] == ["method=snellcaster", "scene.width=320", "scene.height=180"]
+    # no axes and no presets: the plain grid
+    assert grid_settings(make_cfg(tmp_path, axes=["grid.only=[]"], presets=()).grid) == []
     # the experiment file itself: 1 + 5 + 4 + 3 + 4 + 5 + 3 + 3 + 6 + 3 settings
     full = compose(["+experiment=tradeoff", "output_dir=/tmp/x"])
-    labels = [x.label for x in build_settings(full)]
+    labels = [x.label for x in grid_settings(full.grid)]
     assert len(labels) == 37 and "resolution=1280x720-ss2" in labels and labels[-1] == "preset:paper"
     assert full.scene.width == 640 and full.sampler.steps == 20 and full.reference.spp == 242
 
@@ -137,30 +156,26 @@ def test_axes_formats_labels_and_presets(tmp_path):
 @pytest.mark.parametrize(
     "axes, match",
     [
-        (["tradeoff.axes.steps='sampler.stepz=3'", "tradeoff.only=[steps]"], "sampler.stepz"),
-        (["+tradeoff.axes.res={a:['scene.widht=320']}", "tradeoff.only=[res]"], "scene.widht"),
-        (["tradeoff.axes.steps='sampler=3'", "tradeoff.only=[steps]"], "sampler"),
-        (["tradeoff.axes.steps='sampler.steps=many'", "tradeoff.only=[steps]"], "sampler.steps"),
-        (["tradeoff.axes.steps='sampler.steps=3,3'", "tradeoff.only=[steps]"], "duplicate"),
-        (["tradeoff.axes.steps='sampler.steps='", "tradeoff.only=[steps]"], "steps"),
-        (["tradeoff.only=[stepz]"], "stepz"),
+        (["grid.axes.steps='sampler.stepz=3'", "grid.only=[steps]"], "sampler.stepz"),
+        (["+grid.axes.res={a:['scene.widht=320']}", "grid.only=[res]"], "scene.widht"),
+        (["grid.axes.steps='sampler=3'", "grid.only=[steps]"], "sampler"),
+        (["grid.axes.steps='sampler.steps=many'", "grid.only=[steps]"], "sampler.steps"),
+        (["grid.axes.steps='sampler.steps=3,3'", "grid.only=[steps]"], "duplicate"),
+        (["grid.axes.steps='sampler.steps='", "grid.only=[steps]"], "steps"),
+        (["grid.only=[stepz]"], "stepz"),
     ],
 )
 def test_bad_axes_fail_before_any_folder_is_written(tmp_path, axes, match):
-    from snell_bench.experiment.tradeoff import run_tradeoff
-
     cfg = make_cfg(tmp_path, axes=axes, presets=())
     with pytest.raises(ValueError, match=match) as e:
-        run_tradeoff(cfg)
-    assert "tradeoff" in str(e.value)
+        run(cfg)
+    assert "grid" in str(e.value)
     assert not (tmp_path / "runs").exists() and not (tmp_path / "reports").exists()
 
 
 def test_unknown_preset_fails_before_work(tmp_path):
-    from snell_bench.experiment.tradeoff import run_tradeoff
-
     with pytest.raises(ValueError, match="quick_and_dirty"):
-        run_tradeoff(make_cfg(tmp_path, presets=("quick_and_dirty",)))
+        run(make_cfg(tmp_path, presets=("quick_and_dirty",)))
     assert not (tmp_path / "runs").exists()
 
 
@@ -225,7 +240,7 @@ def test_every_run_recorded_with_its_knobs(sweep):
         "pano_height": 32,
         "spp": 1,
     }
-    from snell_bench.experiment.tradeoff import KNOBS
+    from snell_bench.experiment.sweep import KNOBS
 
     by_key = {v: k for k, v in KNOBS.items()}
     tiny_knobs = {
@@ -251,7 +266,8 @@ def test_every_run_recorded_with_its_knobs(sweep):
         assert t["total"] == pytest.approx(t["warps"] + t["sampling"] + t["reference"] + t["metrics"], abs=2e-4)
         assert all(t[k] >= 0 for k in ("scene", "warps", "reference", "true_render", "sampling", "metrics"))
         assert set(r["sampler_timings_s"]) >= {"model", "codec", "warp_blend"}
-        assert (tmp / "runs" / "tradeoff" / where / "image.png").is_file()
+        folder = tmp / "runs" / "tradeoff" / where.split("/")[0] / "sphere" / f"snellcaster@{where.split('/')[1]}"
+        assert (folder / "image.png").is_file() and r["method"] == folder.name and r["method_name"] == "snellcaster"
     pre = res["kitchen-0/preset-tiny"]
     assert pre["axis"] == "preset" and pre["value"] == "tiny"
     assert pre["overrides"] == {"preset": "tiny"}
@@ -273,28 +289,30 @@ def test_model_calls_follow_the_steps_axis(sweep):
 def test_shared_stages_are_reused_with_identical_times(sweep):
     tmp, _, _ = sweep
     res = results(tmp / "runs" / "tradeoff")
-    shared = ("scene", "warps", "reference", "true_render", "generator")
+    shared = ("scene", "warps", "reference", "true_render")
     for scene in SCENES:
         base = res[f"{scene}-0/baseline"]
-        assert base["inputs_reused_from"] is None
+        assert base["inputs_dir"] == "_inputs"  # the group's, as in every grid
         for s in ("steps=3", "steps=5", "spp=1"):  # same scene/object/warps/reference subtrees
             r = res[f"{scene}-0/{s}"]
-            assert r["inputs_key"] == base["inputs_key"] and r["inputs_reused_from"] == "baseline"
+            assert r["inputs_key"] == base["inputs_key"] and r["inputs_dir"] == "_inputs"
             assert {k: r["timings_s"][k] for k in shared} == {k: base["timings_s"][k] for k in shared}
         for s in ("spp=2", "preset-tiny"):
             r = res[f"{scene}-0/{s}"]
-            assert r["inputs_key"] != base["inputs_key"] and r["inputs_reused_from"] is None
+            assert r["inputs_key"] != base["inputs_key"] and r["inputs_dir"] == f"_shared/{r['inputs_key']}/_inputs"
         # a value equal to the base is the baseline again (deterministic for the seed)
         assert res[f"{scene}-0/steps=5"]["metrics"] == base["metrics"]
         assert res[f"{scene}-0/spp=1"]["metrics"] == base["metrics"]
 
 
 def test_lpips_missing_with_reason_and_reference_convergence(sweep):
+    from snell_bench.reports import collect_tradeoff
+
     tmp, _, _ = sweep
     res = results(tmp / "runs" / "tradeoff")
     for where, r in res.items():
         assert r["metrics"]["lpips"] is None and "lpips_weights" in r["missing"]["lpips"], where
-        assert set(r["metrics"]) == {
+        assert set(r["metrics"]) >= {
             "psnr",
             "mae",
             "lpips",
@@ -305,19 +323,20 @@ def test_lpips_missing_with_reason_and_reference_convergence(sweep):
         }
         assert math.isfinite(r["metrics"]["psnr_converged"]) and r["converged_reference"]["spp"] == 3
         assert math.isfinite(r["metrics"]["psnr"]) and math.isfinite(r["metrics"]["psnr_true"])
+    df = collect_tradeoff(tmp / "runs" / "tradeoff").set_index(["scene", "setting"])
     for scene in SCENES:
-        low, high = res[f"{scene}-0/spp=1"], res[f"{scene}-0/spp=2"]
-        assert high["reference_psnr_vs_max_spp"] is None  # the comparison reference itself
+        low, high = df.loc[(scene, "spp=1")], df.loc[(scene, "spp=2")]
+        assert np.isnan(high["reference_psnr_vs_max_spp"])  # the comparison reference itself
         assert 5 < low["reference_psnr_vs_max_spp"] < 80
-        assert "reference_psnr_vs_max_spp" not in res[f"{scene}-0/baseline"]
+        assert np.isnan(df.loc[(scene, "baseline"), "reference_psnr_vs_max_spp"])
 
 
 def test_report_tables_and_pareto_flags(sweep):
-    from snell_bench.experiment.tradeoff import build_tradeoff_report, pareto_front
+    from snell_bench.reports import build_reports, pareto_front
 
     tmp, _, _ = sweep
     out = tmp / "reports" / "tradeoff"
-    for name in ("tradeoff.csv", "tradeoff.md", "pareto.png", "index.html", "plotly.min.js"):
+    for name in ("tradeoff.csv", "tradeoff.md", "pareto.png", "tradeoff.html", "index.html", "plotly.min.js"):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     df = pd.read_csv(out / "tradeoff.csv")
     assert len(df) == len(SCENES) * len(SETTINGS)
@@ -343,10 +362,11 @@ def test_report_tables_and_pareto_flags(sweep):
     assert own.notna().any()
     assert "lpips_weights" in md and "Reference convergence" in md
     # a pure function of the run folder: rebuilding elsewhere gives the same table
-    again = build_tradeoff_report(tmp / "runs" / "tradeoff", tmp / "rebuilt")
-    assert [p.name for p in again] == ["tradeoff.csv", "tradeoff.md", "pareto.png", "index.html", "plotly.min.js"]
+    again = build_reports(tmp / "runs" / "tradeoff", tmp / "rebuilt", "tradeoff")
+    assert {"tradeoff.csv", "tradeoff.md", "pareto.png", "tradeoff.html", "index.html"} <= {p.name for p in again}
     assert (tmp / "rebuilt" / "tradeoff.csv").read_text() == (out / "tradeoff.csv").read_text()
-    # job=report recognises a sweep's folder and rebuilds the same report
+    assert "tradeoff.html" in (out / "index.html").read_text() and "tradeoff.md" in (out / "README.md").read_text()
+    # job=report rebuilds the same report (one report path)
     from snell_bench.experiment import run_job
 
     cfg = make_cfg(tmp, [f"reports_dir={tmp / 'via_job'}", "job=report"])
@@ -355,58 +375,52 @@ def test_report_tables_and_pareto_flags(sweep):
 
 
 def test_resume_skips_and_recompute_redoes(sweep):
-    from snell_bench.experiment.tradeoff import run_tradeoff
-
     tmp, _, _ = sweep
     root = tmp / "runs" / "tradeoff"
-    files = sorted(root.glob("*/*/result.json"))
+    files = sorted(root.glob("*/sphere/*/metrics.json"))
     before = {p: p.stat().st_mtime_ns for p in files}
     metrics = {p: json.loads(p.read_text())["metrics"] for p in files}
-    again = run_tradeoff(make_cfg(tmp))
+    again = run(make_cfg(tmp))
     assert again["cached"] == len(files) and again["ok"] == 0
     assert {p: p.stat().st_mtime_ns for p in files} == before
-    redo = run_tradeoff(make_cfg(tmp, ["tradeoff.recompute=true"], scenes=["living_room"]))
+    redo = run(make_cfg(tmp, ["grid.recompute=true"], scenes=["living_room"]))
     assert redo["ok"] == len(SETTINGS) and redo["cached"] == 0
     for p in files:
         changed = p.stat().st_mtime_ns != before[p]
-        assert changed == (p.parent.parent.name == "living_room-0"), p
+        assert changed == (p.parent.parent.parent.name == "living_room-0"), p
         assert json.loads(p.read_text())["metrics"] == metrics[p]  # deterministic for the seed
 
 
 def test_a_failing_setting_does_not_stop_the_sweep(tmp_path):
-    from snell_bench.experiment.tradeoff import run_tradeoff
-
     cfg = make_cfg(
         tmp_path,
         ["reference.true_render=false"],
-        axes=["+tradeoff.axes.size='object.size=0.0001'", "tradeoff.only=[size]"],  # too small to see: fails placing it
+        axes=["+grid.axes.size='object.size=0.0001'", "grid.only=[size]"],  # too small to see: fails placing it
         presets=(),
         scenes=["living_room"],
     )
-    summary = run_tradeoff(cfg)
+    summary = run(cfg)
     res = results(tmp_path / "runs" / "tradeoff")
     assert summary["ok"] == 1 and summary["failed"] == 1
-    assert summary["exit_status"] == 3  # python -m snell_bench exits 3 after the report (tradeoff.allow_failures)
+    assert summary["exit_status"] == 3  # python -m snell_bench exits 3 after the report (grid.allow_failures)
     (label,) = [k for k, r in res.items() if r["status"] == "failed"]
     assert "object.size" in res[label]["reason"] and "too few to trace" in res[label]["reason"]
     ok = res["living_room-0/baseline"]
-    assert ok["status"] == "ok" and ok["metrics"]["psnr_true"] is None and "true render" in ok["missing"]["psnr_true"]
+    assert ok["status"] == "ok" and ok["metrics"].get("psnr_true") is None  # no true render: no value
     md = (tmp_path / "reports" / "tradeoff" / "tradeoff.md").read_text()
     assert f"failed: living_room / {label.split('/')[1]}" in md
 
 
 def test_an_unusable_setting_stops_the_sweep_before_any_work(tmp_path):
-    from snell_bench.experiment.tradeoff import run_tradeoff
-
     cfg = make_cfg(
         tmp_path,
         [],
-        axes=["tradeoff.axes.levels='sampler.levels=0'", "tradeoff.only=[levels]"],
+        axes=["grid.axes.levels='sampler.levels=0'", "grid.only=[levels]"],
         presets=(),
         scenes=["living_room"],
     )
-    with pytest.raises(ValueError, match=r"tradeoff setting 'levels=0'.*sampler.levels must be an integer >= 1, got 0"):
-        run_tradeoff(cfg)
+    with pytest.raises(ValueError, match=r"sampler.levels=0: sampler.levels must be an integer >= 1, got 0"):
+        run(cfg)
     assert not (tmp_path / "runs").exists()
 
 
@@ -420,7 +434,7 @@ def test_converged_reference_is_shared_and_independent_of_the_settings_spp(sweep
         assert a["converged_reference"] == b["converged_reference"]
         assert a["metrics"]["psnr_converged"] == b["metrics"]["psnr_converged"]
         assert a["metrics"]["psnr"] != b["metrics"]["psnr"]
-    keys = {p.name for p in (tmp / "runs" / "tradeoff" / "living_room-0" / "_shared").iterdir()}
+    keys = {p.name for p in (tmp / "runs" / "tradeoff" / "living_room-0" / "sphere" / "_shared").iterdir()}
     assert sum(k.startswith("converged-") for k in keys) == 1  # one resolution, one object
 
 
@@ -445,33 +459,39 @@ def test_figure_keeps_the_bulk_and_points_at_isolated_outliers():
 
 
 def test_report_skips_files_that_are_not_records_and_shows_non_finite_metrics_as_missing(tmp_path, caplog):
-    from snell_bench.reports import build_tradeoff_report, collect_tradeoff, skipped_files
+    from snell_bench.reports import build_reports, collect_tradeoff, skipped_files
     from tests.reports.test_html_report import make_tradeoff_runs
 
     root = make_tradeoff_runs(tmp_path / "runs" / "tradeoff")
-    d = root / "office-0" / "baseline"
-    rec = json.loads((d / "result.json").read_text())
-    (d / "result.json").write_text(json.dumps({**rec, "metrics": {**rec["metrics"], "psnr": float("-inf")}}))
+    d = root / "office-0" / "sphere" / "snellcaster@baseline"
+    rec = json.loads((d / "metrics.json").read_text())
+    (d / "metrics.json").write_text(json.dumps({**rec, "metrics": {**rec["metrics"], "psnr": float("-inf")}}))
     bad = {
-        "office-0/steps=4/result.json": (
+        "office-0/sphere/snellcaster@steps=4/metrics.json": (
             b'{"status": "ok"}',
-            "missing the keys scene, variation, setting, metrics, timings_s",
+            "missing the keys scene, variation, object, method, metrics",
         ),
-        "kitchen-0/res=large/result.json": (b"\xff\xfe", "not UTF-8 text (byte 0xff at position 0)"),
+        "kitchen-0/sphere/snellcaster@res=large/metrics.json": (
+            b"\xff\xfe",
+            "not UTF-8 text (byte 0xff at position 0)",
+        ),
     }
     for rel, (raw, _) in bad.items():
         (root / rel).write_bytes(raw)
     df = collect_tradeoff(root)
     assert dict(skipped_files(df)) == {rel: why for rel, (_, why) in bad.items()}
-    assert all(f"{root / rel} is not a setting's record" in caplog.text for rel in bad)
-    row = df[df["dir"] == "office-0/baseline"].iloc[0]
+    assert all(f"{root / rel} is not a cell's record" in caplog.text for rel in bad)
+    row = df[df["dir"] == "office-0/sphere/snellcaster@baseline"].iloc[0]
     assert math.isnan(row["psnr"]) and row["missing.psnr"] == "not finite in the record (-inf)"
-    assert f"metric psnr is -inf in {d / 'result.json'}" in caplog.text
+    assert f"metric psnr is -inf in {d / 'metrics.json'}" in caplog.text
     out = tmp_path / "r"
-    build_tradeoff_report(root, out)
+    build_reports(root, out, "tradeoff")
     md = (out / "tradeoff.md").read_text()
     assert "; 2 files skipped (not cell records)" in md and "## Files skipped" in md
-    assert "- `office-0/steps=4/result.json`: missing the keys scene, variation, setting, metrics, timings_s" in md
+    assert (
+        "- `office-0/sphere/snellcaster@steps=4/metrics.json`: missing the keys scene, variation, object, method, metrics"
+        in md
+    )
     assert "psnr: missing in 1 of" in md and "not finite in the record (-inf)" in md
-    html = (out / "index.html").read_text()
+    html = (out / "tradeoff.html").read_text()
     assert html.split('<section id="skipped">', 1)[1].split("</section>", 1)[0].count("<li>") == 2

@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from snell_bench.reports import build_reports, build_tradeoff_report, collect, method_table
+from snell_bench.reports import build_reports, collect, method_table
 from snell_bench.reports.gallery import ERROR_LEVELS, ERROR_SCALES
 from tests.reports.test_paper_reports import AUTHORS_CONFIG, _cell
 from tests.reports.test_reports import CELLS, LPIPS_REASON, OOM, SKIP, make_runs, md_rows
@@ -470,21 +470,26 @@ def test_missing_metrics_carry_their_reasons(grid):
 
 # ---------------------------------------------------------------------------- the sweep's page
 def make_tradeoff_runs(root):
-    """A sweep with a baseline, a steps axis (4, 8, 16), a resolution axis of labels and a preset, in
-    two scenes; the 8-step setting fails in the kitchen."""
+    """A sweep (a grid of named override sets: ``<scene>-0/sphere/snellcaster@<setting>/metrics.json``)
+    with a baseline, a steps axis (4, 8, 16), a resolution axis of labels and a preset, in two
+    scenes; the 8-step setting fails in the kitchen."""
     settings = [("baseline", None, None), ("steps=4", "steps", 4), ("steps=8", "steps", 8), ("steps=16", "steps", 16)]
     settings += [("res=small", "res", "small"), ("res=large", "res", "large"), ("preset:fast", "preset", "fast")]
     for s, scene in enumerate(("kitchen", "office")):
         for order, (label, axis, value) in enumerate(settings):
-            d = root / f"{scene}-0" / label.replace(":", "-")
+            d = root / f"{scene}-0" / "sphere" / f"snellcaster@{label.replace(':', '-')}"
             d.mkdir(parents=True)
             failed = scene == "kitchen" and label == "steps=8"
             steps = value if axis == "steps" else 8
             rec = {
                 "scene": scene,
                 "variation": 0,
+                "object": "sphere",
+                "method": d.name,
+                "method_name": "snellcaster",
                 "setting": label,
-                "slug": d.name,
+                "setting_overrides": [f"sampler.steps={value}"] if axis == "steps" else [],
+                "slug": d.name.split("@", 1)[1],
                 "order": order,
                 "axis": axis,
                 "value": value,
@@ -507,7 +512,7 @@ def make_tradeoff_runs(root):
                 },
                 "missing": {"lpips": LPIPS_REASON},
             }
-            (d / "result.json").write_text(json.dumps(rec))
+            (d / "metrics.json").write_text(json.dumps(rec))
     return root
 
 
@@ -516,10 +521,10 @@ def test_tradeoff_page_table_and_plots(tmp_path):
 
     root = make_tradeoff_runs(tmp_path / "runs" / "tradeoff")
     out = tmp_path / "r"
-    paths = build_tradeoff_report(root, out)
-    assert [p.name for p in paths] == ["tradeoff.csv", "tradeoff.md", "pareto.png", "index.html", "plotly.min.js"]
+    paths = build_reports(root, out, "tradeoff")
+    assert {"tradeoff.csv", "tradeoff.md", "pareto.png", "tradeoff.html", "index.html"} <= {p.name for p in paths}
     table = tradeoff_table(collect_tradeoff(root))
-    doc = parse(out / "index.html")
+    doc = parse(out / "tradeoff.html")
     header, rows = table_rows(doc, "table-tradeoff")
     assert [r[0].text() for r in rows] == list(table.index)
     total, conv, lp = header.index("total"), header.index("PSNR (conv.)"), header.index("LPIPS")
