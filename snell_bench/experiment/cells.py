@@ -126,9 +126,8 @@ class SharedCache:
     def __init__(self, keys: Iterable[Hashable]) -> None:
         self._uses = Counter(k for k in keys if k is not None)
         self._values: dict[Hashable, Any] = {}
-        self.computed_by: dict[Hashable, str] = {}
 
-    def get(self, key: Hashable, compute: Callable[[], Any], by: str = "") -> Any:
+    def get(self, key: Hashable, compute: Callable[[], Any]) -> Any:
         """The value of ``key``, computed by ``compute()`` the first time (an exception it raises
         is kept and raised again for every later cell of that key)."""
         if key not in self._values:
@@ -138,7 +137,6 @@ class SharedCache:
                 raise
             except Exception as e:  # noqa: BLE001 - every cell of the key fails with it
                 self._values[key] = e
-            self.computed_by[key] = by
         value = self._values[key]
         if isinstance(value, Exception):
             raise value

@@ -182,7 +182,7 @@ def _group_inputs(
         inputs = pipeline.prepare_inputs(cell.extra["inputs_config"], pool=pool)
         return inputs, save_inputs(inputs, cell.shares / "_inputs", arrays="setting" in cell.record)
 
-    return shared.get(cell.shares, compute, by=cell.name)
+    return shared.get(cell.shares, compute)
 
 
 def run_cell(

@@ -76,11 +76,11 @@ def test_shared_values_are_computed_once_and_dropped_after_their_last_cell(tmp_p
     computed, alive = [], []
 
     def fn(cell, shared):
-        value = shared.get(cell.shares, lambda: computed.append(cell.shares) or {"key": cell.shares}, by=cell.name)
+        value = shared.get(cell.shares, lambda: computed.append(cell.shares) or {"key": cell.shares, "from": cell.name})
         alive.append(sorted(k for k in shared._values))
         if cell.shares == "broken":
             raise AssertionError("unreachable")
-        return {"from": shared.computed_by[cell.shares], "key": value["key"]}
+        return {"from": value["from"], "key": value["key"]}
 
     shares = {"a1": "A", "a2": "A", "b1": "B"}
     summary = run_cells(cells_in(tmp_path, ["a1", "a2", "b1"], shares), fn, root=tmp_path)
