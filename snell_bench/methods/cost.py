@@ -251,7 +251,7 @@ def lookup(find: Callable[[], Any]) -> tuple[str, str]:
 
 
 def diffusers_folder(source: str) -> str:
-    from snell_bench.models.flux import resolve_weights_folder
+    from snell_bench.models.flux_weights import resolve_weights_folder
 
     return resolve_weights_folder(source)
 

@@ -13,6 +13,9 @@ Convention:
       ``dtype`` is given; it is passed as diffusers' ``dtype=`` keyword.
     - One loaded pipeline is kept (:func:`load_pipeline`, keyed by model, class, device and dtype),
       so the cells of a grid reuse it; loading another one first releases it.
+    - Where the weights are and whether they fit the device: :mod:`snell_bench.models.offload`
+      (:func:`offload_mode`, :func:`folder_component_bytes` and :func:`local_folder` are importable
+      from here too).
     - Steps and guidance: ``None`` is the pipeline's own default, read from the signature of its
       ``__call__`` (:func:`call_settings`). "Guidance" is the pipeline's ``guidance_scale`` when that
       has a default (FLUX.1 / FLUX Fill / FLUX.2: the embedded, distilled guidance; SD3: classifier-free
@@ -34,6 +37,8 @@ import torch
 
 from snell_bench.models.devices import default_dtype, dtype_kwarg, parse_dtype, resolve_device
 from snell_bench.models.errors import WeightsNotFoundError
+from snell_bench.models.offload import OFFLOAD_MODES as OFFLOAD_MODES  # re-exported
+from snell_bench.models.offload import device_budget, folder_component_bytes, local_folder, offload_mode
 from snell_bench.utils.tensors import bchw_to_hwc, hwc_to_bchw
 
 __all__ = [
@@ -188,69 +193,6 @@ def _missing(model_id: str, cls, reason: str) -> WeightsNotFoundError:
 
 #: diffusers' FLUX.1 pipeline classes -> the kind :mod:`snell_bench.models.flux_random` builds.
 RANDOM_KINDS = {"FluxPipeline": "dev", "FluxFillPipeline": "fill", "FluxKontextPipeline": "kontext"}
-#: Offload modes of :func:`offload_mode`, in the order they trade speed for memory.
-OFFLOAD_MODES = ("none", "model", "sequential")
-
-
-def offload_mode(component_bytes: dict[str, int], budget_bytes: int | None) -> str:
-    """How a pipeline runs on a device with ``budget_bytes`` for weights.
-
-    Convention: ``none`` (every component on the device: their sum fits), ``model`` (diffusers'
-    ``enable_model_cpu_offload``: one component on the device at a time, the largest fits; each
-    moves in once per call), ``sequential`` (``enable_sequential_cpu_offload``: layer by layer,
-    when even the largest component does not fit; slow). ``budget_bytes=None``: no limit.
-
-    Args:
-        component_bytes: bytes of each component's weights (``{"transformer": ..., ...}``).
-        budget_bytes: the device memory the weights may take.
-
-    Returns:
-        One of :data:`OFFLOAD_MODES`.
-
-    Examples:
-        >>> gb = 10**9
-        >>> flux2 = {"transformer": 64 * gb, "text_encoder": 48 * gb, "vae": gb // 5}
-        >>> offload_mode(flux2, 139 * gb), offload_mode(flux2, 80 * gb), offload_mode(flux2, 40 * gb)
-        ('none', 'model', 'sequential')
-    """
-    if budget_bytes is None or sum(component_bytes.values()) <= budget_bytes:
-        return "none"
-    return "model" if max(component_bytes.values(), default=0) <= budget_bytes else "sequential"
-
-
-def folder_component_bytes(folder: str | Path) -> dict[str, int]:
-    """Bytes of the weight files of each component sub-folder of a diffusers folder (the weights'
-    size in device memory when loaded in the dtype they are stored in)."""
-    out = {}
-    for sub in sorted(Path(folder).iterdir()):
-        if sub.is_dir():
-            n = sum(p.stat().st_size for p in sub.iterdir() if p.name.endswith((".safetensors", ".bin")))
-            if n:
-                out[sub.name] = n
-    return out
-
-
-def local_folder(model_id: str) -> str | None:
-    """The folder of a local path or of a Hugging Face id in the cache, or ``None``."""
-    path = Path(model_id).expanduser()
-    if path.is_dir():
-        return str(path)
-    try:
-        from huggingface_hub import snapshot_download
-
-        return snapshot_download(repo_id=model_id, local_files_only=True)
-    except Exception:  # noqa: BLE001 - not cached: from_pretrained says why
-        return None
-
-
-def _device_budget(dev: torch.device, memory_gb: float | None) -> int | None:
-    """The bytes of weights a pipeline may hold on ``dev``: ``memory_gb`` GiB, else (CUDA) 90 % of
-    the device's memory, else no limit."""
-    if memory_gb is not None:
-        return int(float(memory_gb) * 2**30)
-    if dev.type == "cuda":
-        return int(0.9 * torch.cuda.get_device_properties(dev).total_memory)
-    return None
 
 
 def load_pipeline(
@@ -314,17 +256,7 @@ def load_pipeline(
         ),
     )
     if random_init:
-        kind = RANDOM_KINDS.get(cls.__name__)
-        if kind is None:
-            raise ValueError(
-                f"model.random_init=true builds FLUX.1 pipelines only ({', '.join(RANDOM_KINDS)}), not "
-                f"{cls.__name__} for {model_id}; set model.random_init=false"
-            )
-        from snell_bench.models.flux import random_flux_pipeline
-
-        pipe = random_flux_pipeline(kind, device=dev, dtype=parse_dtype(dtype) or torch.bfloat16, seed=seed)
-        pipe.offload_mode = "none"
-        return pipe
+        return _random_pipeline(cls, model_id, dev, dtype, seed)
     dt = parse_dtype(dtype) or default_dtype(dev)
     if not _is_local_or_repo_id(model_id):
         raise _missing(model_id, cls, "no such folder, and not a Hugging Face model id")
@@ -340,10 +272,37 @@ def load_pipeline(
     except OSError as e:  # includes huggingface_hub's LocalEntryNotFoundError
         raise _missing(model_id, cls, str(e)) from e
     sizes = folder_component_bytes(folder) if folder is not None else {}
-    mode = offload_mode(sizes, _device_budget(dev, memory_gb)) if dev.type == "cuda" else "none"
+    mode = offload_mode(sizes, device_budget(dev, memory_gb)) if dev.type == "cuda" else "none"
+    return _place(pipe, mode, dev, identities, dt)
+
+
+def _random_pipeline(cls: type, model_id: str, dev: torch.device, dtype: torch.dtype | str | None, seed: int):
+    """``load_pipeline(..., random_init=True)``: the FLUX.1 pipeline of class ``cls`` at full size
+    with random weights on ``dev`` in ``dtype`` (``None``: bfloat16), ``offload_mode`` ``"none"``;
+    ``ValueError`` naming ``model.random_init`` for another class (``model_id`` is only named in
+    that message)."""
+    kind = RANDOM_KINDS.get(cls.__name__)
+    if kind is None:
+        raise ValueError(
+            f"model.random_init=true builds FLUX.1 pipelines only ({', '.join(RANDOM_KINDS)}), not "
+            f"{cls.__name__} for {model_id}; set model.random_init=false"
+        )
+    from snell_bench.models.flux_weights import random_flux_pipeline
+
+    pipe = random_flux_pipeline(kind, device=dev, dtype=parse_dtype(dtype) or torch.bfloat16, seed=seed)
+    pipe.offload_mode = "none"
+    return pipe
+
+
+def _place(pipe, mode: str, dev: torch.device, identities: dict, dtype: torch.dtype):
+    """Run a loaded ``pipe`` on ``dev`` with offload ``mode`` (:func:`offload_mode`), recorded in
+    ``pipe.offload_mode``; a pipeline wholly on the device offers its components for sharing
+    (:func:`~snell_bench.models.shared.register_components` with their ``identities``)."""
+    from snell_bench.models import shared
+
     if mode == "none":
         pipe = pipe.to(dev)
-        shared.register_components(pipe, identities, dev, dt)
+        shared.register_components(pipe, identities, dev, dtype)
     elif mode == "model":
         pipe.enable_model_cpu_offload(device=dev)
     else:

@@ -4,7 +4,8 @@ A :class:`SurfaceSegmenter` turns the object-free image I⁻ and a phrase naming
 ("wooden coffee table") into a bool mask of that surface;
 :func:`~snell_bench.scene.placement.find_support_plane` then fits the support plane to the depth
 inside the mask (``region=``). Backends: SAM 3 through transformers (:class:`Sam3Segmenter`), a
-random-weight SAM 3 for tests (:class:`TinySam3Segmenter`), and a mask file the user drew
+random-weight SAM 3 for tests (:class:`TinySam3Segmenter`, around
+:func:`~snell_bench.models.tiny_segment.tiny_sam3`), and a mask file the user drew
 (:class:`MaskFileSegmenter`).
 
 Convention:
@@ -49,7 +50,7 @@ import numpy as np
 from snell_bench.utils.paths import data_path
 
 from .errors import WeightsNotFoundError
-from .tiny_text import clip_tokenizer_from_open_clip_vocab
+from .tiny_segment import tiny_sam3
 
 log = logging.getLogger(__name__)
 
@@ -69,9 +70,6 @@ __all__ = [
 
 #: The Hugging Face id of SAM 3 (gated: the licence must be accepted on the hub).
 SAM3_ID = "facebook/sam3"
-#: The tiny SAM 3's input size (square, as SAM 3's 1008 x 1008) and ViT patch size (SAM 3's).
-_TINY_IMAGE_SIZE = 56
-_TINY_PATCH_SIZE = 14
 #: How the mask is made from SAM 3's instances (config key ``segment.instance``).
 INSTANCE_CHOICES = ("union", "best", "first")
 
@@ -433,100 +431,6 @@ class Sam3Segmenter:
             100.0 * mask.mean(),
         )
         return mask
-
-
-def tiny_sam3(seed: int = 0):
-    """A ``Sam3Model`` with SAM 3's architecture at toy size and random weights, and its processor,
-    built offline.
-
-    Convention:
-        - Vision: ViT with SAM 3's patch size 14 on a 56 x 56 input (4 x 4 tokens), width 8, 2 heads,
-          2 layers (one windowed with window 2, one global), axial RoPE; FPN neck of width 8 at SAM 3's
-          scales (4, 2, 1, 0.5).
-        - Text: CLIP text encoder (width 8, 2 heads, 1 layer) over CLIP's 49408-token vocabulary and
-          32 positions (SAM 3's), tokenised by the CLIP tokenizer written from open_clip's vocabulary
-          (:func:`~snell_bench.models.tiny_text.clip_tokenizer_from_open_clip_vocab`).
-        - Geometry encoder, DETR encoder and decoder: width 8, 2 heads, 1 layer, feed-forward 16;
-          4 queries. Mask decoder: width 8 (``GroupNorm(8, width)`` makes 8 the least), 2 upsampling
-          stages (SAM 3 uses 2 of its 3 with three FPN levels); instance masks at 16 x 16.
-        - Processor: ``Sam3ImageProcessor`` resizing to 56 x 56 (ImageNet normalisation, as SAM 3)
-          and the CLIP tokenizer.
-        - Weights come from ``torch.manual_seed(seed)`` in a forked RNG (the caller's RNG state is
-          untouched); the model is in eval mode, on the CPU, float32.
-
-    Args:
-        seed: seeds the random weights.
-
-    Returns:
-        ``(model, processor)``.
-    """
-    import torch
-    from transformers import Sam3Config, Sam3Model, Sam3Processor
-    from transformers.models.sam3 import Sam3ImageProcessor
-    from transformers.models.sam3.configuration_sam3 import (
-        Sam3DETRDecoderConfig,
-        Sam3DETREncoderConfig,
-        Sam3GeometryEncoderConfig,
-        Sam3MaskDecoderConfig,
-        Sam3VisionConfig,
-        Sam3ViTConfig,
-    )
-
-    tokenizer = clip_tokenizer_from_open_clip_vocab()
-    width, heads, ff = 8, 2, 16
-    tokens = _TINY_IMAGE_SIZE // _TINY_PATCH_SIZE
-    config = Sam3Config(
-        vision_config=Sam3VisionConfig(
-            backbone_config=Sam3ViTConfig(
-                hidden_size=width,
-                intermediate_size=ff,
-                num_hidden_layers=2,
-                num_attention_heads=heads,
-                image_size=_TINY_IMAGE_SIZE,
-                pretrain_image_size=_TINY_IMAGE_SIZE,
-                patch_size=_TINY_PATCH_SIZE,
-                window_size=2,
-                global_attn_indexes=[1],
-            ),
-            fpn_hidden_size=width,
-            scale_factors=[4.0, 2.0, 1.0, 0.5],
-            backbone_feature_sizes=[[4 * tokens] * 2, [2 * tokens] * 2, [tokens] * 2],
-        ),
-        text_config={
-            "vocab_size": len(tokenizer),
-            "hidden_size": width,
-            "intermediate_size": ff,
-            "projection_dim": width,
-            "num_hidden_layers": 1,
-            "num_attention_heads": heads,
-            "max_position_embeddings": 32,
-            "hidden_act": "gelu",
-        },
-        geometry_encoder_config=Sam3GeometryEncoderConfig(
-            hidden_size=width, num_layers=1, num_attention_heads=heads, intermediate_size=ff
-        ),
-        detr_encoder_config=Sam3DETREncoderConfig(
-            hidden_size=width, num_layers=1, num_attention_heads=heads, intermediate_size=ff
-        ),
-        detr_decoder_config=Sam3DETRDecoderConfig(
-            hidden_size=width, num_layers=1, num_queries=4, num_attention_heads=heads, intermediate_size=ff
-        ),
-        mask_decoder_config=Sam3MaskDecoderConfig(
-            hidden_size=width, num_upsampling_stages=2, num_attention_heads=heads
-        ),
-    )
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        model = Sam3Model(config)
-    model.eval().requires_grad_(False)
-    processor = Sam3Processor(
-        image_processor=Sam3ImageProcessor(
-            size={"height": _TINY_IMAGE_SIZE, "width": _TINY_IMAGE_SIZE},
-            mask_size={"height": 4 * tokens, "width": 4 * tokens},
-        ),
-        tokenizer=tokenizer,
-    )
-    return model, processor
 
 
 class TinySam3Segmenter(Sam3Segmenter):

@@ -33,8 +33,9 @@ def node_weights_bytes(node: Any) -> int | None:
 
     from . import shared
     from .devices import default_dtype, parse_dtype, resolve_device
-    from .external import RANDOM_KINDS, folder_component_bytes, local_folder
+    from .external import RANDOM_KINDS
     from .flux_random import build_random_flux_pipeline
+    from .offload import folder_component_bytes, local_folder
 
     if isinstance(node, DictConfig):
         node = OmegaConf.to_container(node, resolve=True)

@@ -72,47 +72,14 @@ def build_tiny_flux_pipeline(seed: int = 0, *, fill: bool = False, kontext: bool
     """
     if fill and kontext:
         raise ValueError("build_tiny_flux_pipeline: choose fill=True or kontext=True, not both")
-    from diffusers import (
-        AutoencoderKL,
-        FlowMatchEulerDiscreteScheduler,
-        FluxFillPipeline,
-        FluxKontextPipeline,
-        FluxPipeline,
-        FluxTransformer2DModel,
-    )
+    from diffusers import FlowMatchEulerDiscreteScheduler, FluxFillPipeline, FluxKontextPipeline, FluxPipeline
 
     tokenizer = clip_tokenizer_from_open_clip_vocab()
     tokenizer_2 = t5_byte_tokenizer()
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
-        transformer = FluxTransformer2DModel(
-            patch_size=1,
-            in_channels=_FILL_IN_CHANNELS if fill else 64,
-            out_channels=64,
-            num_layers=1,
-            num_single_layers=1,
-            attention_head_dim=16,
-            num_attention_heads=2,
-            joint_attention_dim=32,
-            pooled_projection_dim=32,
-            axes_dims_rope=(4, 6, 6),
-            guidance_embeds=True,
-        )
-        vae = AutoencoderKL(
-            in_channels=3,
-            out_channels=3,
-            down_block_types=("DownEncoderBlock2D",) * 4,
-            up_block_types=("UpDecoderBlock2D",) * 4,
-            block_out_channels=(8, 16, 16, 16),
-            layers_per_block=1,
-            latent_channels=16,
-            norm_num_groups=4,
-            sample_size=1024,
-            scaling_factor=FLUX_VAE_SCALING_FACTOR,
-            shift_factor=FLUX_VAE_SHIFT_FACTOR,
-            use_quant_conv=False,
-            use_post_quant_conv=False,
-        )
+        transformer = _tiny_transformer(fill)
+        vae = _tiny_vae()
         text_encoder = tiny_clip_text_encoder(tokenizer, 32, intermediate_size=37, num_heads=4)
         text_encoder_2 = tiny_t5_encoder(tokenizer_2, 32, d_ff=37, num_heads=4)
     scheduler = FlowMatchEulerDiscreteScheduler(
@@ -133,6 +100,49 @@ def build_tiny_flux_pipeline(seed: int = 0, *, fill: bool = False, kontext: bool
         text_encoder_2=text_encoder_2,
         tokenizer_2=tokenizer_2,
         transformer=transformer,
+    )
+
+
+def _tiny_transformer(fill: bool):
+    """The tiny ``FluxTransformer2DModel`` of :func:`build_tiny_flux_pipeline` (FLUX Fill's input
+    width with ``fill``), drawn from the global RNG (the caller seeds it and puts it in eval mode)."""
+    from diffusers import FluxTransformer2DModel
+
+    return FluxTransformer2DModel(
+        patch_size=1,
+        in_channels=_FILL_IN_CHANNELS if fill else 64,
+        out_channels=64,
+        num_layers=1,
+        num_single_layers=1,
+        attention_head_dim=16,
+        num_attention_heads=2,
+        joint_attention_dim=32,
+        pooled_projection_dim=32,
+        axes_dims_rope=(4, 6, 6),
+        guidance_embeds=True,
+    )
+
+
+def _tiny_vae():
+    """The tiny 16-channel ``AutoencoderKL`` of :func:`build_tiny_flux_pipeline` (downscale 8,
+    FLUX.1-dev's ``sample_size`` and latent normalisation), drawn from the global RNG (the caller
+    seeds it and puts it in eval mode)."""
+    from diffusers import AutoencoderKL
+
+    return AutoencoderKL(
+        in_channels=3,
+        out_channels=3,
+        down_block_types=("DownEncoderBlock2D",) * 4,
+        up_block_types=("UpDecoderBlock2D",) * 4,
+        block_out_channels=(8, 16, 16, 16),
+        layers_per_block=1,
+        latent_channels=16,
+        norm_num_groups=4,
+        sample_size=1024,
+        scaling_factor=FLUX_VAE_SCALING_FACTOR,
+        shift_factor=FLUX_VAE_SHIFT_FACTOR,
+        use_quant_conv=False,
+        use_post_quant_conv=False,
     )
 
 

@@ -140,6 +140,46 @@ def resolve_lora(lora: str | os.PathLike, weight_name: str | None = None) -> tup
     return str(path), weight_name
 
 
+def _weights_help(model_id: str, err: Exception) -> str:
+    """The message of the :class:`~snell_bench.models.errors.WeightsNotFoundError` raised when
+    Kontext's weights at ``model_id`` fail to load with ``err`` (naming ``model.relighter.model_id``)."""
+    return (
+        f"FLUX.1 Kontext weights not found locally: model.relighter.model_id={model_id!r} ({type(err).__name__}: "
+        f"{err}). Set the config key model.relighter.model_id to a local folder with the diffusers layout "
+        f"(model_index.json, transformer/, vae/, text_encoder/, text_encoder_2/, tokenizer/, tokenizer_2/, "
+        f"scheduler/) or to a Hugging Face id already in the local cache. To populate the cache, on a machine "
+        f"with internet: accept the licence at https://huggingface.co/{KONTEXT_DEV_ID}, run `hf auth login`, "
+        f"then `hf download {KONTEXT_DEV_ID} --exclude 'flux1-kontext-dev.safetensors'`. Weights are never "
+        "downloaded by snell_bench."
+    )
+
+
+def _load_kontext(model_id: str, dev: torch.device, dtype: torch.dtype) -> Any:
+    """``FluxKontextPipeline`` from a local folder or the Hugging Face cache (never downloaded), on
+    ``dev`` in ``dtype``, its components shared with pipelines loaded from the same weights
+    (:mod:`snell_bench.models.shared`); ``WeightsNotFoundError`` naming
+    ``model.relighter.model_id`` when it fails to load."""
+    from diffusers import FluxKontextPipeline
+
+    from snell_bench.models import shared
+    from snell_bench.models.offload import local_folder
+
+    folder = local_folder(model_id)
+    identities = shared.folder_identities(folder) if folder is not None else {}
+    try:
+        pipe = FluxKontextPipeline.from_pretrained(
+            folder or model_id,
+            local_files_only=True,
+            **shared.shared_kwargs(identities, dev, dtype),
+            **dtype_kwarg(dtype),
+        )
+    except (OSError, ValueError) as e:
+        raise WeightsNotFoundError(_weights_help(model_id, e)) from e
+    pipe.to(dev)
+    shared.register_components(pipe, identities, dev, dtype)
+    return pipe
+
+
 class KontextRelighter:
     """A ``FluxKontextPipeline`` behind the :class:`~snell_bench.relight.base.Relighter` protocol.
 
@@ -254,11 +294,6 @@ class KontextRelighter:
             WeightsNotFoundError: naming ``model.relighter.model_id`` (or ``relight.lora``), if
                 weights are not found locally.
         """
-        from diffusers import FluxKontextPipeline
-
-        from snell_bench.models import shared
-        from snell_bench.models.external import local_folder
-
         dev = resolve_device(
             device,
             unavailable=(
@@ -269,39 +304,11 @@ class KontextRelighter:
             ),
         )
         if random_init:
-            from snell_bench.models.flux import random_flux_pipeline
-
-            dt = parse_dtype(dtype) or torch.bfloat16
-            relighter = cls(
-                random_flux_pipeline("kontext", device=dev, dtype=dt, seed=int(seed)),
-                steps=steps,
-                guidance=guidance,
-                source=f"FLUX.1 Kontext's architecture with random weights (seed {int(seed)}) on {dev}",
-            )
-            relighter.random_weights = True
-            return relighter
+            return cls._random(dev, dtype, seed, steps=steps, guidance=guidance)
         dt = parse_dtype(dtype) or default_dtype(dev)
         text = os.fspath(model_id)
-        folder = local_folder(text)
-        identities = shared.folder_identities(folder) if folder is not None else {}
-        try:
-            pipe = FluxKontextPipeline.from_pretrained(
-                folder or text, local_files_only=True, **shared.shared_kwargs(identities, dev, dt), **dtype_kwarg(dt)
-            )
-        except (OSError, ValueError) as e:
-            raise WeightsNotFoundError(
-                f"FLUX.1 Kontext weights not found locally: model.relighter.model_id={text!r} ({type(e).__name__}: "
-                f"{e}). Set the config key model.relighter.model_id to a local folder with the diffusers layout "
-                f"(model_index.json, transformer/, vae/, text_encoder/, text_encoder_2/, tokenizer/, tokenizer_2/, "
-                f"scheduler/) or to a Hugging Face id already in the local cache. To populate the cache, on a machine "
-                f"with internet: accept the licence at https://huggingface.co/{KONTEXT_DEV_ID}, run `hf auth login`, "
-                f"then `hf download {KONTEXT_DEV_ID} --exclude 'flux1-kontext-dev.safetensors'`. Weights are never "
-                "downloaded by snell_bench."
-            ) from e
-        pipe.to(dev)
-        shared.register_components(pipe, identities, dev, dt)
         return cls(
-            pipe,
+            _load_kontext(text, dev, dt),
             steps=steps,
             guidance=guidance,
             lora=lora,
@@ -309,6 +316,22 @@ class KontextRelighter:
             lora_weight_name=lora_weight_name,
             source=f"{text} on {dev} in {str(dt).removeprefix('torch.')}",
         )
+
+    @classmethod
+    def _random(cls, dev: torch.device, dtype: torch.dtype | str | None, seed: int, **kwargs: Any) -> KontextRelighter:
+        """``from_pretrained(..., random_init=True)``: FLUX.1 Kontext's architecture at full size with
+        random weights on ``dev`` in ``dtype`` (``None``: bfloat16), no LoRA; ``kwargs``: ``steps``
+        and ``guidance``."""
+        from snell_bench.models.flux_weights import random_flux_pipeline
+
+        dt = parse_dtype(dtype) or torch.bfloat16
+        relighter = cls(
+            random_flux_pipeline("kontext", device=dev, dtype=dt, seed=int(seed)),
+            **kwargs,
+            source=f"FLUX.1 Kontext's architecture with random weights (seed {int(seed)}) on {dev}",
+        )
+        relighter.random_weights = True
+        return relighter
 
     @classmethod
     def tiny(cls, seed: int = 0, **kwargs: Any) -> KontextRelighter:

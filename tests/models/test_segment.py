@@ -18,8 +18,8 @@ from snell_bench.models.segment import (
     pick_instance,
     read_mask,
     surface_region,
-    tiny_sam3,
 )
+from snell_bench.models.tiny_segment import tiny_sam3
 
 CONF = Path(__file__).resolve().parents[2] / "snell_bench" / "conf" / "segment"
 
