@@ -282,9 +282,6 @@ def test_the_budget(monkeypatch):
     if Path("/proc/meminfo").is_file() and "limit" not in where:  # an independent figure of the same memory
         kb = next(int(line.split()[1]) for line in Path("/proc/meminfo").read_text().splitlines() if "MemTotal" in line)
         assert total == pytest.approx(kb * 1024, rel=1e-3)
-    monkeypatch.setitem(sys.modules, "psutil", None)  # without psutil: os.sysconf
-    if hasattr(os, "sysconf"):
-        assert memory.machine_memory()[0] == pytest.approx(total, rel=1e-3)
 
 
 # ---------------------------------------------------------------------------------------------- photos before any cell
