@@ -92,11 +92,6 @@ def _load_records(root: Path, skipped: list | None = None) -> list[dict]:
     return out
 
 
-def has_settings(root: str | os.PathLike) -> bool:
-    """Whether a run folder holds cells of a setting (``grid.axes``, ``grid.presets``)."""
-    return bool(_load_records(Path(root)))
-
-
 def _is_spp_record(rec: dict) -> bool:
     return rec.get("axis") not in (None, PRESET_AXIS) and set(rec.get("overrides") or {}) == {SPP_KEY}
 
