@@ -20,7 +20,7 @@ from snell_bench.utils.io import atomic_write_bytes, write_text
 from snell_bench.utils.locks import hold
 
 from .collect import collect, skipped_files
-from .figures import figure_rows, panorama_pages, qualitative_figure, qualitative_pages
+from .figures import figure_rows, method_columns, panorama_pages, qualitative_figure, qualitative_pages
 from .gallery import gallery
 from .html import PAGE, frame_view, table_view, tradeoff_view, write_grid_page, write_tradeoff_page
 from .plots import axis_plots, pareto_plot, tradeoff_axis_plot
@@ -234,7 +234,8 @@ def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -
             savings = summary
     _remove_stale_pages(out_dir, ("qualitative", "panorama"))
     qualitative = qualitative_pages(run_dir, out_dir, "qualitative", max_rows=max_rows, df=df)
-    panoramas = panorama_pages(run_dir, out_dir, "panorama", max_rows=max_rows, df=df)
+    shown = df[df["method"].astype(str).isin(method_columns(df))]  # of a sweep: its baseline and presets
+    panoramas = panorama_pages(run_dir, out_dir, "panorama", max_rows=max_rows, df=shown)
     written += qualitative + panoramas
     figures = []
     if ior:

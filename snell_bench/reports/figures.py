@@ -80,9 +80,23 @@ def _cell_label(cell_dir: str) -> str:
 
 
 def method_columns(df: pd.DataFrame) -> list[str]:
-    """The methods of the cells as a figure's columns: ``snellcaster`` first, the others sorted."""
+    """The methods of the cells as a figure's columns: ``snellcaster`` first, the others sorted; of
+    a grid with settings (``<method>@<setting>``, ``grid.axes``) the baseline and the presets
+    only (every setting is in the page's gallery and the speed/accuracy report).
+
+    Examples:
+        >>> method_columns(pd.DataFrame({"method": ["t2i", "snellcaster", "no_pano"]}))
+        ['snellcaster', 'no_pano', 't2i']
+        >>> method_columns(pd.DataFrame({"method": ["snellcaster@steps=4", "snellcaster@preset-fast", "snellcaster@baseline"]}))
+        ['snellcaster@baseline', 'snellcaster@preset-fast']
+    """
     names = sorted(df["method"].astype(str).unique())
-    return (["snellcaster"] if "snellcaster" in names else []) + [m for m in names if m != "snellcaster"]
+    if any("@" in n for n in names):
+        names = [
+            n for n in names if n.partition("@")[2] in ("", "baseline") or n.partition("@")[2].startswith("preset-")
+        ]
+    first = [n for n in ("snellcaster", "snellcaster@baseline") if n in names]
+    return first + [m for m in names if m not in first]
 
 
 def figure_rows(df: pd.DataFrame, by_ior: bool = False) -> list[tuple[str, int, str]]:
