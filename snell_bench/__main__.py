@@ -149,6 +149,32 @@ def override_problem(argv: list[str]) -> str | None:
             parser.parse_overrides([arg])
         except (HydraException, ValueError) as e:
             return f"Error: cannot parse the override {arg!r}:\n{str(e).strip()}\nHint: {_hint(arg, overrides[:i])}"
+        moved = _moved(arg)
+        if moved:
+            return f"Error: {arg!r}: {moved}"
+    return None
+
+
+#: The keys of the speed/accuracy sweep's former node (``tradeoff``) that the grid names otherwise.
+_TRADEOFF_KEYS = {"variation": "grid.variations=[N]", "object": "grid.objects=[NAME]", "method": "grid.methods=[NAME]"}
+
+
+def _moved(arg: str) -> str | None:
+    """What replaced an override of the former ``job=tradeoff`` and its ``tradeoff`` node, or ``None``.
+
+    Examples:
+        >>> _moved("tradeoff.only=[steps]")
+        'the speed/accuracy sweep is a grid (+experiment=tradeoff): write grid.only=...'
+        >>> _moved("sampler.steps=8") is None
+        True
+    """
+    key, _, _ = arg.lstrip("+~").partition("=")
+    if key == "job" and arg.partition("=")[2].strip() == "tradeoff":
+        return "the speed/accuracy sweep is a grid: run +experiment=tradeoff (job=grid)"
+    if key.startswith("tradeoff."):
+        name = key.split(".", 2)[1]
+        instead = _TRADEOFF_KEYS.get(name, f"grid.{key.split('.', 1)[1]}=...")
+        return f"the speed/accuracy sweep is a grid (+experiment=tradeoff): write {instead}"
     return None
 
 

@@ -73,6 +73,23 @@ def test_flags_and_shell_completion_are_not_overrides():
     assert override_problem(["--info", "config"]) is None
 
 
+@pytest.mark.parametrize(
+    "arg, instead",
+    [
+        ("job=tradeoff", "run +experiment=tradeoff (job=grid)"),
+        ("tradeoff.only=[steps]", "write grid.only=..."),
+        ("+tradeoff.axes.lam='sampler.lam=0.3,0.7'", "write grid.axes.lam=..."),
+        ("tradeoff.variation=2", "write grid.variations=[N]"),
+        ("tradeoff.object=sphere:1.5", "write grid.objects=[NAME]"),
+    ],
+)
+def test_the_former_sweeps_keys_name_the_grids(arg, instead):
+    """The speed/accuracy sweep is a grid: its former job and keys say what replaced them."""
+    problem = override_problem(["+experiment=tradeoff", arg])
+    assert problem.startswith(f"Error: {arg!r}: the speed/accuracy sweep is a grid") and problem.endswith(instead)
+    assert override_problem(["+experiment=tradeoff", "grid.only=[steps]", "job=grid"]) is None
+
+
 def test_the_command_exits_2_before_anything_is_written(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(sys, "argv", ["snell_bench", "+experiment=smoke", "experiment_name=café"])
