@@ -20,7 +20,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from snell_bench.experiment.cells import Cell
 from snell_bench.experiment.plan import result_settings, settings_hash
@@ -31,6 +31,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "save_inputs",
+    "keeps_arrays",
     "save_scene_files",
     "save_reference_files",
     "inputs_settings",
@@ -85,6 +86,13 @@ def save_reference_files(ref, true_render, folder: Path, *, arrays: bool = False
     if true_render is not None:
         files["true.png"] = save_png(folder / "true.png", true_render)
     return files
+
+
+def keeps_arrays(cfg: DictConfig) -> bool:
+    """Whether a cell's inputs keep the float reference and metric mask beside the PNGs: in a grid
+    with settings (``grid.axes``, ``grid.presets``), whose report compares the references of its
+    reference-sample settings (:func:`~snell_bench.reports.tradeoff.reference_psnr_vs_max_spp`)."""
+    return bool(OmegaConf.select(cfg, "grid.axes", default=None) or OmegaConf.select(cfg, "grid.presets", default=None))
 
 
 def save_inputs(inputs: CellInputs, folder: Path, *, arrays: bool = False) -> dict[str, Path]:

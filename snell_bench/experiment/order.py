@@ -42,7 +42,7 @@ from omegaconf import DictConfig
 
 from snell_bench.config import Source
 from snell_bench.experiment.cells import Cell, claim
-from snell_bench.experiment.files import inputs_file, keep_inputs, read_inputs, save_inputs
+from snell_bench.experiment.files import inputs_file, keep_inputs, keeps_arrays, read_inputs, save_inputs
 from snell_bench.methods import method_of
 from snell_bench.pipeline import CellInputs, CellResult, ModelPool, prepare_inputs, sample_stage
 from snell_bench.pipeline.cell import node_key
@@ -129,7 +129,7 @@ class ModelMajor:
             kept[0].pool = self.pool
             return kept
         inputs = prepare_inputs(cell.extra["inputs_config"], pool=self.pool)
-        files = save_inputs(inputs, path.parent)
+        files = save_inputs(inputs, path.parent, arrays=keeps_arrays(cell.config))
         keep_inputs(inputs, files, path)
         return inputs, files
 

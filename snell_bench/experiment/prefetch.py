@@ -67,7 +67,14 @@ from omegaconf import DictConfig
 from snell_bench import pipeline
 from snell_bench.config import Source
 from snell_bench.experiment.cells import Cell
-from snell_bench.experiment.files import inputs_file, keep_inputs, read_inputs, save_reference_files, save_scene_files
+from snell_bench.experiment.files import (
+    inputs_file,
+    keep_inputs,
+    keeps_arrays,
+    read_inputs,
+    save_reference_files,
+    save_scene_files,
+)
 from snell_bench.pipeline import CellInputs, ModelPool
 from snell_bench.utils.timing import Timer
 
@@ -196,7 +203,7 @@ def render_references(cfg: DictConfig, folder: str, scene, obj) -> dict:
         reference, reason = pipeline.render_reference(cfg, scene, obj)
     with t("true_render"):
         true = pipeline.render_true_scene(cfg, scene, obj)
-    files = save_reference_files(reference, true, Path(folder))
+    files = save_reference_files(reference, true, Path(folder), arrays=keeps_arrays(cfg))
     return {"reference": reference, "reason": reason, "true_render": true, "timings": t.seconds, "files": sorted(files)}
 
 

@@ -67,7 +67,7 @@ from snell_bench.config.schema import GridConfig
 from snell_bench.experiment.cells import Cell, Hooks, Policy, SharedCache, failures_verdict, run_cells
 from snell_bench.experiment.converged import ConvergedReferences
 from snell_bench.experiment.estimate_cells import GridParts
-from snell_bench.experiment.files import save_inputs
+from snell_bench.experiment.files import keeps_arrays, save_inputs
 from snell_bench.experiment.memory import check_memory
 from snell_bench.experiment.order import ModelMajor
 from snell_bench.experiment.plan import (
@@ -180,7 +180,7 @@ def _group_inputs(
         if prefetch is not None:
             return prefetch.inputs(cell)
         inputs = pipeline.prepare_inputs(cell.extra["inputs_config"], pool=pool)
-        return inputs, save_inputs(inputs, cell.shares / "_inputs", arrays="setting" in cell.record)
+        return inputs, save_inputs(inputs, cell.shares / "_inputs", arrays=keeps_arrays(cell.config))
 
     return shared.get(cell.shares, compute)
 
