@@ -307,8 +307,10 @@ def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") ->
 
 def shard_cells(cells: list[Cell], shards: int, shard: int) -> list[Cell]:
     """The cells of shard ``shard`` of ``shards``: whole groups (a group's cells share its inputs,
-    so each group is computed by one job), dealt in the plan's order to the shard with the fewest
-    cells so far (ties: the lowest index): balanced, deterministic, and the same in every job.
+    and a grid with settings its converged references, so each group is computed by one job; a
+    group is its :attr:`~snell_bench.config.grid.CellId.group`, else what its cells share), dealt in
+    the plan's order to the shard with the fewest cells so far (ties: the lowest index): balanced,
+    deterministic, and the same in every job and in ``job=status``.
 
     Examples:
         >>> cs = [Cell(f"g{i // 2}/m{i % 2}", Path("."), None, {}, shares=f"g{i // 2}") for i in range(6)]
@@ -317,7 +319,8 @@ def shard_cells(cells: list[Cell], shards: int, shard: int) -> list[Cell]:
     """
     groups: dict = {}
     for c in cells:
-        groups.setdefault(c.shares if c.shares is not None else c.name, []).append(c)
+        key = c.extra["id"].group if "id" in c.extra else c.shares if c.shares is not None else c.name
+        groups.setdefault(key, []).append(c)
     load = [0] * shards
     mine: list[Cell] = []
     for members in groups.values():

@@ -495,3 +495,16 @@ def test_report_skips_files_that_are_not_records_and_shows_non_finite_metrics_as
     assert "psnr: missing in 1 of" in md and "not finite in the record (-inf)" in md
     html = (out / "tradeoff.html").read_text()
     assert html.split('<section id="skipped">', 1)[1].split("</section>", 1)[0].count("<li>") == 2
+
+
+def test_shards_keep_a_groups_settings_together(tmp_path):
+    """A group's settings share its converged references (and most of them its inputs): one job
+    computes them all, whatever inputs folder each uses."""
+    from snell_bench.experiment.runner import plan_grid, shard_cells
+
+    cells = plan_grid(make_cfg(tmp_path))
+    assert len({c.shares for c in cells}) > len(SCENES)  # settings with inputs of their own
+    parts = [shard_cells(cells, 2, k) for k in range(2)]
+    assert sorted(c.name for p in parts for c in p) == sorted(c.name for c in cells)
+    assert [{c.extra["id"].group for c in p} for p in parts] == [{"living_room-0/sphere"}, {"kitchen-0/sphere"}]
+    assert not (tmp_path / "runs").exists()
