@@ -382,6 +382,7 @@ def _write_tradeoff_report(df, runs_root: Path, out_dir: Path) -> list[Path]:
             ("Per scene and setting", "tradeoff.csv"),
             ("Per setting", "tradeoff.md"),
             ("Pareto plot", "pareto.png"),
+            ("Every cell: the grid's report", PAGE),
         ],
     )
     return [csv, md, png, *page]
