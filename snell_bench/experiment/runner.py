@@ -242,12 +242,16 @@ def identity_defaults() -> Callable[[str, int, str, str], dict]:
     return GridParts(compose([])).settings
 
 
-def _without_setting(mine: dict, base: dict, rec: dict, spec: str) -> dict:
-    """A setting's cell's settings without the keys its setting changes (``setting_overrides``
-    composed over the cell's identity, against ``base``, the identity alone)."""
-    ident = CellId(str(rec["scene"]), int(rec["variation"]), str(spec), str(rec["method_name"]))
-    own = result_settings(apply_method(compose([*ident.overrides(), *rec["setting_overrides"]])))
-    return {k: (v if own.get(k, ABSENT) == base.get(k, ABSENT) else _OWN) for k, v in mine.items()}
+def _without_setting(mine: dict, recorded: DictConfig, rec: dict) -> dict:
+    """A setting's cell's settings without the keys its setting changes: those where the cell's
+    recorded config differs from what its recorded overrides compose without the setting's own
+    (the last ``setting_overrides``), i.e. from the same run's baseline of that cell."""
+    own = [str(o) for o in rec["setting_overrides"]]
+    overrides = [str(o) for o in recorded.get("overrides") or []]
+    if own and overrides[-len(own) :] != own:
+        raise ValueError(f"the recorded overrides do not end with the setting's {own}")
+    baseline = result_settings(apply_method(compose(overrides[: len(overrides) - len(own)])))
+    return {k: (v if baseline.get(k, ABSENT) == v else _OWN) for k, v in mine.items()}
 
 
 #: A key a cell's setting changes (:func:`_without_setting`): never compared.
@@ -272,11 +276,12 @@ def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") ->
                 continue
             name, sep, ior = str(rec["object"]).partition("-ior")
             spec = rec.get("object_spec") or (f"{name}:{ior}" if sep else name)
-            mine = result_settings(OmegaConf.load(path.parent / "config.yaml"))
+            recorded = OmegaConf.load(path.parent / "config.yaml")
+            mine = result_settings(recorded)
             method = str(rec.get("method_name", rec["method"]))
             base = defaults(str(rec["scene"]), int(rec["variation"]), str(spec), method)
             if "setting" in rec:  # the keys its named override set changes are its own: not compared
-                mine = _without_setting(mine, base, rec, spec)
+                mine = _without_setting(mine, recorded, rec)
         except Exception as e:  # noqa: BLE001 - a cell of an older layout or a removed entry: not compared
             log.debug("not comparing %s: %s", path.parent, e)
             continue

@@ -508,3 +508,14 @@ def test_shards_keep_a_groups_settings_together(tmp_path):
     assert sorted(c.name for p in parts for c in p) == sorted(c.name for c in cells)
     assert [{c.extra["id"].group for c in p} for p in parts] == [{"living_room-0/sphere"}, {"kitchen-0/sphere"}]
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_setting_at_the_configs_default_is_still_its_own(tmp_path):
+    """``steps=20`` is the schema's default but not the run's (5): the report's same-settings check
+    compares the cell with its run's baseline, so the sweep is reported, not refused."""
+    cfg = make_cfg(
+        tmp_path, axes=["grid.axes.steps='sampler.steps=20'", "grid.only=[steps]"], presets=(), scenes=["living_room"]
+    )
+    summary = run(cfg)
+    assert summary["ok"] == 2 and summary["reports"]
+    assert "steps=20" in (tmp_path / "reports" / "tradeoff" / "tradeoff.md").read_text()
