@@ -17,9 +17,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from snell_bench import pipeline
+from snell_bench.pipeline.cell import plain
 from snell_bench.reports.tradeoff import CONVERGED_METRICS
 from snell_bench.utils.io import json_hash, save_npy
 
@@ -30,9 +31,6 @@ def converged_key(c: DictConfig, spp: int) -> str:
     """What a converged reference depends on: the scene (and what makes a generated one: model,
     depth, segment), the object, the background mesh's cut, the reference settings with ``spp``
     replaced, and the seed; SHA-256, 16 hex digits."""
-
-    def plain(node):
-        return OmegaConf.to_container(node, resolve=True, enum_to_str=True)
 
     return json_hash(
         {

@@ -27,6 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 from snell_bench import pipeline
 from snell_bench.config.grid import CellId
 from snell_bench.experiment.plan import compose_cell
+from snell_bench.pipeline.cell import plain
 from snell_bench.reports.tradeoff import TOTAL_NOTE, TOTAL_STAGES
 from snell_bench.utils.io import json_hash
 
@@ -64,13 +65,9 @@ _WARM_UP = (
 )
 
 
-def _plain(node):
-    return OmegaConf.to_container(node, resolve=True, enum_to_str=True) if OmegaConf.is_config(node) else node
-
-
 def inputs_key(c: DictConfig) -> str:
     """SHA-256 (16 hex digits) of the resolved :data:`SHARED_SUBTREES` of a cell's config."""
-    return json_hash({k: _plain(c[k]) for k in SHARED_SUBTREES})
+    return json_hash({k: plain(c[k]) for k in SHARED_SUBTREES})
 
 
 def share_folder(group_dir: Path, key: str, first: dict[Path, str]) -> Path:
@@ -96,7 +93,7 @@ def setting_record(cell: CellId, c: DictConfig, order: int, key: str, share: Pat
         "overrides": {o.key_or_group: o.value() for o in overrides},
         "setting_overrides": list(st.overrides),
         "method_name": cell.method,
-        "knobs": {name: _plain(OmegaConf.select(c, key_, default=None)) for name, key_ in KNOBS.items()},
+        "knobs": {name: plain(OmegaConf.select(c, key_, default=None)) for name, key_ in KNOBS.items()},
         "inputs_key": key,
         "inputs_dir": (share / "_inputs").relative_to(group_dir).as_posix(),
         "timings_note": TOTAL_NOTE,
