@@ -109,8 +109,9 @@ def save_inputs(inputs: CellInputs, folder: Path, *, arrays: bool = False) -> di
 def inputs_settings(cfg: DictConfig) -> dict:
     """The settings a group's inputs are computed with: the cell's
     :func:`~snell_bench.experiment.plan.result_settings` without the method's keys, which stages
-    1-5 do not read (every method of a group shares its inputs)."""
-    return {k: v for k, v in result_settings(cfg).items() if not k.startswith("method.")}
+    1-5 do not read (every method of a group shares its inputs), nor ``grid.converged_spp`` (the
+    converged references are kept apart, :mod:`~snell_bench.experiment.converged`)."""
+    return {k: v for k, v in result_settings(cfg).items() if not k.startswith(("method.", "grid."))}
 
 
 def inputs_file(cell: Cell) -> Path:

@@ -28,6 +28,7 @@ __all__ = [
     "check_reproducible",
     "compose_cell",
     "NOT_RESULT_KEYS",
+    "RESULT_KEYS_WHERE_SET",
     "result_settings",
     "settings_hash",
     "settings_diff",
@@ -67,6 +68,10 @@ NOT_RESULT_KEYS = (
     "object.allow_self_intersecting",
 )
 
+#: Keys under :data:`NOT_RESULT_KEYS` that do change a cell's result where they are set (not
+#: null): ``grid.converged_spp`` adds the cell's ``*_converged`` scores.
+RESULT_KEYS_WHERE_SET = ("grid.converged_spp",)
+
 
 def result_settings(cfg: DictConfig) -> dict[str, Any]:
     """Every setting of ``cfg`` that can change a cell's result, resolved and flattened to
@@ -76,8 +81,8 @@ def result_settings(cfg: DictConfig) -> dict[str, Any]:
 
     Each top-level node is resolved against the whole config (so a result setting that
     interpolates one that is not, such as ``object.factory``'s ``${object.allow_self_intersecting}``,
-    resolves), then the keys of :data:`NOT_RESULT_KEYS` are dropped; a node that cannot resolve
-    is kept as written."""
+    resolves), then the keys of :data:`NOT_RESULT_KEYS` are dropped (but those of
+    :data:`RESULT_KEYS_WHERE_SET` that are set); a node that cannot resolve is kept as written."""
     plain = OmegaConf.to_container(cfg, resolve=False, enum_to_str=True)
     c = OmegaConf.create(plain)  # untyped, every key kept: a result setting may interpolate any other
     values: dict[str, Any] = {}
@@ -89,9 +94,14 @@ def result_settings(cfg: DictConfig) -> dict[str, Any]:
             values[key] = OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
         except Exception:  # noqa: BLE001 - a value that cannot resolve fails its cell, which says why
             values[key] = plain[key]
-    return {
+    kept = {
         k: v for k, v in flatten(values).items() if not any(k == n or k.startswith(f"{n}.") for n in NOT_RESULT_KEYS)
     }
+    for key in RESULT_KEYS_WHERE_SET:
+        value = OmegaConf.select(cfg, key, default=None)
+        if value is not None:
+            kept[key] = value
+    return kept
 
 
 def flatten(d: dict, prefix: str = "") -> dict[str, Any]:
