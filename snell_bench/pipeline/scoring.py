@@ -8,6 +8,7 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from snell_bench.config import Source
 from snell_bench.metrics import load_scorers, score_cell
 from snell_bench.pipeline.cell import CellInputs, CellResult, node_key, plain, prompt_of
 from snell_bench.pipeline.inputs import trace_warps
@@ -61,12 +62,15 @@ def score(
     re-scoring the saved ``image.png`` (``method=images``, :func:`snell_bench.kit.score_image`)
     gives the same numbers; under ``authors`` the reference too is scored as its 8-bit PNG;
     ``metrics.files=jpeg`` scores the JPEG files the authors' evaluation reads instead; CLIP and
-    ImageReward see :func:`clip_prompt`; users' metrics (``metrics.extra``) follow the built-in ones."""
+    ImageReward see :func:`clip_prompt`; users' metrics (``metrics.extra``) follow the built-in ones.
+    A procedural scene without its true render (``reference.true_render=false``) records
+    ``psnr_true`` as missing with that reason; a photo or generated scene has no truth and no
+    ``psnr_true``."""
     ref = inputs.reference if reference is None else reference
     pixels = bchw_to_hwc(image)
     if cfg.metrics.get("score_file", True):  # as image.png holds it: every method and any saved image alike
         pixels = saved_pixels(pixels)
-    return score_cell(
+    scored = score_cell(
         pixels,
         None if ref is None else ref.image,
         None if ref is None else ref.mask,
@@ -82,6 +86,10 @@ def score(
         reference_is_jpeg=getattr(ref, "file_format", None) == "jpeg",
         extra=tuple(str(m) for m in (cfg.metrics.get("extra") or ())),
     )
+    if reference is None and inputs.true_render is None and Source(cfg.scene.source) is Source.procedural:
+        scored["metrics"]["psnr_true"] = None  # a procedural scene has a truth: say why it is not scored
+        scored["missing"]["psnr_true"] = "no true render (reference.true_render=false)"
+    return scored
 
 
 def sample_stage(cfg: DictConfig, inputs: CellInputs) -> CellResult:

@@ -406,7 +406,8 @@ def test_a_failing_setting_does_not_stop_the_sweep(tmp_path):
     (label,) = [k for k, r in res.items() if r["status"] == "failed"]
     assert "object.size" in res[label]["reason"] and "too few to trace" in res[label]["reason"]
     ok = res["living_room-0/baseline"]
-    assert ok["status"] == "ok" and ok["metrics"].get("psnr_true") is None  # no true render: no value
+    assert ok["status"] == "ok" and ok["metrics"]["psnr_true"] is None  # no true render: no value, and why
+    assert ok["missing"]["psnr_true"] == "no true render (reference.true_render=false)"
     md = (tmp_path / "reports" / "tradeoff" / "tradeoff.md").read_text()
     assert f"failed: living_room / {label.split('/')[1]}" in md
 
@@ -519,3 +520,25 @@ def test_a_setting_at_the_configs_default_is_still_its_own(tmp_path):
     summary = run(cfg)
     assert summary["ok"] == 2 and summary["reports"]
     assert "steps=20" in (tmp_path / "reports" / "tradeoff" / "tradeoff.md").read_text()
+
+
+def test_a_changed_converged_spp_changes_the_cells_settings(tmp_path):
+    """``grid.converged_spp`` adds the ``*_converged`` scores: a finished cell run with another count
+    (or none) is a changed cell, under ``grid.on_change`` like any result setting; a grid without it
+    has the settings it had before the key existed."""
+    from snell_bench.experiment.plan import result_settings
+
+    def cfg(*extra):
+        return make_cfg(
+            tmp_path, ["reference.true_render=false", *extra], axes=["grid.only=[]"], presets=(), scenes=["living_room"]
+        )
+
+    assert result_settings(cfg())["grid.converged_spp"] == 3
+    assert not any(k.startswith("grid.") for k in result_settings(cfg("grid.converged_spp=null")))
+    assert run(cfg())["ok"] == 1
+    with pytest.raises(ValueError, match=r"grid.converged_spp"):
+        run(cfg("grid.converged_spp=4"))  # grid.on_change=error (the default): names the changed key
+    redo = run(cfg("grid.converged_spp=4", "grid.on_change=recompute"))
+    assert redo["ok"] == 1 and redo["cached"] == 0
+    (path,) = (tmp_path / "runs" / "tradeoff").glob("*/sphere/*/metrics.json")
+    assert json.loads(path.read_text())["converged_reference"]["spp"] == 4
