@@ -33,8 +33,9 @@ The reports read those files and nothing else:
   missing values) from the Jinja2 templates of ``templates/``; :mod:`.gallery` its images (copies,
   thumbnails, the |error| maps of the metrics protocol, :func:`error_map`); :mod:`.plots` its
   Plotly figures (each metric against every swept axis, a sweep's settings and Pareto front).
-- :mod:`.build`: :func:`build_reports` and :func:`build_tradeoff_report` write everything
-  (:class:`NoCells` where there is nothing to report; :func:`summary_line` says where it went).
+- :mod:`.build`: :func:`build_reports` writes everything, a grid with settings' speed/accuracy
+  part included (:class:`NoCells` where there is nothing to report; :func:`summary_line` says
+  where it went).
 
 Conventions:
     - A table is a DataFrame whose index holds the row labels (``index.name`` is the row header)
