@@ -138,11 +138,11 @@ def output_folders(cfg: DictConfig) -> list[tuple[str, Any, str]]:
     add("hydra.run.dir", OmegaConf.select(cfg, "hydra.run.dir"))
     name = str(cfg.get("experiment_name"))
     if job in _RUNS_JOBS:
-        add("runs_dir", Path(str(cfg.runs_dir)) / name, cfg.runs_dir)
+        add("runs_dir", Path(cfg.runs_dir) / name, cfg.runs_dir)
     if job == Job.report or (job == Job.grid and OmegaConf.select(cfg, "grid.report") is not False):
-        add("reports_dir", Path(str(cfg.reports_dir)) / name, cfg.reports_dir)
+        add("reports_dir", Path(cfg.reports_dir) / name, cfg.reports_dir)
     if job == Job.export:
-        add("export.dir", Path(str(cfg.export.dir)) / name, cfg.export.dir)
+        add("export.dir", Path(cfg.export.dir) / name, cfg.export.dir)
     if job in (Job.preview, Job.generate, Job.grid, Job.export):
         method_warps = OmegaConf.select(cfg, "method.warps") or {}
         key = "method.warps.cache_dir" if "cache_dir" in method_warps else "warps.cache_dir"

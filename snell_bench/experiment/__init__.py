@@ -56,7 +56,7 @@ def _grid(cfg: DictConfig) -> int:
 def _report(cfg: DictConfig) -> None:
     from snell_bench.reports import NoCells, build_reports, summary_line
 
-    name = str(cfg.experiment_name)
+    name = cfg.experiment_name
     out = Path(cfg.reports_dir) / name
     root = Path(cfg.runs_dir) / name
     try:
@@ -119,4 +119,4 @@ def run_job(cfg: DictConfig) -> int:
     check_config(cfg)
     if cfg.job not in (Job.plan, Job.status):  # those write nothing
         check_output_folders(cfg)
-    return int(JOBS[Job(cfg.job)](cfg) or 0)
+    return int(JOBS[cfg.job](cfg) or 0)

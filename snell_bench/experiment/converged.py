@@ -39,9 +39,9 @@ def converged_key(c: DictConfig, spp: int) -> str:
             "segment": plain(c.segment),
             "scene": plain(c.scene),
             "object": plain(c.object),
-            "edge_threshold": float(c.warps.edge_threshold),
+            "edge_threshold": c.warps.edge_threshold,
             "reference": dict(plain(c.reference), spp=int(spp)),
-            "seed": int(c.seed),
+            "seed": c.seed,
         }
     )
 

@@ -260,7 +260,7 @@ def _method_times(
         for scene in map(str, g.scenes):
             est = estimate_cell(parts.scene(scene), parts.method(method), per_pair[(scene, method)], basis)
             rows.append((est, sum(1 for c in cells if c.scene == scene and c.method == method and not c.done)))
-        times.append(_method_time(method, str(parts.method(method).method.kind), rows))
+        times.append(_method_time(method, parts.method(method).method.kind, rows))
     return times
 
 
@@ -269,7 +269,7 @@ def _warnings(g: DictConfig, cells: list[CellState]) -> list[str]:
     """The grid would stop before any work: cells finished with other settings under
     ``grid.on_change=error``."""
     changed = [c for c in cells if c.state == "changed"]
-    if not changed or OnChange.of(g.on_change, "grid.on_change") is not OnChange.error:
+    if not changed or g.on_change is not OnChange.error:
         return []
     err = SettingsChanged(
         [ChangedCell(Cell(c.name, c.folder, None, {}), c.diff) for c in changed],
@@ -315,10 +315,10 @@ def make_plan(
     left_models = {id(m) for m in models if m.cells_left} or {id(m) for m in models}
     memory = memory_plan([m for m in models if id(m) in left_models], cfg.models, device, basis)
     return Plan(
-        experiment=str(cfg.experiment_name),
-        root=Path(cfg.runs_dir) / str(cfg.experiment_name),
-        model=str(cfg.model.name),
-        recipe=str(cfg.recipe),
+        experiment=cfg.experiment_name,
+        root=Path(cfg.runs_dir) / cfg.experiment_name,
+        model=cfg.model.name,
+        recipe=cfg.recipe,
         scenes=len(g.scenes),
         variations=len(g.variations),
         objects=len(g.objects),

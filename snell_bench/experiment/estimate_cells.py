@@ -47,7 +47,7 @@ def group_models(c: DictConfig) -> list[tuple[str, str]]:
     :func:`snell_bench.pipeline.prepare_inputs`): the generator that makes a generated I⁻ (unless
     cached), the depth estimator of a photo without depth or of a generated I⁻, the segmenter."""
     out = []
-    source = Source.of(c.scene.source, "scene.source")
+    source = c.scene.source
     if source is Source.generated and not c.model.from_scene:
         out.append(("generator", node_key(c.model)))
     if ((source is Source.image and not c.scene.depth) or source is Source.generated) and c.depth.get("estimator"):
@@ -172,8 +172,8 @@ class CellState:
 def cell_states(cfg: DictConfig, parts: GridParts) -> list[CellState]:
     """Every cell of ``cfg.grid`` in the runner's order, with its state (:class:`CellState`, by
     :func:`snell_bench.experiment.cells.cell_state`, the runner's own rule); nothing is written."""
-    root = Path(cfg.runs_dir) / str(cfg.experiment_name)
-    return [_state(cell, root, parts, bool(cfg.grid.recompute)) for cell in CellId.grid(cfg.grid)]
+    root = Path(cfg.runs_dir) / cfg.experiment_name
+    return [_state(cell, root, parts, cfg.grid.recompute) for cell in CellId.grid(cfg.grid)]
 
 
 def _state(cell_id: CellId, root: Path, parts: GridParts, recompute: bool) -> CellState:

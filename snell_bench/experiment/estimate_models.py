@@ -110,7 +110,7 @@ def _flux_model(kind: str, c: DictConfig, basis: Basis) -> list[ModelNeed]:
     and its LoRA as a second entry), or the model's own builder of that kind."""
     generator = kind == "generator"
     node = c.model.generator if generator else c.model.fill if kind == "fill" else c.model.relighter
-    known = _builder(kind, node, str(c.model.name) if generator else f"{c.model.name} {kind}")
+    known = _builder(kind, node, c.model.name if generator else f"{c.model.name} {kind}")
     if known is not None:
         return [known]
     name, key, gb = _FLUX[kind]
@@ -132,11 +132,11 @@ def _flux_model(kind: str, c: DictConfig, basis: Basis) -> list[ModelNeed]:
 def _input_model(kind: str, c: DictConfig) -> list[ModelNeed]:
     """The depth estimator (``depth``) or the segmenter (``segmenter``) of a group's inputs."""
     group, node = (c.depth, c.depth.estimator) if kind == "depth" else (c.segment, c.segment.segmenter)
-    known = _builder(kind, node, str(group.name))
+    known = _builder(kind, node, group.name)
     if known is not None:
         return [known]
     device, gpu = device_of(group.device, False)
-    source, name = str(group.path), str(group.name)
+    source, name = str(group.path), group.name
     find: Callable[[str], str] = _transformers_folder
     if name == "moge2":  # MoGe-2's checkpoint file (model.pt), not a transformers folder
         from snell_bench.models.moge import moge_checkpoint

@@ -283,11 +283,11 @@ def _photo(cfg: DictConfig) -> dict | None:
         image,
         data_path(sc.depth, "scene.depth", "depth file") if sc.depth else None,
         depth_scale=sc.depth_scale,
-        depth_kind=str(sc.depth_kind),
+        depth_kind=sc.depth_kind,
         intrinsics=None if sc.intrinsics is None else list(sc.intrinsics),
         fov_deg=sc.fov_deg,
-        block=int(cfg.model.multiple),
-        max_side=None if sc.get("max_side") is None else int(sc.max_side),
+        block=cfg.model.multiple,
+        max_side=sc.max_side,
     )
 
 
@@ -307,14 +307,14 @@ def estimate_memory(cfg: DictConfig) -> MemoryEstimate | None:
             would refuse (see :func:`~snell_bench.scene.image_source.inspect_photo`).
     """
     sc = cfg.scene
-    source = Source.of(sc.source, "scene.source")
+    source = sc.source
     ref = cfg.reference
     common = dict(
-        pano_height=int(cfg.warps.pano_height),
+        pano_height=cfg.warps.pano_height,
         source=source.value,
-        scene=str(sc.name),
-        reference=bool(ref.enabled),
-        true_render=bool(ref.true_render) and source is Source.procedural,
+        scene=sc.name,
+        reference=ref.enabled,
+        true_render=ref.true_render and source is Source.procedural,
     )
     if source is Source.image:
         photo = _photo(cfg)
@@ -323,8 +323,8 @@ def estimate_memory(cfg: DictConfig) -> MemoryEstimate | None:
         w0, h0 = photo["original_size"]
         read = (h0, w0) if photo["exif_orientation"] in (5, 6, 7, 8) else (w0, h0)
         return MemoryEstimate(size=tuple(photo["size"]), read_size=read, photo=photo, **common)
-    ss = int(sc.supersample) if source is Source.procedural else 1
-    return MemoryEstimate(size=(int(sc.width), int(sc.height)), supersample=ss, **common)
+    ss = sc.supersample if source is Source.procedural else 1
+    return MemoryEstimate(size=(sc.width, sc.height), supersample=ss, **common)
 
 
 # ---------------------------------------------------------------------------------------------- budget
@@ -479,7 +479,7 @@ def check_memory(cells_or_cfgs: Iterable[Any], *, warn_fraction: float = WARN_FR
         budget, where = memory_budget(cfg)
         peak = est.peak_bytes
         if peak > budget:
-            fixes = _fixes(est, budget, int(cfg.model.multiple))
+            fixes = _fixes(est, budget, cfg.model.multiple)
             fix = "".join(f"{f} or " for f in fixes)
             raise HostMemoryError(
                 f"{est.describe()}, more than the budget of {_gb(budget)} ({where}): {fix}raise "

@@ -130,7 +130,7 @@ def needs_models(cfg: DictConfig) -> bool:
     """Whether stages 1-2 of a group's config need a model of the pool: a generated I⁻ (the
     generator, the depth estimator), a photo without its depth (the depth estimator), or a
     segmenter for the surface (``segment.segmenter``)."""
-    source = Source.of(cfg.scene.source, "scene.source")
+    source = cfg.scene.source
     return (
         source is Source.generated
         or (source is Source.image and not cfg.scene.depth)

@@ -66,7 +66,7 @@ def run_preview(cfg: DictConfig) -> dict:
     t = Timer()
     with t("panorama"):  # in the orientation of the warps' panorama camera
         if hasattr(inputs.scene.source, "render_panorama"):  # the source's true panorama
-            panorama = scene_panorama(inputs.scene, ws.pano, supersample=int(cfg.scene.supersample))
+            panorama = scene_panorama(inputs.scene, ws.pano, supersample=cfg.scene.supersample)
         else:  # a photo or a generated scene: I⁻ through π, smoothly filled
             panorama = panorama_prior(inputs.scene, ws, inputs.i_minus, "observed")
     with t("composite"):

@@ -120,7 +120,7 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
     problems = check_grid_entries(cfg)  # names known, no repeats, variations and materials usable
     if problems:
         raise ConfigError(problems)
-    root = Path(cfg.runs_dir) / str(cfg.experiment_name)
+    root = Path(cfg.runs_dir) / cfg.experiment_name
     cells, problems, first_key = [], [], {}
     for order, cell in enumerate(CellId.grid(g)):
         try:
@@ -137,20 +137,20 @@ def plan_grid(cfg: DictConfig) -> list[Cell]:
         try:
             method = method_of(c)  # the kind (or _target_) loads, its params fit
             problems += [f"cell {cell.name}: {p}" for p in method.check(c, cell.group)]
-            metrics_for(str(c.metrics.protocol), c.metrics.extra)  # users' metrics load
+            metrics_for(c.metrics.protocol, c.metrics.extra)  # users' metrics load
         except ValueError as e:
             problems.append(f"cell {cell.name}: {e}")
             continue
         record = {
-            "experiment": str(cfg.experiment_name),
+            "experiment": cfg.experiment_name,
             "scene": cell.scene,
             "variation": cell.variation,
             "object": cell.object_dir,
             "object_spec": cell.object,
             "method": cell.entry,
             "method_label": method.row_label(c) + ("" if cell.setting is None else f" ({cell.setting.label})"),
-            "method_kind": str(c.method.kind),
-            "model": str(c.model.name),
+            "method_kind": c.method.kind,
+            "model": c.model.name,
             "scene_source": str(c.scene.source),
             **scene_pipeline_record(c),
             **({"random_weights": True} if bool(c.model.get("random_init", False)) else {}),
@@ -398,7 +398,7 @@ def run_grid(cfg: DictConfig) -> dict:
     summary to ``runs/<experiment>/jobs/<job id>/summary.json`` (:func:`job_id`) instead of the
     experiment's, and builds the report only when every cell of the grid has its record (the
     last job to finish does; ``job=report`` any time)."""
-    exp = str(cfg.experiment_name)
+    exp = cfg.experiment_name
     root = Path(cfg.runs_dir) / exp
     every = plan_grid(cfg)
     check_memory(every)  # each distinct cell's peak host memory, and its photo, before any work
@@ -440,7 +440,7 @@ def _compute(cfg: DictConfig, g: GridConfig, cells: list[Cell], summary_root: Pa
     models and tracker."""
     tracker = make_tracker(cfg)  # before any work: a tracker that cannot start stops the run here
     ahead, workers = settings_of(cfg)
-    pool = ModelPool(cfg.models.memory_gb, offload=bool(cfg.models.offload))
+    pool = ModelPool(cfg.models.memory_gb, offload=cfg.models.offload)
     scorers = scorers_of(cfg.metrics, pool)
     model_major = pool.budget is not None  # the models may not fit together
     prefetch = Prefetcher(pool, ahead, workers, keep=model_major) if ahead > 0 else None
@@ -456,7 +456,7 @@ def _compute(cfg: DictConfig, g: GridConfig, cells: list[Cell], summary_root: Pa
             root=summary_root,
             policy=Policy.of(cfg.grid, "grid"),
             schema=GRID_RECORD,
-            desc=str(cfg.experiment_name),
+            desc=cfg.experiment_name,
             hooks=Hooks(
                 before=order.prepare if order is not None else (prefetch.plan if prefetch is not None else None),
                 after=None if prefetch is None else prefetch.release,

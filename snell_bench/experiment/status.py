@@ -60,13 +60,13 @@ def _claim_owner(folder: Path) -> str | None:
 
 def grid_status(cfg: DictConfig) -> GridStatus:
     """Where the grid of ``cfg`` stands (see the module docs)."""
-    root = Path(cfg.runs_dir) / str(cfg.experiment_name)
+    root = Path(cfg.runs_dir) / cfg.experiment_name
     states = cell_states(cfg, GridParts(cfg))
     counts: Counter = Counter()
     by_method: dict[str, Counter] = {}
     running, failed = [], []
     shard_of: dict[str, int] = {}
-    shards = int(cfg.grid.shards)
+    shards = cfg.grid.shards
     if shards > 1:
         from snell_bench.experiment.cells import Cell
 
@@ -101,7 +101,7 @@ def grid_status(cfg: DictConfig) -> GridStatus:
         except (OSError, ValueError):
             continue
         jobs.append({"id": path.parent.name if path.parent != root else "(this folder)", **rec})
-    return GridStatus(str(cfg.experiment_name), counts, by_method, running, failed, jobs, per_shard)
+    return GridStatus(cfg.experiment_name, counts, by_method, running, failed, jobs, per_shard)
 
 
 def format_status(st: GridStatus, limit: int = 12) -> str:

@@ -97,7 +97,7 @@ class Method:
     # ------------------------------------------------------------------------ a finished cell
     def row_label(self, cfg: DictConfig) -> str:
         """The label of its row in every table and figure (``method.label``)."""
-        return str(cfg.method.label)
+        return cfg.method.label
 
     def stale(self, cfg: DictConfig, record: dict, folder: Path, group: str) -> str | None:
         """Why a finished cell (its ``record`` in ``folder``; ``group`` is its

@@ -338,7 +338,7 @@ def _gpu_weights(models: Sequence[ModelNeed], basis: Basis) -> float:
 def _pixels(scene_cfg: DictConfig, basis: Basis) -> float:
     """The cell's image pixels over the basis's."""
     Hb, Wb, _ = basis.size
-    return int(scene_cfg.scene.height) * int(scene_cfg.scene.width) / (Hb * Wb)
+    return scene_cfg.scene.height * scene_cfg.scene.width / (Hb * Wb)
 
 
 def sampler_estimate(
@@ -357,7 +357,7 @@ def sampler_estimate(
         basis: the figures to scale.
         full: the cell is the full method (Snellcaster unrelit), which the CPU measurement timed.
     """
-    H, W = int(scene_cfg.scene.height), int(scene_cfg.scene.width)
+    H, W = scene_cfg.scene.height, scene_cfg.scene.width
     Hb, Wb, Pb = basis.size
     weights = _gpu_weights(models, basis)
     gen = next((m for m in models if m.kind == "generator"), None)
@@ -368,7 +368,7 @@ def sampler_estimate(
         return Estimate(None, weights, None, "none", f"FLUX.1-dev on {gen.device} (model.device): no basis")
     if gen is None or not gen.needs_gpu:
         return cpu_estimate(scene_cfg, c, settings, weights, full=full and settings.sync == "snellcaster")
-    P = int(c.warps.pano_height)
+    P = c.warps.pano_height
     work = calls["main"] * H * W + calls["pano"] * 2 * P * P
     if settings.sync == "snellcaster":
         base, (bm, bp) = basis.pair_s, basis.pair_calls
@@ -386,8 +386,8 @@ def sampler_estimate(
 def cpu_estimate(scene_cfg, c, settings: SamplerSettings, weights: float, *, full: bool) -> Estimate:
     """The documented CPU measurement (:data:`CPU_PRESETS`) of a ``full`` method cell at a preset's
     settings, else no basis."""
-    key = (int(scene_cfg.scene.height), int(scene_cfg.scene.width), int(c.warps.pano_height), settings.steps)
-    name = str(c.model.name)
+    key = (scene_cfg.scene.height, scene_cfg.scene.width, c.warps.pano_height, settings.steps)
+    name = c.model.name
     if full and not c.method.relight and key in CPU_PRESETS:
         preset, seconds = CPU_PRESETS[key]
         note = (
@@ -403,7 +403,7 @@ def fill_estimate(scene_cfg: DictConfig, c: DictConfig, models: Sequence[ModelNe
     fill = next((m for m in models if m.kind == "fill"), None)
     if fill is None or not fill.needs_gpu:
         return Estimate(None, weights, None, "none", "FLUX Fill off the GPU: no basis")
-    steps = basis.fill_steps if c.method.steps is None else int(c.method.steps)
+    steps = basis.fill_steps if c.method.steps is None else c.method.steps
     ratio = _pixels(scene_cfg, basis) * steps / basis.fill_steps
     note = f"Fill {basis.fill_s[0]:g} s at {basis.fill_steps} steps" + ratio_note(ratio)
     src = "bench" if basis.measured else "README"
@@ -418,10 +418,10 @@ def relight_estimate(
     relighter = next((m for m in models if m.kind == "relighter"), None)
     if not c.method.relight or relighter is None or est.seconds is None:
         return est
-    n = int(c.relight.candidates)
+    n = c.relight.candidates
     if not relighter.needs_gpu:
         return replace(est, note=est.note + f"; + {n} relighting candidates on the CPU (not estimated)")
-    steps = basis.kontext_steps if c.relight.steps is None else int(c.relight.steps)
+    steps = basis.kontext_steps if c.relight.steps is None else c.relight.steps
     r = _pixels(scene_cfg, basis) * steps / basis.kontext_steps
     peak = est.peak_gb
     if basis.peak_gb.get("kontext") is not None and peak is not None:

@@ -47,7 +47,7 @@ def _source(cfg: DictConfig) -> tuple[Path, dict[str, Path]]:
             "images (the kit's ids, job=export) or a manifest file with columns id and image"
         )
     # read at every cell, not once: images may be added while a grid runs
-    return submitted_images(str(cfg.method.images), str(cfg.method.get("images_column") or "image"))
+    return submitted_images(cfg.method.images, str(cfg.method.get("images_column") or "image"))
 
 
 def group_of(cfg: DictConfig, inputs: CellInputs | None = None) -> str:
@@ -55,7 +55,7 @@ def group_of(cfg: DictConfig, inputs: CellInputs | None = None) -> str:
     variation and object name."""
     if inputs is not None and inputs.group:
         return inputs.group
-    return kit_id(str(cfg.scene.name), int(cfg.scene.variation), str(cfg.object.name))
+    return kit_id(cfg.scene.name, cfg.scene.variation, cfg.object.name)
 
 
 @functools.lru_cache(maxsize=4)
@@ -114,10 +114,10 @@ class Images(Method):
                 "a missing value, not a score"
             )
         if cfg.method.get("kit"):
-            problems = kit_problems(_kit(str(cfg.method.kit)), group, inputs)
+            problems = kit_problems(_kit(cfg.method.kit), group, inputs)
             if problems:
                 raise KitError(
-                    f"the image {images[group]} was made from the kit method.kit={str(cfg.method.kit)!r}, whose group "
+                    f"the image {images[group]} was made from the kit method.kit={cfg.method.kit!r}, whose group "
                     f"{group} is not this run's: {'; '.join(problems)}. Run with the kit's settings, or export the kit "
                     "again from this run and make the image from it"
                 )
@@ -132,9 +132,9 @@ class Images(Method):
         return Estimate((0.0, 0.0), 0.0, None, "CPU", "images made elsewhere: one file read (and the metrics)")
 
     def row_label(self, cfg: DictConfig) -> str:
-        label = str(cfg.method.label)
+        label = cfg.method.label
         if label == DEFAULT_LABEL and cfg.method.get("images"):
-            return f"{DEFAULT_LABEL}: {Path(str(cfg.method.images)).expanduser().name}"
+            return f"{DEFAULT_LABEL}: {Path(cfg.method.images).expanduser().name}"
         return label
 
     def stale(self, cfg: DictConfig, record: dict, folder: Path, group: str) -> str | None:
@@ -157,7 +157,7 @@ class Images(Method):
         try:
             root, images = _source(cfg)
             if cfg.method.get("kit"):
-                _kit(str(cfg.method.kit))
+                _kit(cfg.method.kit)
             if group in images:
                 inside(root, images[group], f"the image of {group}")
         except KitError as e:

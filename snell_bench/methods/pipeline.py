@@ -76,8 +76,8 @@ def pipeline_call(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer,
     method's steps, guidance and prompt, seeded with the cell's seed, on ``model.device``. Missing
     weights or device: :class:`~snell_bench.pipeline.Skip` with the reason."""
     text = baseline_prompt(cfg)
-    steps = None if cfg.method.steps is None else int(cfg.method.steps)
-    guidance = None if cfg.method.guidance is None else float(cfg.method.guidance)
+    steps = cfg.method.steps
+    guidance = cfg.method.guidance
     try:
         pipe = _pipeline(cfg, inputs, t, fill=fill)
         with t("sampling"):
@@ -128,7 +128,7 @@ class DiffusersPipeline(Method):
         gb = cfg.method.cost.weights_gb
         need = ModelNeed(
             kind,
-            str(cfg.method.label),
+            cfg.method.label,
             source,
             key="method.model_id",
             device=device,
@@ -147,7 +147,7 @@ class DiffusersPipeline(Method):
     def cost(self, scene_cfg: DictConfig, cfg: DictConfig, models: Sequence[ModelNeed], basis: Basis) -> Estimate:
         """The documented figure (``method.cost``) x pixels (x steps where ``method.steps`` is set),
         on the GPU only."""
-        label = str(cfg.method.label)
+        label = cfg.method.label
         weights = together_gb([m for m in models if m.needs_gpu], basis)
         seconds, default_steps = cfg.method.cost.seconds, cfg.method.cost.steps
         pipe = next((m for m in models if m.kind == "pipeline"), None)
@@ -159,8 +159,8 @@ class DiffusersPipeline(Method):
                 "image at 720x1280 on an 80 GB GPU and the pipeline's default steps)"
             )
             return Estimate(None, weights, None, "none", f"{label}: {why}")
-        H, W = int(scene_cfg.scene.height), int(scene_cfg.scene.width)
-        steps = int(default_steps) if cfg.method.steps is None else int(cfg.method.steps)
+        H, W = scene_cfg.scene.height, scene_cfg.scene.width
+        steps = default_steps if cfg.method.steps is None else cfg.method.steps
         ratio = H * W / (720 * 1280) * steps / int(default_steps)
         note = f"README: {label} {float(seconds):g} s at 720x1280, {int(default_steps)} steps" + ratio_note(ratio)
         return Estimate(scaled((float(seconds), float(seconds)), ratio), weights, None, "README", note)

@@ -114,7 +114,7 @@ def method_of(cfg: DictConfig):
     """The method of a cell's config: its class (:func:`method_class`) built with
     ``method.params`` as keyword arguments."""
     m = cfg.method
-    cls = method_class(str(m.kind), m.get("_target_"))
+    cls = method_class(m.kind, m.get("_target_"))
     params = OmegaConf.to_container(m.params, resolve=True) if m.get("params") else {}
     try:
         return cls(**params)

@@ -43,9 +43,9 @@ def synchronized(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer, 
     if baseline:  # a baseline: its prompt and steps (baselines node)
         prompt = baseline_prompt(cfg)
         if cfg.method.steps is not None:
-            settings.steps = int(cfg.method.steps)
+            settings.steps = cfg.method.steps
     with t("sampling"):
-        res = sample(gen, warps, inputs.i_minus, prompt, str(cfg.scene.pano_prompt), settings, seed=cell_seed(cfg))
+        res = sample(gen, warps, inputs.i_minus, prompt, cfg.scene.pano_prompt, settings, seed=cell_seed(cfg))
     stats = {
         "model_calls": res.model_calls,
         "sampler_timings_s": {k: round(v, 3) for k, v in res.timings.items()},

@@ -95,7 +95,7 @@ def apply_method(cfg: DictConfig) -> DictConfig:
 def cell_seed(cfg: DictConfig) -> int:
     """The seed of a cell's sampling: ``seed + scene.variation`` (a generated I⁻ uses the same one,
     so every method of the cell, the baselines included, starts from the seed of its scene)."""
-    return int(cfg.seed) + int(cfg.scene.variation)
+    return cfg.seed + cfg.scene.variation
 
 
 def generator_on_procedural(cfg: DictConfig) -> bool:
@@ -103,7 +103,7 @@ def generator_on_procedural(cfg: DictConfig) -> bool:
     is synchronised with a procedural scene: a named choice (``scene.source=procedural``), never the
     paper's scene pipeline, in which such a model generates I⁻ from p⁻ (``scene.source=generated``,
     which ``conf/model/flux_dev.yaml`` and ``tiny_flux.yaml`` select)."""
-    return str(cfg.scene.source) == "procedural" and not bool(cfg.model.from_scene)
+    return cfg.scene.source == "procedural" and not cfg.model.from_scene
 
 
 def scene_pipeline_record(cfg: DictConfig) -> dict:
@@ -126,12 +126,12 @@ def initial_noise_record(scene_info: dict | None, decisions: dict | None) -> dic
 
 def full_prompt(cfg: DictConfig) -> str:
     """The full prompt p of a config, ``{object}`` replaced by the object's noun."""
-    return str(cfg.scene.prompt).replace("{object}", str(cfg.object.noun))
+    return cfg.scene.prompt.replace("{object}", cfg.object.noun)
 
 
 def object_phrase(cfg: DictConfig) -> str:
     """The object phrase p_obj of a config (``"a big glass sphere"``), ``{object}`` replaced."""
-    return str(cfg.scene.object_phrase).replace("{object}", str(cfg.object.noun))
+    return cfg.scene.object_phrase.replace("{object}", cfg.object.noun)
 
 
 def prompt_of(cfg: DictConfig, kind: PromptKind | str, key: str = "method.prompt") -> str:

@@ -67,7 +67,7 @@ def generator_of(cfg: DictConfig, pool: ModelPool, build_it=None):
         "generator",
         node_key(cfg.model),
         build_it or (lambda: build(cfg.model.generator)),
-        label=str(cfg.model.name),
+        label=cfg.model.name,
         size=lambda: node_weights_bytes(cfg.model.generator),
     )
 
@@ -78,7 +78,7 @@ def _depth_estimator(cfg: DictConfig, pool: ModelPool, why: str):
             f"{why}: choose a depth estimator (depth=moge2, depth=depth_pro, depth=depth_anything_v2) or give "
             "scene.depth"
         )
-    return pool.get("depth", node_key(cfg.depth), lambda: build(cfg.depth.estimator), label=str(cfg.depth.name))[0]
+    return pool.get("depth", node_key(cfg.depth), lambda: build(cfg.depth.estimator), label=cfg.depth.name)[0]
 
 
 def _up(sc: DictConfig) -> np.ndarray | None:
@@ -92,24 +92,24 @@ def _intrinsics(sc: DictConfig) -> list | None:
 def _procedural(cfg: DictConfig, pool: ModelPool) -> SceneInputs:
     sc = cfg.scene
     return sources.procedural_scene(
-        sc.kind, int(sc.seed_offset) + int(sc.variation), sc.width, sc.height, sc.supersample, _up(sc)
+        sc.kind, sc.seed_offset + sc.variation, sc.width, sc.height, sc.supersample, _up(sc)
     )
 
 
 def _max_side(sc: DictConfig) -> int | None:
-    return None if sc.get("max_side") is None else int(sc.max_side)
+    return sc.max_side
 
 
 def _image(cfg: DictConfig, pool: ModelPool) -> SceneInputs:
     sc = cfg.scene
     image_file = data_path(sc.image, "scene.image", "image file")
-    block = int(cfg.model.multiple)
+    block = cfg.model.multiple
     if sc.depth:
         frame = load_frame(
             image_file,
             data_path(sc.depth, "scene.depth", "depth file"),
             depth_scale=sc.depth_scale,
-            depth_kind=str(sc.depth_kind),
+            depth_kind=sc.depth_kind,
             intrinsics=_intrinsics(sc),
             fov_deg=sc.fov_deg,
             block=block,
@@ -143,12 +143,12 @@ def generate_i_minus(cfg: DictConfig, pool: ModelPool) -> tuple[np.ndarray, dict
     sc = cfg.scene
     return sources.generated_image(
         lambda: generator_of(cfg, pool)[0],
-        str(sc.prompt_minus),
-        int(sc.height),
-        int(sc.width),
-        steps=int(sc.steps),
+        sc.prompt_minus,
+        sc.height,
+        sc.width,
+        steps=sc.steps,
         seed=cell_seed(cfg),
-        schedule=str(sc.schedule),
+        schedule=sc.schedule,
         cache_dir=sc.cache_dir,
         model_key=node_key(cfg.model),
     )
@@ -179,7 +179,7 @@ def load_scene(cfg: DictConfig, pool: ModelPool | None = None) -> SceneInputs:
             ``depth`` for an image without depth or a generated one).
         pool: where the depth estimator and a generator for I⁻ come from (a new pool if None).
     """
-    return SOURCES[Source.of(cfg.scene.source, "scene.source")](cfg, ModelPool() if pool is None else pool)
+    return SOURCES[cfg.scene.source](cfg, ModelPool() if pool is None else pool)
 
 
 # ---------------------------------------------------------------------------- 2. the object
@@ -204,7 +204,7 @@ def build_object(obj_cfg: DictConfig) -> GlassObject:
     except InstantiationException as e:
         cause = e.__cause__
         if isinstance(cause, (ValueError, OSError)) and "path" in kwargs:
-            raise type(cause)(f"object {obj_cfg.name!r} (object.path={str(obj_cfg.path)!r}): {cause}") from None
+            raise type(cause)(f"object {obj_cfg.name!r} (object.path={obj_cfg.path!r}): {cause}") from None
         if isinstance(cause, (ValueError, OSError)):
             raise cause from None
         raise ValueError(f"object.factory._target_={factory['_target_']!r} failed: {cause or e}") from None
@@ -224,9 +224,9 @@ def surface_region(cfg: DictConfig, scene: SceneInputs, pool: ModelPool | None =
         )
     pool = ModelPool() if pool is None else pool
     segmenter = pool.get(
-        "segmenter", node_key(cfg.segment), lambda: build(cfg.segment.segmenter), label=str(cfg.segment.name)
+        "segmenter", node_key(cfg.segment), lambda: build(cfg.segment.segmenter), label=cfg.segment.name
     )[0]
-    return segment_surface(segmenter, scene.image, str(phrase), instance=str(cfg.segment.get("instance", "union")))
+    return segment_surface(segmenter, scene.image, phrase, instance=str(cfg.segment.get("instance", "union")))
 
 
 def place(obj: GlassObject, scene: SceneInputs, obj_cfg: DictConfig, seed: int = 0, region=None) -> GlassObject:
@@ -289,14 +289,14 @@ def render_reference(cfg: DictConfig, scene: SceneInputs, obj: GlassObject, *, s
     rc = cfg.reference
     if not rc.enabled:
         return None, "reference.enabled=false"
-    glass = obj if rc.get("ior") is None else dataclasses.replace(obj, ior=float(rc.ior), _cache={})
-    edge = float(cfg.warps.edge_threshold)
+    glass = obj if rc.get("ior") is None else dataclasses.replace(obj, ior=rc.ior, _cache={})
+    edge = cfg.warps.edge_threshold
     renderer, mask_kind = str(rc.get("renderer", "mitsuba")), str(rc.get("mask", "unobserved"))
     mitsuba_spp = int(rc.spp if spp is None else spp)
     if renderer == "cycles" and mask_kind == "unobserved":
         mitsuba_spp = 1  # only the unobserved pass (the mask) is kept
     settings = ReferenceSettings(
-        **kwargs_for(ReferenceSettings, rc, spp=mitsuba_spp, edge_threshold=edge, seed=int(cfg.seed))
+        **kwargs_for(ReferenceSettings, rc, spp=mitsuba_spp, edge_threshold=edge, seed=cfg.seed)
     )
     if renderer == "cycles" and mitsuba_spp == 1:
         settings = dataclasses.replace(settings, self_noise=False)
@@ -309,7 +309,7 @@ def render_reference(cfg: DictConfig, scene: SceneInputs, obj: GlassObject, *, s
                 scene.camera,
                 glass,
                 spp=int(rc.cycles_spp if spp is None else spp),
-                seed=int(cfg.seed),
+                seed=cfg.seed,
                 edge_threshold=edge,
                 ior=None,
                 blender_python=rc.get("blender_python"),
@@ -337,11 +337,11 @@ def render_reference(cfg: DictConfig, scene: SceneInputs, obj: GlassObject, *, s
 
 def render_true_scene(cfg: DictConfig, scene: SceneInputs, obj: GlassObject) -> np.ndarray | None:
     """Stage 5: the procedural scene rendered with the object (``reference.true_render``), or None."""
-    if not (cfg.reference.true_render and Source(cfg.scene.source) is Source.procedural):
+    if not (cfg.reference.true_render and cfg.scene.source is Source.procedural):
         return None
     bounces = cfg.reference.true_max_bounces or cfg.warps.get("recipe_max_bounces") or cfg.warps.max_bounces
     return render_true(
-        scene.source, scene.camera, obj, spp=int(cfg.reference.true_spp), max_bounces=int(bounces), seed=int(cfg.seed)
+        scene.source, scene.camera, obj, spp=cfg.reference.true_spp, max_bounces=int(bounces), seed=cfg.seed
     )
 
 
@@ -363,7 +363,7 @@ def prepare_inputs(cfg: DictConfig, *, references: bool = True, pool: ModelPool 
     with t("scene"):
         scene = load_scene(cfg, pool)
         region = surface_region(cfg, scene, pool)
-        obj = place(build_object(cfg.object), scene, cfg.object, seed=int(cfg.seed), region=region)
+        obj = place(build_object(cfg.object), scene, cfg.object, seed=cfg.seed, region=region)
     # a generator loaded to generate I⁻ is reported as "generator" (by every method that uses it)
     t.seconds["scene"] -= sum(x.seconds for x in pool.loads[loads:] if x.kind == "generator")
     with t("warps"):

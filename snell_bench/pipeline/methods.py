@@ -68,7 +68,7 @@ def build_generator(model_cfg: DictConfig, inputs: CellInputs):
         kwargs = {
             "i_minus": inputs.scene.image,
             "object_mask": inputs.warps.object_mask,
-            "panorama": panorama_prior(inputs.scene, inputs.warps, inputs.i_minus, str(model_cfg.pano_prior)),
+            "panorama": panorama_prior(inputs.scene, inputs.warps, inputs.i_minus, model_cfg.pano_prior),
         }
     return build(model_cfg.generator, **kwargs)
 
@@ -90,7 +90,7 @@ def cell_generator(cfg: DictConfig, inputs: CellInputs) -> tuple[Any, float]:
         "generator",
         node_key(cfg.model),
         lambda: build_generator(cfg.model, inputs),
-        label=str(cfg.model.name),
+        label=cfg.model.name,
         scope=scope,
     )
 
@@ -100,13 +100,13 @@ def inpaint_mask(cfg: DictConfig, warps: WarpSet) -> np.ndarray:
     """The region ``method=inpaint`` repaints, boolean ``(H, W)``: the object's silhouette
     (``method.mask=object``) or its bounding box (``box``), grown by ``method.mask_dilate_px``."""
     m = np.asarray(warps.object_mask, bool)
-    if InpaintMask.of(cfg.method.mask, "method.mask") is InpaintMask.box:
+    if cfg.method.mask is InpaintMask.box:
         ys, xs = np.nonzero(m)
         box = np.zeros_like(m)
         if ys.size:
             box[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1] = True
         m = box
-    r = int(cfg.method.mask_dilate_px)
+    r = cfg.method.mask_dilate_px
     if r < 0:
         raise ValueError(f"method.mask_dilate_px must be >= 0, got {r}")
     if r:
@@ -124,11 +124,11 @@ def baseline_prompt(cfg: DictConfig) -> str:
         ValueError: the scene's p_obj does not occur in its p, so it cannot be replaced (naming
             ``baselines.object_phrase``).
     """
-    kind = PromptKind.of(cfg.method.prompt, "method.prompt")
+    kind = cfg.method.prompt
     phrase = OmegaConf.select(cfg, "baselines.object_phrase", default=None)
     if phrase is None:
         return prompt_of(cfg, kind)
-    new = str(phrase).replace("{object}", str(cfg.object.noun))
+    new = phrase.replace("{object}", cfg.object.noun)
     if kind is PromptKind.object:
         return new
     full, old = full_prompt(cfg), object_phrase(cfg)
@@ -147,7 +147,7 @@ def architecture(cfg: DictConfig) -> str:
             f"method={cfg.method.name}: model={cfg.model.name} builds the external baselines' pipelines "
             "(model.pipelines) by architecture: set method.architecture (flux2, qwen_image or sd3)"
         )
-    return str(cfg.method.architecture)
+    return cfg.method.architecture
 
 
 def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer) -> CellResult:
@@ -160,7 +160,7 @@ def sample_method(cfg: DictConfig, inputs: CellInputs, warps: WarpSet, t: Timer)
 # ---------------------------------------------------------------------------- 7b. relighting
 def relight_prompt(cfg: DictConfig) -> str:
     """The relighting instruction ``relight.prompt`` with ``{object_phrase}`` replaced by p_obj."""
-    return str(cfg.relight.prompt).replace("{object_phrase}", object_phrase(cfg))
+    return cfg.relight.prompt.replace("{object_phrase}", object_phrase(cfg))
 
 
 def relighter_of(cfg: DictConfig, inputs: CellInputs) -> tuple[Any, float]:
@@ -193,7 +193,7 @@ def relight_image(cfg: DictConfig, inputs: CellInputs, result: CellResult, t: Ti
             result.image,
             relighter=relighter,
             prompt=relight_prompt(cfg),
-            seeds=candidate_seeds(cell_seed(cfg), int(cfg.relight.candidates)),
+            seeds=candidate_seeds(cell_seed(cfg), cfg.relight.candidates),
             object_mask=warps.object_mask,
             scene=inputs.scene,
             obj=inputs.obj,

@@ -45,9 +45,9 @@ def clip_prompt(cfg: DictConfig) -> str:
             ) from e
         if not isinstance(table, dict) or not all(isinstance(v, str) for v in table.values()):
             raise ValueError(f"metrics.clip_prompts={str(path)!r} is not a mapping {{scene name: text}}")
-        text = table.get(str(cfg.scene.name))
+        text = table.get(cfg.scene.name)
         if text is not None:
-            return text.replace("{object}", str(cfg.object.noun))
+            return text.replace("{object}", cfg.object.noun)
     return prompt_of(cfg, cfg.metrics.clip_text, "metrics.clip_text")
 
 
@@ -86,7 +86,7 @@ def score(
         reference_is_jpeg=getattr(ref, "file_format", None) == "jpeg",
         extra=tuple(str(m) for m in (cfg.metrics.get("extra") or ())),
     )
-    if reference is None and inputs.true_render is None and Source(cfg.scene.source) is Source.procedural:
+    if reference is None and inputs.true_render is None and cfg.scene.source is Source.procedural:
         scored["metrics"]["psnr_true"] = None  # a procedural scene has a truth: say why it is not scored
         scored["missing"]["psnr_true"] = "no true render (reference.true_render=false)"
     return scored
