@@ -236,6 +236,13 @@ def _files(cfg: DictConfig, out: list[str]) -> None:
             f"reference.blender_python={str(blender)!r}: not an executable (the Python with Blender's bpy that renders "
             "the Cycles reference); fix the path, or set it to null for the one `make setup-cycles` installs"
         )
+    color = _get(cfg, "object.absorption.color")
+    tinted = color is not None and any(v != 1 for v in color)
+    if tinted and str(_get(cfg, "reference.renderer")) == "cycles" and _get(cfg, "reference.enabled"):
+        out.append(
+            f"object.absorption.color={list(color)}: the Cycles reference (the authors' scene) has no absorbing glass; "
+            "use reference.renderer=mitsuba (an absorbing interior medium), or a clear object.absorption.color=[1,1,1]"
+        )
     bench = _get(cfg, "plan.bench")
     if bench and not Path(str(bench)).is_file():
         out.append(

@@ -1,11 +1,28 @@
-"""Materials of the glass object: a name (``object.ior=water``) or a number is its index of refraction."""
+"""Materials of the glass object: a name (``object.ior=water``) or a number is its index of
+refraction; a colour reached at a thickness (``object.absorption``) is its absorption (Beer–Lambert).
+
+Convention: absorption coefficients σ are per metre of the placed object (scene units), one per
+linear RGB channel; a path of length ``L`` inside the medium transmits ``exp(-σ L)`` of its light.
+"""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
 
-__all__ = ["MATERIALS", "resolve_ior", "ior_range_problem", "ior_out_of_range"]
+__all__ = [
+    "MATERIALS",
+    "CLEAR",
+    "resolve_ior",
+    "ior_range_problem",
+    "ior_out_of_range",
+    "absorption_coefficients",
+    "absorption_problem",
+    "check_sigma",
+]
+
+#: No absorption: σ = 0 in every channel.
+CLEAR: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 #: Refractive indices (sodium D line, ~589 nm) of common transparent materials.
 MATERIALS: dict[str, float] = {
@@ -101,3 +118,64 @@ def ior_out_of_range(ior: float, ior_range) -> str | None:
         why = " (no transparent solid or liquid exceeds about 3 in visible light; diamond is 2.42)" if high <= 3 else ""
         return f"above {shown}{why}; for a larger IOR raise it explicitly: object.ior_range=[{low:g},{ior:.6g}]"
     return None
+
+
+def absorption_problem(color, distance) -> str | None:
+    """Why ``object.absorption`` (``color``, ``distance``) is unusable, or ``None``.
+
+    ``color`` is the linear RGB transmittance reached after ``distance`` metres of the medium: three
+    finite numbers in ``(0, 1]`` (1: that channel is not absorbed; 0 would absorb everything at any
+    thickness); ``distance`` a finite number > 0.
+
+    Examples:
+        >>> absorption_problem([0.5, 0.8, 1.0], 0.05) is None
+        True
+        >>> absorption_problem([0.0, 0.8, 1.0], 0.05)
+        'object.absorption.color=[0.0, 0.8, 1.0]: three linear RGB transmittances in (0, 1], e.g. [0.5,0.8,0.95]'
+    """
+    values = list(color) if isinstance(color, Sequence) and not isinstance(color, str) else None
+    ok = values is not None and len(values) == 3 and all(_number(v) and 0.0 < float(v) <= 1.0 for v in values)
+    if not ok:
+        shown = values if values is not None else color
+        return f"object.absorption.color={shown!r}: three linear RGB transmittances in (0, 1], e.g. [0.5,0.8,0.95]"
+    if not (_number(distance) and float(distance) > 0.0):
+        return (
+            f"object.absorption.distance={distance!r}: the thickness (metres) at which the colour is reached, a "
+            "finite number > 0, e.g. 0.05"
+        )
+    return None
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def absorption_coefficients(color, distance) -> tuple[float, float, float]:
+    """σ per metre (per linear RGB channel) of a medium that transmits ``color`` after ``distance``
+    metres: ``σ = -ln(C) / d`` (Beer–Lambert).
+
+    Raises:
+        ValueError: as :func:`absorption_problem` says.
+
+    Examples:
+        >>> [round(s, 4) for s in absorption_coefficients([0.5, 1.0, 0.25], 0.1)]
+        [6.9315, 0.0, 13.8629]
+    """
+    problem = absorption_problem(color, distance)
+    if problem is not None:
+        raise ValueError(problem)
+    return tuple(-math.log(float(c)) / float(distance) + 0.0 for c in color)
+
+
+def check_sigma(sigma) -> tuple[float, float, float]:
+    """``sigma`` as three finite absorption coefficients >= 0 (per metre), else ``ValueError``."""
+    try:
+        values = [float(v) for v in sigma] if not isinstance(sigma, str) else None
+    except (TypeError, ValueError):
+        values = None
+    if values is None or len(values) != 3 or not all(math.isfinite(v) and v >= 0.0 for v in values):
+        raise ValueError(
+            f"absorption must be three finite coefficients >= 0 per metre (linear R, G, B), got {sigma!r}; "
+            "set object.absorption.color and .distance instead"
+        )
+    return tuple(v + 0.0 for v in values)

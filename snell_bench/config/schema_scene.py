@@ -17,7 +17,7 @@ from snell_bench.config.choices import (
     Source,
 )
 from snell_bench.config.errors import Problems, is_number
-from snell_bench.config.materials import ior_out_of_range, ior_range_problem, resolve_ior
+from snell_bench.config.materials import absorption_problem, ior_out_of_range, ior_range_problem, resolve_ior
 from snell_bench.config.names import folder_name_problem
 from snell_bench.config.sampler import SCHEDULES
 
@@ -139,6 +139,18 @@ class SceneConfig:
 
 
 @dataclass
+class AbsorptionConfig:
+    """The object's absorption (Beer–Lambert), as a colour reached at a thickness: light that
+    travels ``distance`` metres inside the material keeps ``color`` of itself (linear RGB), so
+    ``σ = -ln(color) / distance`` per channel and a path of length ``L`` keeps ``exp(-σ L)``."""
+
+    #: Linear RGB transmittance after ``distance`` (each in (0, 1]; ``[1, 1, 1]``: clear glass).
+    color: list = field(default_factory=lambda: [1.0, 1.0, 1.0])
+    #: The thickness in metres at which ``color`` is reached.
+    distance: float = 0.1
+
+
+@dataclass
 class ObjectConfig:
     """The glass object and where it stands."""
 
@@ -164,6 +176,8 @@ class ObjectConfig:
     licence: Optional[str] = None
     #: A material name (glass, water, acrylic, diamond, ...) or a number.
     ior: Any = "glass"
+    #: Tinted glass: the colour light keeps after a thickness of the material (clear by default).
+    absorption: AbsorptionConfig = field(default_factory=AbsorptionConfig)
     #: ``[lowest, highest]`` IOR accepted for ``object.ior``: a transparent solid or liquid has an
     #: IOR of at least 1 and at most about 3 in visible light. Lower it explicitly for an object
     #: optically thinner than its surroundings (an air bubble in water: ``object.ior=0.75
@@ -205,6 +219,7 @@ class ObjectConfig:
         else:
             if range_problem is None:
                 p.append_if(ior_out_of_range(ior, self.ior_range), prefix=f"object.ior={self.ior!r}: ")
+        p.append_if(absorption_problem(list(self.absorption.color), self.absorption.distance))
         if str(self.up_axis).lstrip("+-").lower() not in ("x", "y", "z"):
             p.append(f"object.up_axis={self.up_axis!r}: use x, y or z, optionally signed (-z)")
         p.raise_if_any()

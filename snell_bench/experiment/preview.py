@@ -22,7 +22,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from snell_bench import pipeline
-from snell_bench.imaging.blend import fresnel_combine
+from snell_bench.imaging.blend import absorb, fresnel_combine
 from snell_bench.imaging.remap import remap
 from snell_bench.optics.warps import WarpSet
 from snell_bench.scene.sources import panorama_prior, scene_panorama
@@ -43,7 +43,10 @@ def composite_refraction(i_minus: np.ndarray, panorama: np.ndarray, ws: WarpSet)
     refl, _ = remap(pano, ws.pano_reflection, wrap_x=True)
     valid = torch.from_numpy(ws.refraction_valid)[None, None]
     mask = torch.from_numpy(ws.object_mask)[None, None]
-    glass = fresnel_combine(refl, torch.where(valid, refr, refr_pano), ws.fresnel)
+    refr = torch.where(valid, refr, refr_pano)
+    if ws.absorbs:
+        refr = absorb(refr, ws.transmittance())
+    glass = fresnel_combine(refl, refr, ws.fresnel)
     return bchw_to_hwc(torch.where(mask, glass, im))
 
 

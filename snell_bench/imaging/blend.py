@@ -1,5 +1,6 @@
 """Blending warped estimates: the detail-preserving average (DPA) on whole images or per pyramid
-level, and the Fresnel combination of reflection and refraction colours.
+level, the Fresnel combination of reflection and refraction colours, and the absorption of the
+refracted colour along its path in the glass (:func:`absorb`).
 
 Convention:
     - Images: float tensors ``(B, C, H, W)`` (any value range; Laplacian bands are signed). Colours
@@ -30,7 +31,7 @@ from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear
 from snell_bench.imaging.pyramid import collapse
 from snell_bench.utils.tensors import as_mask, as_tensor, meta_shape_cache
 
-__all__ = ["detail_preserving_average", "blend_images", "blend_pyramids", "fresnel_combine"]
+__all__ = ["detail_preserving_average", "blend_images", "blend_pyramids", "fresnel_combine", "absorb"]
 
 
 def _mask_like(mask, x: torch.Tensor) -> torch.Tensor:
@@ -241,3 +242,32 @@ def fresnel_combine(reflection_srgb: torch.Tensor, refraction_srgb: torch.Tensor
     if mask is not None:
         use = use & as_mask(mask, ref)
     return torch.where(use, c, refraction_srgb)
+
+
+def absorb(refraction_srgb: torch.Tensor, transmittance) -> torch.Tensor:
+    """The refracted colour after its path through an absorbing medium: ``c · T`` in linear RGB
+    (Beer–Lambert, ``T = exp(-σ L)`` per channel, :meth:`~snell_bench.optics.WarpSet.transmittance`).
+
+    Args:
+        refraction_srgb: ``(B, 3, H, W)`` sRGB colours of the refraction.
+        transmittance: ``(H, W, 3)`` (numpy or torch, channels last) or ``(B, 3, H, W)``, in ``[0, 1]``.
+
+    Returns:
+        sRGB ``(B, 3, H, W)``; ``refraction_srgb`` itself (bit for bit) where ``T = 1`` in every
+        channel (outside the object, a clear material).
+
+    Examples:
+        Linear 0.5 of white is sRGB 0.7354; ``T = 1`` keeps the colour:
+
+        >>> import numpy as np
+        >>> white = torch.ones(1, 3, 1, 2)
+        >>> T = np.array([[[0.5, 0.5, 0.5], [1.0, 1.0, 1.0]]], np.float32)
+        >>> [round(float(v), 4) for v in absorb(white, T)[0, 0, 0]]
+        [0.7354, 1.0]
+    """
+    ref = refraction_srgb
+    T = as_tensor(transmittance, dtype=ref.dtype, device=ref.device)
+    if T.ndim == 3:  # (H, W, 3) channels last
+        T = T.permute(2, 0, 1)[None]
+    tinted = linear_to_srgb(srgb_to_linear(ref) * T)
+    return torch.where((T != 1).any(dim=1, keepdim=True), tinted, ref)

@@ -80,6 +80,9 @@ class RefractionTrace:
     first_geometric_normal: np.ndarray  # (N, 3) outward face normal there
     fresnel: np.ndarray  # (N,) Fresnel reflectance at the first surface
     reflected: np.ndarray  # (N, 3) unit mirror direction at the first surface
+    #: (N,) length of the path inside the object (over internal reflections and re-entries, up to
+    #: where it leaves, ends on the background inside the glass, or is trapped), in scene units
+    path_length: np.ndarray | None = None
 
 
 def _o3d_rays(origins: np.ndarray, directions: np.ndarray) -> o3d.core.Tensor:
@@ -91,6 +94,20 @@ def _o3d_rays(origins: np.ndarray, directions: np.ndarray) -> o3d.core.Tensor:
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", a, b)
+
+
+def _end_rays(res: RefractionTrace, end: np.ndarray, inside: np.ndarray, hb: BackgroundHit, sel, oa, da) -> None:
+    """Record the rays ``end`` (rows ``sel`` of this step's casts) that end here: on the background,
+    the box, or nowhere (``LOST`` when they were inside the object)."""
+    if not len(end):
+        return
+    k = hb.kind[sel].copy()
+    k[inside[end] & (k == HitKind.ESCAPED)] = HitKind.LOST
+    res.kind[end] = k
+    res.on_box[end] = hb.on_box[sel]
+    res.origin[end] = oa[sel]
+    res.direction[end] = da[sel]
+    res.point[end] = hb.point[sel]
 
 
 class SceneTracer:
@@ -363,7 +380,9 @@ class SceneTracer:
 
         Each ray refracts in, bounces (refraction out, total internal reflection, re-entry for
         non-convex shapes) until it leaves the object for the background, or until
-        ``max_bounces`` interactions (then it is marked ``TRAPPED``).
+        ``max_bounces`` interactions (then it is marked ``TRAPPED``). Its length inside the object
+        is summed over the segments it travels there (``path_length``; a segment starts ``eps``
+        off the surface, so the sum is short by at most ``eps`` per segment).
 
         Args:
             origins: ``(N, 3)`` ray origins outside the object.
@@ -389,6 +408,7 @@ class SceneTracer:
             first_geometric_normal=nan3.copy(),
             fresnel=np.zeros(N),
             reflected=nan3.copy(),
+            path_length=np.zeros(N),
         )
         inside = np.zeros(N, bool)
         active = np.arange(N)
@@ -399,16 +419,9 @@ class SceneTracer:
             ho = self.cast_object(oa, da)
             hb = self.cast_background(oa, da)
             hit_obj = np.isfinite(ho["t"]) & (ho["t"] < hb.t)
-            # rays that end here: on the background, the box, or nowhere
-            end = active[~hit_obj]
-            if len(end):
-                k = hb.kind[~hit_obj].copy()
-                k[inside[end] & (k == HitKind.ESCAPED)] = HitKind.LOST
-                res.kind[end] = k
-                res.on_box[end] = hb.on_box[~hit_obj]
-                res.origin[end] = oa[~hit_obj]
-                res.direction[end] = da[~hit_obj]
-                res.point[end] = hb.point[~hit_obj]
+            seg = np.where(hit_obj, ho["t"], hb.t)  # to the next surface: the object's or the background's
+            res.path_length[active] += np.where(inside[active] & np.isfinite(seg), seg, 0.0)
+            _end_rays(res, active[~hit_obj], inside, hb, ~hit_obj, oa, da)
             act = active[hit_obj]
             if len(act) == 0:
                 active = act

@@ -89,8 +89,8 @@ def refraction_warps(
 
     Returns:
         Flat ``(H * W, ...)`` arrays ``refraction`` (the identity outside the object, NaN where
-        invalid), ``refraction_valid``, ``refraction_kind``, ``bounces`` (clipped to 255) and
-        ``fresnel`` (0 outside the object).
+        invalid), ``refraction_valid``, ``refraction_kind``, ``bounces`` (clipped to 255),
+        ``fresnel`` and ``path_length`` (0 outside the object).
     """
     H, W = camera.shape
     cand = primary.pixels
@@ -107,12 +107,15 @@ def refraction_warps(
     bounces[cand] = np.minimum(tr.bounces, 255)
     fres = np.zeros(H * W, np.float32)
     fres[cand] = tr.fresnel
+    path = np.zeros(H * W, np.float32)
+    path[cand] = tr.path_length
     return {
         "refraction": refraction,
         "refraction_valid": refraction_valid,
         "refraction_kind": kind,
         "bounces": bounces,
         "fresnel": fres,
+        "path_length": path,
     }
 
 

@@ -233,7 +233,9 @@ def _traced_warps(
     # 8. masks, statistics, the WarpSet
     arrays["object_mask"] = primary.mask
     stats = _warp_stats(timer, scene, primary, roi)
-    ws = assemble(camera, pano, obj.ior, arrays, input_hash=key, options=options, stats=stats)
+    ws = assemble(
+        camera, pano, obj.ior, arrays, input_hash=key, options=options, stats=stats, absorption=obj.absorption
+    )
     if cache_path is not None:
         ws.save(cache_path)
     log.info("warps: %s", ws.summary())

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from snell_bench.config.materials import CLEAR
 from snell_bench.imaging.equirect import PanoramaCamera
 from snell_bench.optics.tracer import HitKind
 from snell_bench.scene.camera import Camera
@@ -22,8 +23,9 @@ __all__ = ["WarpSet", "warp_inputs_hash", "assemble", "WARPS_VERSION", "ARRAY_FI
 #: Bump when the meaning or computation of any warp changes, or a field is added (invalidates
 #: caches: the version is part of the cache key, and :meth:`WarpSet.load` refuses other versions).
 #: 2: ``pano_refraction_frame`` (π⁻¹ over the whole frame). 3: π⁻¹ and π^-R valid only where the
-#: panorama centre sees the ray's end.
-WARPS_VERSION = 3
+#: panorama centre sees the ray's end. 4: ``path_length`` (the refracted path inside the object)
+#: and the object's absorption.
+WARPS_VERSION = 4
 
 ARRAY_FIELDS = (
     "object_mask",
@@ -32,6 +34,7 @@ ARRAY_FIELDS = (
     "refraction_kind",
     "bounces",
     "fresnel",
+    "path_length",
     "reflection",
     "reflection_valid",
     "pano_refraction",
@@ -109,9 +112,29 @@ class WarpSet:
     #: (Hp, Wp) bool: valid, but the perspective pixel shows the glass object (the image *with*
     #: the object does not show that point there; I⁻ does).
     pano_to_persp_object: np.ndarray
+    #: (H, W) float32 length of the refracted path inside the object, over its internal reflections
+    #: (scene units, metres; 0 outside the object; zeros when not given).
+    path_length: np.ndarray | None = None
     input_hash: str = ""
     options: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
+    #: σ of the object's material per metre (linear R, G, B; ``(0, 0, 0)``: clear).
+    absorption: tuple = CLEAR
+
+    def __post_init__(self) -> None:
+        if self.path_length is None:
+            self.path_length = np.zeros(self.fresnel.shape, np.float32)
+
+    def transmittance(self) -> np.ndarray:
+        """``(H, W, 3)`` float32 Beer–Lambert transmittance ``exp(-σ L)`` of the refracted path
+        (linear RGB; 1 outside the object and for a clear object)."""
+        sigma = np.asarray(self.absorption, np.float64)
+        return np.exp(-self.path_length[..., None].astype(np.float64) * sigma).astype(np.float32)
+
+    @property
+    def absorbs(self) -> bool:
+        """Whether the object's material absorbs any channel."""
+        return any(s > 0.0 for s in self.absorption)
 
     # ------------------------------------------------------------------ aliases (paper notation)
     @property
@@ -151,6 +174,7 @@ class WarpSet:
             "camera": self.camera.to_dict(),
             "pano": self.pano.to_dict(),
             "ior": self.ior,
+            "absorption": list(self.absorption),
             "input_hash": self.input_hash,
             "options": self.options,
             "stats": self.stats,
@@ -183,6 +207,7 @@ class WarpSet:
             camera=Camera.from_dict(meta["camera"]),
             pano=PanoramaCamera.from_dict(meta["pano"]),
             ior=float(meta["ior"]),
+            absorption=tuple(meta.get("absorption", CLEAR)),
             input_hash=meta["input_hash"],
             options=meta["options"],
             stats=meta["stats"],

@@ -26,6 +26,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from snell_bench.config import Source
+from snell_bench.config.materials import absorption_coefficients
 from snell_bench.models.segment import surface_region as segment_surface
 from snell_bench.models.sizes import node_weights_bytes
 from snell_bench.optics.warps import WarpSet, compute_warps
@@ -185,7 +186,8 @@ def load_scene(cfg: DictConfig, pool: ModelPool | None = None) -> SceneInputs:
 # ---------------------------------------------------------------------------- 2. the object
 def build_object(obj_cfg: DictConfig) -> GlassObject:
     """Stage 2a: the canonical (unplaced) object, ``instantiate(object.factory, ior=object.ior)``
-    (with ``path=`` the resolved ``object.path`` for factories that read a file)."""
+    (with ``path=`` the resolved ``object.path`` for factories that read a file), of the material's
+    absorption (``object.absorption``: σ per metre of the placed object)."""
     factory = obj_cfg.get("factory")
     if not factory or "_target_" not in factory:
         raise ValueError(
@@ -200,7 +202,7 @@ def build_object(obj_cfg: DictConfig) -> GlassObject:
         if obj_cfg.get("allow_self_intersecting") and "allow_self_intersecting" not in factory:
             kwargs["allow_self_intersecting"] = True  # a mesh reader's switch (GlassObject.from_file)
     try:
-        return instantiate(factory, **kwargs)
+        obj = instantiate(factory, **kwargs)
     except InstantiationException as e:
         cause = e.__cause__
         if isinstance(cause, (ValueError, OSError)) and "path" in kwargs:
@@ -208,6 +210,8 @@ def build_object(obj_cfg: DictConfig) -> GlassObject:
         if isinstance(cause, (ValueError, OSError)):
             raise cause from None
         raise ValueError(f"object.factory._target_={factory['_target_']!r} failed: {cause or e}") from None
+    sigma = absorption_coefficients(list(obj_cfg.absorption.color), obj_cfg.absorption.distance)
+    return obj.with_absorption(sigma) if any(sigma) else obj
 
 
 def surface_region(cfg: DictConfig, scene: SceneInputs, pool: ModelPool | None = None) -> np.ndarray | None:

@@ -296,12 +296,17 @@ def render_cycles(
 
     Raises:
         CyclesUnavailable: no Python with ``bpy`` (see :func:`find_blender_python`).
-        ValueError: an unknown ``lighting``, an object not placed, shapes that do not match, a
-            camera with non-square pixels.
+        ValueError: an unknown ``lighting``, an object not placed or absorbing, shapes that do not
+            match, a camera with non-square pixels.
         RuntimeError: the render failed (the message ends with Blender's output).
     """
     if lighting not in ("authors", "unlit"):
         raise ValueError(f"lighting must be 'authors' or 'unlit', got {lighting!r}")
+    if obj.absorbs:
+        raise ValueError(
+            f"the Cycles reference (the authors' scene) has no absorbing glass; object absorption {obj.absorption} "
+            "per metre needs reference.renderer=mitsuba (its interior medium), or object.absorption.color=[1,1,1]"
+        )
     python = find_blender_python(blender_python)
     img = _checked_image(i_minus, depth, camera, obj)
     glass_ior = float(obj.ior if ior is None else ior)

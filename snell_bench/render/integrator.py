@@ -47,6 +47,7 @@ def render_linear(
     *,
     window=None,
     sampler="independent",
+    media: bool = False,
 ):
     """Render ``shapes`` with Mitsuba's path tracer, once per seed, from one loaded scene.
 
@@ -71,6 +72,10 @@ def render_linear(
         window: ``(x0, y0, x1, y1)``, end exclusive: render only these pixels (a crop window of
             the film, see the module's conventions); ``None``: the whole image.
         sampler: the sampler, as in :func:`~snell_bench.render.pieces.check_sampler`.
+        media: a shape holds a medium (an absorbing glass): Mitsuba's ``volpathmis`` integrator, which
+            attenuates paths inside media (``path`` ignores them) with spectral MIS for an extinction
+            that differs between channels (at the same samples its self-noise is 2-3 dB better than
+            ``volpath``'s on a tinted sphere).
 
     Returns:
         The linear float32 image of the window, ``(y1 - y0, x1 - x0, 3)`` (``(H, W, 3)`` without a
@@ -83,7 +88,11 @@ def render_linear(
     scene_dict = {
         "type": "scene",
         # no Russian roulette: paths end at emitters (black BSDFs) or after max_depth interactions
-        "integrator": {"type": "path", "max_depth": int(max_depth), "rr_depth": int(max_depth) + 1},
+        "integrator": {
+            "type": "volpathmis" if media else "path",
+            "max_depth": int(max_depth),
+            "rr_depth": int(max_depth) + 1,
+        },
         "sensor": sensor(mi, camera, counts[0], *clip, rect=None if full else (wx0, wy0, wx1, wy1), sampler=sampler),
     }
     scene_dict.update(shapes)

@@ -40,6 +40,7 @@ from snell_bench.scene.camera import Camera
 
 __all__ = [
     "SAMPLERS",
+    "absorbing_medium",
     "black_bsdf",
     "check_sampler",
     "mesh",
@@ -108,7 +109,7 @@ def sample_count(mi, sampler, spp: int) -> int:
 
 
 # ============================================================================ meshes, sensors, emitters, BSDFs
-def mesh(mi, name: str, vertices, faces, *, uv=None, normals=None, bsdf=None, emitter=None):
+def mesh(mi, name: str, vertices, faces, *, uv=None, normals=None, bsdf=None, emitter=None, interior=None):
     """A Mitsuba triangle mesh.
 
     Args:
@@ -120,11 +121,14 @@ def mesh(mi, name: str, vertices, faces, *, uv=None, normals=None, bsdf=None, em
         normals: ``(N, 3)`` shading normals, or ``None`` (face normals).
         bsdf: the mesh's BSDF, or ``None`` (Mitsuba's default).
         emitter: an ``area`` emitter, or ``None``.
+        interior: the medium inside the (closed) mesh, or ``None`` (the surroundings').
 
     Returns:
         The ``mi.Mesh``.
     """
     props = mi.Properties()
+    if interior is not None:
+        props["interior"] = interior
     if bsdf is not None:
         props["bsdf"] = bsdf
     if emitter is not None:
@@ -274,6 +278,21 @@ def pinhole_sensor(
     d.update({f"inv_k_{i}{j}": float(inv_k[i, j]) for i in range(2) for j in range(3)})
     d.update(_film_and_sampler(camera, spp, rect, sampler))
     return d
+
+
+def absorbing_medium(mi, sigma):
+    """A purely absorbing ``homogeneous`` medium: extinction ``sigma`` per scene unit (linear RGB),
+    albedo 0 (nothing scattered), so a path of length ``L`` inside keeps ``exp(-sigma L)``; it
+    needs a volumetric integrator (``volpathmis``; ``path`` ignores media)."""
+    top = max(float(x) for x in sigma)  # an RGB value is read in [0, 1]: the largest goes in ``scale``
+    return mi.load_dict(
+        {
+            "type": "homogeneous",
+            "albedo": 0.0,
+            "sigma_t": {"type": "rgb", "value": [float(x) / top for x in sigma]},
+            "scale": top,
+        }
+    )
 
 
 def black_bsdf(mi):

@@ -25,7 +25,7 @@ from snell_bench.render.geometry import (
     subdivide,
 )
 from snell_bench.render.integrator import render_linear
-from snell_bench.render.pieces import black_bsdf, mesh, rgb_emitter, texture_emitter
+from snell_bench.render.pieces import absorbing_medium, black_bsdf, mesh, rgb_emitter, texture_emitter
 from snell_bench.render.plugins import REFRACTION_ONLY_BSDF, REFRACTION_PATH_BSDF
 from snell_bench.render.reference_settings import ReferenceSettings
 from snell_bench.scene.camera import Camera
@@ -104,10 +104,12 @@ def build_scene(img: np.ndarray, depth: np.ndarray, camera: Camera, obj: GlassOb
 
 
 def _glass(mi, scene: ReferenceScene, obj: GlassObject, kind: str, **props):
-    """The object's mesh with the BSDF ``kind`` (``int_ior = obj.ior``, ``ext_ior = 1``)."""
+    """The object's mesh with the BSDF ``kind`` (``int_ior = obj.ior``, ``ext_ior = 1``), filled with
+    the absorbing medium of its material where it absorbs (:func:`~snell_bench.render.pieces.absorbing_medium`)."""
     bsdf = mi.load_dict({"type": kind, "int_ior": float(obj.ior), "ext_ior": 1.0, **props})
     ov, of, on = scene.obj
-    return mesh(mi, "object", ov, of, normals=on, bsdf=bsdf)
+    interior = absorbing_medium(mi, obj.absorption) if obj.absorbs else None
+    return mesh(mi, "object", ov, of, normals=on, bsdf=bsdf, interior=interior)
 
 
 def _emitting(mi, name: str, vf: tuple, rgb: tuple):
@@ -139,7 +141,17 @@ def render_image_pass(
     python_rect = None if s.fresnel and s.reflection else scene.rect
     seeds = [int(s.seed)] if len(counts) == 1 else [2 * int(s.seed), 2 * int(s.seed) + 1]
     return render_linear(
-        mi, shapes, camera, list(counts), seeds, s.max_depth, scene.clip, python_rect, window=window, sampler=s.sampler
+        mi,
+        shapes,
+        camera,
+        list(counts),
+        seeds,
+        s.max_depth,
+        scene.clip,
+        python_rect,
+        window=window,
+        sampler=s.sampler,
+        media=obj.absorbs,
     )
 
 

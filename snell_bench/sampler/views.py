@@ -11,8 +11,10 @@ Convention:
     - Blends are detail-preserving averages ``phi`` (``dpa_domain``): of whole images in FLUX's
       [-1, 1] image space (``image``, :func:`~snell_bench.imaging.blend.blend_images`), or per
       Laplacian band with the low-pass level in [-1, 1] (``bands``,
-      :func:`~snell_bench.imaging.blend.blend_pyramids`); the reflection is mixed in by Fresnel in
-      linear RGB (:func:`~snell_bench.imaging.blend.fresnel_combine`).
+      :func:`~snell_bench.imaging.blend.blend_pyramids`); the refraction of an absorbing object
+      is tinted by its transmittance (:func:`~snell_bench.imaging.blend.absorb`), then the
+      reflection is mixed in by Fresnel in linear RGB
+      (:func:`~snell_bench.imaging.blend.fresnel_combine`), both in linear RGB.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import torch
 import torch.nn.functional as F
 
 from snell_bench.config.sampler import SamplerSettings
-from snell_bench.imaging.blend import blend_images, blend_pyramids, fresnel_combine
+from snell_bench.imaging.blend import absorb, blend_images, blend_pyramids, fresnel_combine
 from snell_bench.imaging.pyramid import gaussian_pyramid, laplacian_from_gaussian, pyramid_warp, warped_bands
 from snell_bench.optics.warps import WarpSet
 
@@ -155,6 +157,8 @@ class Views:
         i_minus = i_minus.to(dev)
         self.object_mask = on_device(ws.object_mask, dev)[None, None]
         self.fresnel = on_device(ws.fresnel, dev)[None, None]
+        #: (1, 3, H, W) exp(-σ L) of an absorbing object's refracted paths; None: clear
+        self.transmittance = on_device(ws.transmittance(), dev).permute(2, 0, 1)[None] if ws.absorbs else None
         self.main_from_pano = None
         if s.uses_panorama:
             self.main_from_pano = on_device(np.asarray(pano_to_main_map(ws, s.pano_to_main), np.float32), dev)
@@ -286,6 +290,8 @@ class Views:
             lv.insert(1, p)
             ms.insert(1, pm)
         refr = self._blend(lv, ms, own)
+        if self.transmittance is not None:  # tinted along the path in the glass, before the Fresnel mix
+            refr = absorb(refr, self.transmittance)
         if not self.reflection:
             return refr
         if x0_pano is not None:

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from snell_bench.config.materials import MATERIALS, resolve_ior
+from snell_bench.config.materials import CLEAR, MATERIALS, check_sigma, resolve_ior
 from snell_bench.scene.mesh_checks import Crossings, _clean_mesh, self_crossings
 from snell_bench.scene.mesh_format import MESH_SUFFIXES, _check_format, sniff_mesh_format
 
@@ -57,6 +57,9 @@ class GlassObject:
     Attributes:
         mesh: the surface (see the module's conventions for its frame).
         ior: index of refraction of the material (the surroundings are air, IOR 1).
+        absorption: σ, the material's absorption coefficients per metre of the mesh's units (linear
+            R, G, B; :func:`~snell_bench.config.materials.absorption_coefficients`): a path of length
+            ``L`` inside transmits ``exp(-σ L)``. ``(0, 0, 0)``: clear.
         name: a short label (``sphere``, a file stem, ...).
         placed: whether ``mesh`` is in camera coordinates.
         up: the scene's up direction in camera coordinates, set by placement (``None`` if unknown).
@@ -72,11 +75,13 @@ class GlassObject:
     placed: bool = False
     up: np.ndarray | None = None
     crease_angle_deg: float = 30.0
+    absorption: tuple[float, float, float] = CLEAR
     pose: np.ndarray | None = field(default=None, repr=False, compare=False)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "ior", resolve_ior(self.ior))
+        object.__setattr__(self, "absorption", check_sigma(self.absorption))
         if self.up is not None:
             up = np.asarray(self.up, np.float64).reshape(3)
             object.__setattr__(self, "up", up / np.linalg.norm(up))
@@ -231,6 +236,15 @@ class GlassObject:
     def with_ior(self, ior: str | float) -> GlassObject:
         return replace(self, ior=ior, _cache={})
 
+    def with_absorption(self, sigma) -> GlassObject:
+        """The same object of a material with absorption coefficients ``sigma`` (per metre)."""
+        return replace(self, absorption=sigma, _cache={})
+
+    @property
+    def absorbs(self) -> bool:
+        """Whether any channel is absorbed (σ > 0)."""
+        return any(s > 0.0 for s in self.absorption)
+
     def transformed(self, matrix: np.ndarray, *, up=None) -> GlassObject:
         """Apply a 4x4 rigid or similarity transform; the result is a placed object."""
         m = self.mesh.copy()
@@ -271,6 +285,8 @@ class GlassObject:
         h.update(np.ascontiguousarray(self.vertices, dtype=np.float64).tobytes())
         h.update(np.ascontiguousarray(self.faces, dtype=np.int64).tobytes())
         h.update(repr((round(self.ior, 12), self.crease_angle_deg, self.placed)).encode())
+        if self.absorbs:  # a clear object keeps the hash it had before absorption existed
+            h.update(repr(tuple(round(s, 12) for s in self.absorption)).encode())
         return h.hexdigest()
 
     def __repr__(self) -> str:

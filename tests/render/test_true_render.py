@@ -51,6 +51,30 @@ class TestTrueRender:
         m = metric_pixels(reference, room.ws)
         assert psnr(true, reference.image, m) > 25
 
+    def test_tinted_glass_darkens_only_its_absorbed_channels(self, room):
+        """Absorption in red alone: green and blue are the clear render's bit for bit, red is darker
+        inside the object and unchanged outside it."""
+        tinted = room.obj.with_absorption((6.0, 0.0, 0.0))
+        clear = render_true(room.scene, room.camera, room.obj, spp=4, jitter=False)
+        red = render_true(room.scene, room.camera, tinted, spp=4, jitter=False)
+        assert np.array_equal(red[..., 1:], clear[..., 1:])
+        inside, outside = room.ws.object_mask, far_from_object(room.ws.object_mask)
+        assert np.array_equal(red[outside], clear[outside])
+        assert (red[inside, 0] <= clear[inside, 0]).all() and (red[inside, 0] < clear[inside, 0] - 0.05).mean() > 0.5
+
+    def test_tinted_glass_agrees_with_the_reference(self, room):
+        """Two renderers of the tinted sphere (our tracer with exp(-sigma L), Mitsuba's medium): as
+        close as the clear ones (the test above), at more samples: a colour-dependent extinction
+        makes the reference noisier (docs/materials.md)."""
+        pytest.importorskip("mitsuba")
+        from snell_bench.render.reference import ReferenceSettings, render_reference
+
+        tinted = room.obj.with_absorption((3.0, 1.0, 0.3))
+        with forced_cpu_variant():
+            reference = render_reference(room.image, room.depth, room.camera, tinted, ReferenceSettings(spp=64, seed=0))
+        true = render_true(room.scene, room.camera, tinted, spp=4, seed=0)
+        assert psnr(true, reference.image, metric_pixels(reference, room.ws)) > 25
+
     def test_deterministic_and_sample_patterns(self, room):
         cam = room.camera.scaled(0.25)
         a = render_true(room.scene, cam, room.obj, spp=2, seed=1)
