@@ -182,6 +182,7 @@ def _row(cell: Cell, inputs: pipeline.CellInputs, files: dict[str, str]) -> dict
         "cx": float(K[0, 2]),
         "cy": float(K[1, 2]),
         "ior": float(obj.ior),
+        "absorption": [float(x) for x in obj.absorption],
         "object_pose": [float(x) for x in (np.eye(4) if obj.pose is None else obj.pose).reshape(-1)],
         "object_up": None if obj.up is None else [float(x) for x in obj.up],
         **{f: (f"{cell.name}/{files[f]}" if f in files else None) for f in FILE_FIELDS},

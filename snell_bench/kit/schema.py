@@ -44,7 +44,8 @@ __all__ = [
 
 #: The version of the kit's fields and layout. Bump it for any change a reader could notice (a field
 #: added, removed, renamed, or a meaning, unit or convention changed).
-KIT_VERSION = "1.0"
+#: 1.1: ``absorption``.
+KIT_VERSION = "1.1"
 
 MANIFEST = "manifest.parquet"
 MANIFEST_JSONL = "manifest.jsonl"
@@ -101,6 +102,13 @@ FIELDS: tuple[KitField, ...] = (
     KitField("cx", "float64", "pixels, integer values at pixel centres", "principal point x (K[0, 2])"),
     KitField("cy", "float64", "pixels, integer values at pixel centres", "principal point y (K[1, 2])"),
     KitField("ior", "float64", "", "the object's index of refraction (air around it: 1)"),
+    KitField(
+        "absorption",
+        "list<float64>",
+        "per metre, linear R, G, B",
+        "the object material's absorption coefficients σ: a path of length L inside keeps exp(-σ L) of its light "
+        "(Beer–Lambert); [0, 0, 0]: clear",
+    ),
     KitField(
         "object_pose",
         "list<float64>",

@@ -65,7 +65,7 @@ def _kit(folder: str) -> Kit:
 
 def kit_problems(kit: Kit, group: str, inputs: CellInputs) -> list[str]:
     """How this run's inputs of ``group`` differ from the kit's row (the images were made from the
-    kit): the group is missing, or its camera, IOR, object or I⁻ differ beyond float rounding
+    kit): the group is missing, or its camera, IOR, absorption, object or I⁻ differ beyond float rounding
     (intrinsics 1e-6 relative; vertices 1e-5 of the object's size; I⁻ at most one 8-bit level in at
     most 0.1 % of the pixels: a last-bit difference between machines can flip a rounding)."""
     row = kit.row(group)
@@ -81,6 +81,8 @@ def kit_problems(kit: Kit, group: str, inputs: CellInputs) -> list[str]:
         out.append(f"its intrinsics (fx, fy, cx, cy) are {K.tolist()}, this run's {ours.tolist()}")
     if abs(float(row["ior"]) - float(inputs.obj.ior)) > 1e-9:
         out.append(f"its IOR is {row['ior']}, this run's {inputs.obj.ior}")
+    if not np.allclose(row["absorption"], inputs.obj.absorption, rtol=1e-9, atol=1e-12):
+        out.append(f"its absorption is {list(row['absorption'])} per metre, this run's {list(inputs.obj.absorption)}")
     import trimesh
 
     mesh = trimesh.load(kit.path(row, "object_mesh"), process=False, force="mesh")

@@ -5,7 +5,10 @@ from snell_bench.kit.schema import FIELDS, FILE_FIELDS, KIT_VERSION, kit_id, sch
 
 #: The digest of each schema version's fields (names, types, units, descriptions, optionality). A
 #: change of the fields without a new KIT_VERSION fails here: bump the version, add its digest.
-DIGESTS = {"1.0": "0c90b8921e52e45e9f7e27ac86b2dfe27bf4820aa64103b835d644849e7808b6"}
+DIGESTS = {
+    "1.0": "0c90b8921e52e45e9f7e27ac86b2dfe27bf4820aa64103b835d644849e7808b6",
+    "1.1": "b84ea5b69445cd0ec6900cfe1b61e892d16c1f588b167258637e23f4851c34c5",  # absorption
+}
 
 
 def test_a_changed_kit_is_a_new_schema_version():
