@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 __all__ = [
     "MATERIALS",
@@ -19,10 +20,35 @@ __all__ = [
     "absorption_coefficients",
     "absorption_problem",
     "check_sigma",
+    "Medium",
 ]
 
 #: No absorption: σ = 0 in every channel.
 CLEAR: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Medium:
+    """The material inside one closed shell of an object made of several (a glass of water).
+
+    Attributes:
+        ior: index of refraction (a material name or a number, :func:`resolve_ior`).
+        absorption: σ per metre (linear R, G, B; :func:`absorption_coefficients`).
+        priority: where shells overlap, the medium of highest priority fills the overlap; a ray
+            that crosses the surface of a shell of lower priority than the medium it is in meets no
+            interface there. Ties: the shell listed later wins.
+    """
+
+    ior: float = 1.5
+    absorption: tuple = CLEAR
+    priority: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "ior", resolve_ior(self.ior))
+        object.__setattr__(self, "absorption", check_sigma(self.absorption))
+        if isinstance(self.priority, bool) or not isinstance(self.priority, int):
+            raise ValueError(f"a medium's priority must be an integer, got {self.priority!r}")
+
 
 #: Refractive indices (sodium D line, ~589 nm) of common transparent materials.
 MATERIALS: dict[str, float] = {

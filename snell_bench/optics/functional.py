@@ -16,9 +16,10 @@ Convention:
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
-__all__ = ["face_forward", "reflect", "refract", "fresnel", "fresnel_cos"]
+__all__ = ["face_forward", "reflect", "refract", "fresnel", "fresnel_cos", "interact"]
 
 
 def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -163,3 +164,43 @@ def fresnel(d: torch.Tensor, n: torch.Tensor, n_i, n_t) -> torch.Tensor:
         0.04
     """
     return fresnel_cos(_dot(d, n).abs(), n_i, n_t)
+
+
+def interact(
+    d: np.ndarray, ns: np.ndarray, ng: np.ndarray, n_i: np.ndarray, n_t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Refract or totally reflect rays at surface points between media of IOR ``n_i`` (the side the
+    ray comes from) and ``n_t`` (the other side); numpy float64 in and out (the tracer's arrays).
+
+    Args:
+        d: ``(N, 3)`` unit ray directions.
+        ns: ``(N, 3)`` outward shading normals.
+        ng: ``(N, 3)`` outward face normals.
+        n_i, n_t: ``(N,)`` indices of refraction before and after the surface.
+
+    Returns:
+        ``(d_new, goes_inside, fresnel, mirror, nf)``: new directions, whether they end on the inner
+        side of the surface (its face normal's back), Fresnel reflectance, mirror directions and the
+        normals used (facing the rays). A shading normal that would send the ray to the wrong side
+        of the geometric surface (near silhouettes) is replaced by the face normal there.
+    """
+    from_inside = np.einsum("ij,ij->i", d, ng) > 0
+    eta = n_i / n_t
+    dt, nst, ngt = (torch.from_numpy(a) for a in (d, ns, ng))
+    nf = face_forward(nst, dt)
+    d_new, tir = refract(dt, nf, torch.from_numpy(eta))
+    # a shading normal must not send the ray to the wrong side of the geometric surface
+    goes_inside = torch.where(tir, torch.from_numpy(from_inside), ~torch.from_numpy(from_inside))
+    s = (d_new * ngt).sum(-1)
+    wrong = torch.where(goes_inside, s > 0, s < 0)
+    if bool(wrong.any()):
+        nfg = face_forward(ngt, dt)
+        d_g, tir_g = refract(dt, nfg, torch.from_numpy(eta))
+        d_new = torch.where(wrong[:, None], d_g, d_new)
+        tir = torch.where(wrong, tir_g, tir)
+        nf = torch.where(wrong[:, None], nfg, nf)
+        goes_inside = torch.where(tir, torch.from_numpy(from_inside), ~torch.from_numpy(from_inside))
+    cos_i = -(dt * nf).sum(-1)
+    R = fresnel_cos(cos_i, torch.from_numpy(np.asarray(n_i, np.float64)), torch.from_numpy(np.asarray(n_t, np.float64)))
+    mirror = reflect(dt, nf)
+    return d_new.numpy(), goes_inside.numpy(), R.numpy(), mirror.numpy(), nf.numpy()

@@ -20,94 +20,25 @@ Convention:
 
 from __future__ import annotations
 
-import enum
-from dataclasses import dataclass
-
 import numpy as np
 import open3d as o3d
-import torch
 
-from snell_bench.optics.functional import face_forward, fresnel_cos, reflect, refract
+from snell_bench.optics.functional import interact
+from snell_bench.optics.media import trace_nested
+from snell_bench.optics.trace_types import (
+    BACKGROUND_ID,
+    BOX_ID,
+    BackgroundHit,
+    HitKind,
+    RefractionTrace,
+    dot_rows,
+    end_rays,
+    o3d_rays,
+)
 from snell_bench.scene.depth_mesh import BackgroundMesh
 from snell_bench.scene.objects import GlassObject
 
 __all__ = ["HitKind", "BackgroundHit", "RefractionTrace", "SceneTracer"]
-
-
-class HitKind(enum.IntEnum):
-    """What a traced ray ends on (stored as int8 in arrays).
-
-    Examples:
-        >>> int(HitKind.OBSERVED), HitKind(3).name
-        (1, 'ESCAPED')
-    """
-
-    NONE = 0  #: not traced (e.g. a pixel that does not see the object)
-    OBSERVED = 1  #: the front side of the background surface, which I⁻ observes
-    UNOBSERVED = 2  #: the box of unobserved space, or the back side of the background surface
-    ESCAPED = 3  #: nothing at all (the ray leaves the scene's box: only numerically possible)
-    TRAPPED = 4  #: still bouncing in the object after ``max_bounces`` interactions
-    LOST = 5  #: inside the object and hits nothing (a crack in an open mesh)
-
-
-_BACKGROUND, _BOX = 0, 1
-
-
-@dataclass
-class BackgroundHit:
-    """Result of casting rays against the background and the box (one row per ray;
-    :meth:`SceneTracer.cast_background`)."""
-
-    t: np.ndarray  # (N,) distance, inf where nothing is hit
-    kind: np.ndarray  # (N,) int8 HitKind: OBSERVED, UNOBSERVED or ESCAPED
-    point: np.ndarray  # (N, 3) hit point, NaN where nothing is hit
-    on_box: np.ndarray  # (N,) bool: the hit is on the box of unobserved space (not the depth mesh)
-    normal: np.ndarray | None = None  # (N, 3) unit face normal of the hit (depth mesh: towards the camera)
-
-
-@dataclass
-class RefractionTrace:
-    """Result of tracing camera rays through the object (one row per ray; :meth:`SceneTracer.trace`)."""
-
-    kind: np.ndarray  # (N,) int8 HitKind of where the final ray ends
-    on_box: np.ndarray  # (N,) bool: it ends on the box of unobserved space
-    origin: np.ndarray  # (N, 3) origin of the final ray (its last surface point)
-    direction: np.ndarray  # (N, 3) unit direction of the final ray
-    point: np.ndarray  # (N, 3) where the final ray ends, NaN if nowhere
-    bounces: np.ndarray  # (N,) int16 surface interactions (entry, TIR, exit, re-entries)
-    first_point: np.ndarray  # (N, 3) first surface point
-    first_normal: np.ndarray  # (N, 3) unit shading normal there, facing the camera ray
-    first_geometric_normal: np.ndarray  # (N, 3) outward face normal there
-    fresnel: np.ndarray  # (N,) Fresnel reflectance at the first surface
-    reflected: np.ndarray  # (N, 3) unit mirror direction at the first surface
-    #: (N,) length of the path inside the object (over internal reflections and re-entries, up to
-    #: where it leaves, ends on the background inside the glass, or is trapped), in scene units
-    path_length: np.ndarray | None = None
-
-
-def _o3d_rays(origins: np.ndarray, directions: np.ndarray) -> o3d.core.Tensor:
-    rays = np.empty((len(origins), 6), np.float32)
-    rays[:, :3] = origins
-    rays[:, 3:] = directions
-    return o3d.core.Tensor.from_numpy(rays)
-
-
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.einsum("ij,ij->i", a, b)
-
-
-def _end_rays(res: RefractionTrace, end: np.ndarray, inside: np.ndarray, hb: BackgroundHit, sel, oa, da) -> None:
-    """Record the rays ``end`` (rows ``sel`` of this step's casts) that end here: on the background,
-    the box, or nowhere (``LOST`` when they were inside the object)."""
-    if not len(end):
-        return
-    k = hb.kind[sel].copy()
-    k[inside[end] & (k == HitKind.ESCAPED)] = HitKind.LOST
-    res.kind[end] = k
-    res.on_box[end] = hb.on_box[sel]
-    res.origin[end] = oa[sel]
-    res.direction[end] = da[sel]
-    res.point[end] = hb.point[sel]
 
 
 class SceneTracer:
@@ -186,7 +117,7 @@ class SceneTracer:
             o3d.core.Tensor.from_numpy(np.ascontiguousarray(background.box_vertices, np.float32)),
             o3d.core.Tensor.from_numpy(np.ascontiguousarray(background.box_faces, np.uint32)),
         )
-        assert (gid, bid) == (_BACKGROUND, _BOX)
+        assert (gid, bid) == (BACKGROUND_ID, BOX_ID)
         self._obj = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
         self._obj.add_triangles(
             o3d.core.Tensor.from_numpy(np.ascontiguousarray(obj.vertices, np.float32)),
@@ -213,17 +144,17 @@ class SceneTracer:
             return BackgroundHit(
                 np.zeros(0), np.zeros(0, np.int8), np.zeros((0, 3)), np.zeros(0, bool), np.zeros((0, 3))
             )
-        r = self._bg.cast_rays(_o3d_rays(origins, directions), nthreads=self.nthreads)
+        r = self._bg.cast_rays(o3d_rays(origins, directions), nthreads=self.nthreads)
         t = r["t_hit"].numpy().astype(np.float64)
         gid = r["geometry_ids"].numpy()
         fn = r["primitive_normals"].numpy().astype(np.float64)
         hit = np.isfinite(t)
         kind = np.full(n, HitKind.ESCAPED, np.int8)
-        front = _dot(fn, directions) < 0  # depth-mesh faces are wound to face the camera
-        kind[hit & (gid == _BACKGROUND) & front] = HitKind.OBSERVED
-        kind[hit & ((gid == _BOX) | ((gid == _BACKGROUND) & ~front))] = HitKind.UNOBSERVED
+        front = dot_rows(fn, directions) < 0  # depth-mesh faces are wound to face the camera
+        kind[hit & (gid == BACKGROUND_ID) & front] = HitKind.OBSERVED
+        kind[hit & ((gid == BOX_ID) | ((gid == BACKGROUND_ID) & ~front))] = HitKind.UNOBSERVED
         point = np.where(hit[:, None], origins + np.where(hit, t, 0.0)[:, None] * directions, np.nan)
-        return BackgroundHit(np.where(hit, t, np.inf), kind, point, hit & (gid == _BOX), fn)
+        return BackgroundHit(np.where(hit, t, np.inf), kind, point, hit & (gid == BOX_ID), fn)
 
     def cast_object(self, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
         """First hit on the object.
@@ -236,7 +167,7 @@ class SceneTracer:
             ``t`` (inf if none), ``face``, ``uv`` (barycentrics) and ``normal`` (outward face
             normal) of each ray's hit.
         """
-        r = self._obj.cast_rays(_o3d_rays(origins, directions), nthreads=self.nthreads)
+        r = self._obj.cast_rays(o3d_rays(origins, directions), nthreads=self.nthreads)
         return {
             "t": r["t_hit"].numpy().astype(np.float64),
             "face": r["primitive_ids"].numpy().astype(np.int64),
@@ -314,24 +245,24 @@ class SceneTracer:
         c = np.asarray(origin, np.float64).reshape(3)
         p = np.asarray(points, np.float64)
         v = p - c
-        dist = np.sqrt(_dot(v, v))
+        dist = np.sqrt(dot_rows(v, v))
         ok = np.isfinite(dist) & (dist > 0)
         out = np.zeros(len(v), bool)
         if not ok.any():
             return out
         r = dist[ok]
         d = v[ok] / r[:, None]
-        hit = self._bg.cast_rays(_o3d_rays(np.broadcast_to(c, d.shape), d), nthreads=self.nthreads)
+        hit = self._bg.cast_rays(o3d_rays(np.broadcast_to(c, d.shape), d), nthreads=self.nthreads)
         t = hit["t_hit"].numpy()  # float32, inf where nothing is hit
-        cos = _dot(hit["primitive_normals"].numpy().astype(np.float64), d)
-        scale = float(np.linalg.norm(c)) + np.sqrt(_dot(p[ok], p[ok]))
+        cos = dot_rows(hit["primitive_normals"].numpy().astype(np.float64), d)
+        scale = float(np.linalg.norm(c)) + np.sqrt(dot_rows(p[ok], p[ok]))
         tol = 16.0 * 2.0**-24 * scale / np.maximum(np.abs(cos), 2.0**-6)
         seen = t >= r - tol
         if normals is None:  # the side of the triangle hit at the point (faces wound towards the camera)
             at = seen & (t <= r + tol)
-            seen &= ~at | ((hit["geometry_ids"].numpy() == _BACKGROUND) & (cos < 0))
+            seen &= ~at | ((hit["geometry_ids"].numpy() == BACKGROUND_ID) & (cos < 0))
         else:
-            seen &= _dot(np.asarray(normals, np.float64)[ok], d) <= 0  # zero normal: unknown, seen
+            seen &= dot_rows(np.asarray(normals, np.float64)[ok], d) <= 0  # zero normal: unknown, seen
         out[ok] = seen
         return out
 
@@ -339,40 +270,11 @@ class SceneTracer:
     def _interact(
         self, d: np.ndarray, ns: np.ndarray, ng: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Refract or totally reflect rays at surface points.
-
-        Args:
-            d: ``(N, 3)`` unit ray directions.
-            ns: ``(N, 3)`` outward shading normals.
-            ng: ``(N, 3)`` outward face normals.
-
-        Returns:
-            ``(d_new, goes_inside, fresnel, mirror, nf)``: new directions, whether they go into the
-            object, Fresnel reflectance, mirror directions and the normals used (facing the rays).
-        """
+        """:func:`~snell_bench.optics.functional.interact` between the object (``obj.ior``) and the air
+        around it (IOR 1)."""
+        from_inside = dot_rows(d, ng) > 0
         ior = self.obj.ior
-        from_inside = _dot(d, ng) > 0
-        eta = np.where(from_inside, ior, 1.0 / ior)
-        n_i = np.where(from_inside, ior, 1.0)
-        n_t = np.where(from_inside, 1.0, ior)
-        dt, nst, ngt = (torch.from_numpy(a) for a in (d, ns, ng))
-        nf = face_forward(nst, dt)
-        d_new, tir = refract(dt, nf, torch.from_numpy(eta))
-        # a shading normal must not send the ray to the wrong side of the geometric surface
-        goes_inside = torch.where(tir, torch.from_numpy(from_inside), ~torch.from_numpy(from_inside))
-        s = (d_new * ngt).sum(-1)
-        wrong = torch.where(goes_inside, s > 0, s < 0)
-        if bool(wrong.any()):
-            nfg = face_forward(ngt, dt)
-            d_g, tir_g = refract(dt, nfg, torch.from_numpy(eta))
-            d_new = torch.where(wrong[:, None], d_g, d_new)
-            tir = torch.where(wrong, tir_g, tir)
-            nf = torch.where(wrong[:, None], nfg, nf)
-            goes_inside = torch.where(tir, torch.from_numpy(from_inside), ~torch.from_numpy(from_inside))
-        cos_i = -(dt * nf).sum(-1)
-        R = fresnel_cos(cos_i, torch.from_numpy(n_i), torch.from_numpy(n_t))
-        mirror = reflect(dt, nf)
-        return d_new.numpy(), goes_inside.numpy(), R.numpy(), mirror.numpy(), nf.numpy()
+        return interact(d, ns, ng, np.where(from_inside, ior, 1.0), np.where(from_inside, 1.0, ior))
 
     # ------------------------------------------------------------------ full trace
     def trace(self, origins: np.ndarray, directions: np.ndarray) -> RefractionTrace:
@@ -391,6 +293,8 @@ class SceneTracer:
         Returns:
             The :class:`RefractionTrace`.
         """
+        if self.obj.media is not None:  # several media: the medium stack (optics.media)
+            return trace_nested(self, origins, directions)
         o = np.asarray(origins, np.float64).copy()
         d = np.asarray(directions, np.float64)
         d = d / np.linalg.norm(d, axis=-1, keepdims=True)
@@ -421,7 +325,7 @@ class SceneTracer:
             hit_obj = np.isfinite(ho["t"]) & (ho["t"] < hb.t)
             seg = np.where(hit_obj, ho["t"], hb.t)  # to the next surface: the object's or the background's
             res.path_length[active] += np.where(inside[active] & np.isfinite(seg), seg, 0.0)
-            _end_rays(res, active[~hit_obj], inside, hb, ~hit_obj, oa, da)
+            end_rays(res, active[~hit_obj], inside, hb, ~hit_obj, oa, da)
             act = active[hit_obj]
             if len(act) == 0:
                 active = act
@@ -448,6 +352,7 @@ class SceneTracer:
             inside[act] = goes_inside
             res.bounces[act] += 1
             active = act
+        res.optical_depth = res.path_length[:, None] * np.asarray(self.obj.absorption, np.float64)
         return res
 
     def trace_reflection(self, trace: RefractionTrace) -> BackgroundHit:
@@ -468,7 +373,7 @@ class SceneTracer:
         )
         if ok.any():
             ng = trace.first_geometric_normal[ok]
-            side = np.where(_dot(trace.reflected[ok], ng) >= 0, 1.0, -1.0)
+            side = np.where(dot_rows(trace.reflected[ok], ng) >= 0, 1.0, -1.0)
             o = trace.first_point[ok] + (self.eps * side)[:, None] * ng
             h = self.cast_background(o, trace.reflected[ok])
             out.t[ok], out.kind[ok], out.point[ok], out.on_box[ok] = h.t, h.kind, h.point, h.on_box

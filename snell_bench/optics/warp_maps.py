@@ -90,7 +90,7 @@ def refraction_warps(
     Returns:
         Flat ``(H * W, ...)`` arrays ``refraction`` (the identity outside the object, NaN where
         invalid), ``refraction_valid``, ``refraction_kind``, ``bounces`` (clipped to 255),
-        ``fresnel`` and ``path_length`` (0 outside the object).
+        ``fresnel``, ``path_length`` and ``optical_depth`` (0 outside the object).
     """
     H, W = camera.shape
     cand = primary.pixels
@@ -109,6 +109,8 @@ def refraction_warps(
     fres[cand] = tr.fresnel
     path = np.zeros(H * W, np.float32)
     path[cand] = tr.path_length
+    depth = np.zeros((H * W, 3), np.float32)
+    depth[cand] = tr.optical_depth
     return {
         "refraction": refraction,
         "refraction_valid": refraction_valid,
@@ -116,6 +118,7 @@ def refraction_warps(
         "bounces": bounces,
         "fresnel": fres,
         "path_length": path,
+        "optical_depth": depth,
     }
 
 

@@ -23,8 +23,8 @@ __all__ = ["WarpSet", "warp_inputs_hash", "assemble", "WARPS_VERSION", "ARRAY_FI
 #: Bump when the meaning or computation of any warp changes, or a field is added (invalidates
 #: caches: the version is part of the cache key, and :meth:`WarpSet.load` refuses other versions).
 #: 2: ``pano_refraction_frame`` (π⁻¹ over the whole frame). 3: π⁻¹ and π^-R valid only where the
-#: panorama centre sees the ray's end. 4: ``path_length`` (the refracted path inside the object)
-#: and the object's absorption.
+#: panorama centre sees the ray's end. 4: ``path_length`` (the refracted path inside the object),
+#: ``optical_depth`` and the object's absorption.
 WARPS_VERSION = 4
 
 ARRAY_FIELDS = (
@@ -35,6 +35,7 @@ ARRAY_FIELDS = (
     "bounces",
     "fresnel",
     "path_length",
+    "optical_depth",
     "reflection",
     "reflection_valid",
     "pano_refraction",
@@ -115,26 +116,30 @@ class WarpSet:
     #: (H, W) float32 length of the refracted path inside the object, over its internal reflections
     #: (scene units, metres; 0 outside the object; zeros when not given).
     path_length: np.ndarray | None = None
+    #: (H, W, 3) float32 the refracted path's length in each medium times the medium's absorption σ
+    #: (linear R, G, B; 0 outside the object and for clear glass; zeros when not given).
+    optical_depth: np.ndarray | None = None
     input_hash: str = ""
     options: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
-    #: σ of the object's material per metre (linear R, G, B; ``(0, 0, 0)``: clear).
+    #: σ of the object's (outer) material per metre (linear R, G, B; ``(0, 0, 0)``: clear).
     absorption: tuple = CLEAR
 
     def __post_init__(self) -> None:
         if self.path_length is None:
             self.path_length = np.zeros(self.fresnel.shape, np.float32)
+        if self.optical_depth is None:
+            self.optical_depth = np.zeros(self.fresnel.shape + (3,), np.float32)
 
     def transmittance(self) -> np.ndarray:
-        """``(H, W, 3)`` float32 Beer–Lambert transmittance ``exp(-σ L)`` of the refracted path
-        (linear RGB; 1 outside the object and for a clear object)."""
-        sigma = np.asarray(self.absorption, np.float64)
-        return np.exp(-self.path_length[..., None].astype(np.float64) * sigma).astype(np.float32)
+        """``(H, W, 3)`` float32 Beer–Lambert transmittance ``exp(-optical_depth)`` of the refracted
+        path, ``exp(-σ L)`` in one medium (linear RGB; 1 outside the object and for clear glass)."""
+        return np.exp(-self.optical_depth.astype(np.float64)).astype(np.float32)
 
     @property
     def absorbs(self) -> bool:
-        """Whether the object's material absorbs any channel."""
-        return any(s > 0.0 for s in self.absorption)
+        """Whether any refracted path is absorbed (a tinted material, or a medium of a nested object)."""
+        return bool((self.optical_depth > 0).any())
 
     # ------------------------------------------------------------------ aliases (paper notation)
     @property

@@ -302,10 +302,11 @@ def render_cycles(
     """
     if lighting not in ("authors", "unlit"):
         raise ValueError(f"lighting must be 'authors' or 'unlit', got {lighting!r}")
-    if obj.absorbs:
+    if obj.absorbs or obj.media is not None:
         raise ValueError(
-            f"the Cycles reference (the authors' scene) has no absorbing glass; object absorption {obj.absorption} "
-            "per metre needs reference.renderer=mitsuba (its interior medium), or object.absorption.color=[1,1,1]"
+            f"the Cycles reference (the authors' scene) has clear glass of one material; object {obj.name!r} "
+            f"(absorption {obj.absorption} per metre, {len(obj.media or ())} media) needs reference.renderer=mitsuba "
+            "(its interior medium), or a clear object.absorption.color=[1,1,1]"
         )
     python = find_blender_python(blender_python)
     img = _checked_image(i_minus, depth, camera, obj)

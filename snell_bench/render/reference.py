@@ -188,7 +188,7 @@ def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject) -> tuple[np.
 
     Raises:
         ValueError: a shape does not match the camera, I⁻ has non-finite values, or the object is
-            not placed.
+            not placed or has several media.
     """
     img = np.asarray(i_minus, dtype=np.float32)
     if img.ndim != 3 or img.shape[2] != 3:
@@ -202,6 +202,11 @@ def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject) -> tuple[np.
         raise ValueError(
             f"depth has shape {depth.shape} but the camera is {camera.height}x{camera.width}; "
             "pass a depth map of the camera's (height, width)"
+        )
+    if obj.media is not None:
+        raise ValueError(
+            f"object {obj.name!r} has {len(obj.media)} media (GlassObject.nested): the reference renders an object "
+            "of one material; its warps and true render take the media, this renderer does not yet"
         )
     if not obj.placed:
         raise ValueError(

@@ -137,7 +137,7 @@ def _tracer(scene, obj: GlassObject, max_bounces: int):
 def _sample_colours(scene, tracer, d: np.ndarray) -> np.ndarray:
     """The linear RGB colour ``(N, 3)`` float64 of the camera rays ``d`` ``(N, 3)`` (from the origin),
     as :func:`render_true` says: ``R c_refl + (1 - R) c_refr`` where the ray meets the object first
-    (``c_refr`` times ``exp(-σ L)`` of an absorbing object), the scene's radiance elsewhere."""
+    (``c_refr`` times ``exp(-σ L)``, summed over the media of its path), the scene's radiance elsewhere."""
     from snell_bench.optics.tracer import HitKind
 
     exited = (HitKind.OBSERVED, HitKind.UNOBSERVED, HitKind.ESCAPED)
@@ -157,8 +157,8 @@ def _sample_colours(scene, tracer, d: np.ndarray) -> np.ndarray:
         ok = np.isin(tr.kind, exited)
         if ok.any():
             refr[ok] = scene.radiance(tr.origin[ok], tr.direction[ok])[0]
-        if tracer.obj.absorbs:  # Beer–Lambert along the path inside the glass
-            refr *= np.exp(-tr.path_length[:, None] * np.asarray(tracer.obj.absorption))
+        if (tr.optical_depth > 0).any():  # Beer–Lambert along the path inside the glass
+            refr *= np.exp(-tr.optical_depth)
         ng = tr.first_geometric_normal
         side = np.where(np.einsum("ij,ij->i", tr.reflected, ng) >= 0, 1.0, -1.0)
         refl = scene.radiance(tr.first_point + (tracer.eps * side)[:, None] * ng, tr.reflected)[0]

@@ -60,6 +60,9 @@ class GlassObject:
         absorption: σ, the material's absorption coefficients per metre of the mesh's units (linear
             R, G, B; :func:`~snell_bench.config.materials.absorption_coefficients`): a path of length
             ``L`` inside transmits ``exp(-σ L)``. ``(0, 0, 0)``: clear.
+        media: an object of several closed shells (:meth:`nested`): the medium of each shell, the
+            first the outermost (``ior`` and ``absorption`` are its); ``None``: one material.
+        face_medium: ``(F,)`` the shell (index into ``media``) each face bounds, with ``media``.
         name: a short label (``sphere``, a file stem, ...).
         placed: whether ``mesh`` is in camera coordinates.
         up: the scene's up direction in camera coordinates, set by placement (``None`` if unknown).
@@ -76,12 +79,21 @@ class GlassObject:
     up: np.ndarray | None = None
     crease_angle_deg: float = 30.0
     absorption: tuple[float, float, float] = CLEAR
+    media: tuple | None = None
+    face_medium: np.ndarray | None = field(default=None, repr=False, compare=False)
     pose: np.ndarray | None = field(default=None, repr=False, compare=False)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "ior", resolve_ior(self.ior))
         object.__setattr__(self, "absorption", check_sigma(self.absorption))
+        if self.media is not None:
+            fm = np.asarray(self.face_medium, np.int64) if self.face_medium is not None else None
+            if fm is None or fm.shape != (len(self.mesh.faces),) or fm.min() < 0 or fm.max() >= len(self.media):
+                raise ValueError("an object of several media needs face_medium: one index into media per face")
+            if len(self.media) > 62:
+                raise ValueError(f"at most 62 shells in one object, got {len(self.media)}")
+            object.__setattr__(self, "face_medium", fm)
         if self.up is not None:
             up = np.asarray(self.up, np.float64).reshape(3)
             object.__setattr__(self, "up", up / np.linalg.norm(up))
@@ -234,16 +246,55 @@ class GlassObject:
 
     # ------------------------------------------------------------------ derived objects
     def with_ior(self, ior: str | float) -> GlassObject:
+        self._one_material("with_ior")
         return replace(self, ior=ior, _cache={})
+
+    def _one_material(self, what: str) -> None:
+        if self.media is not None:
+            raise ValueError(f"{what}: this object has several media; build it again with each shell's Medium")
+
+    @classmethod
+    def nested(cls, shells, name: str = "nested", *, placed: bool | None = None) -> GlassObject:
+        """An object of several closed shells, each filled with its own medium: ``shells`` is a
+        sequence of ``(GlassObject or trimesh.Trimesh, Medium)``, the outermost first, in one frame
+        (placed or canonical alike; ``placed``: whether that frame is the camera's, by default the
+        shells' own, and False for bare meshes). A glass of water: the vessel's shell (glass) and
+        the water's; a straw: a third shell; a hollow vessel: an inner shell of air (IOR 1).
+
+        Raises:
+            ValueError: no shell, or shells some placed and some not.
+        """
+        if not shells:
+            raise ValueError("nested needs at least one (mesh, Medium) shell")
+        meshes = [s.mesh if isinstance(s, GlassObject) else s for s, _ in shells]
+        frames = {s.placed for s, _ in shells if isinstance(s, GlassObject)}
+        if len(frames) > 1:
+            raise ValueError("nested shells must all be placed, or none")
+        placed = frames == {True} if placed is None else bool(placed)
+        media = tuple(m for _, m in shells)
+        mesh = trimesh.util.concatenate(meshes)
+        face_medium = np.concatenate([np.full(len(m.faces), i, np.int64) for i, m in enumerate(meshes)])
+        outer = media[0]
+        return cls(
+            mesh=mesh,
+            ior=outer.ior,
+            absorption=outer.absorption,
+            name=name,
+            placed=placed,
+            media=media,
+            face_medium=face_medium,
+        )
 
     def with_absorption(self, sigma) -> GlassObject:
         """The same object of a material with absorption coefficients ``sigma`` (per metre)."""
+        self._one_material("with_absorption")
         return replace(self, absorption=sigma, _cache={})
 
     @property
     def absorbs(self) -> bool:
-        """Whether any channel is absorbed (σ > 0)."""
-        return any(s > 0.0 for s in self.absorption)
+        """Whether any channel is absorbed (σ > 0) by the material, or by any medium of a nested object."""
+        sigmas = [self.absorption] + [m.absorption for m in self.media or ()]
+        return any(s > 0.0 for sigma in sigmas for s in sigma)
 
     def transformed(self, matrix: np.ndarray, *, up=None) -> GlassObject:
         """Apply a 4x4 rigid or similarity transform; the result is a placed object."""
@@ -287,6 +338,9 @@ class GlassObject:
         h.update(repr((round(self.ior, 12), self.crease_angle_deg, self.placed)).encode())
         if self.absorbs:  # a clear object keeps the hash it had before absorption existed
             h.update(repr(tuple(round(s, 12) for s in self.absorption)).encode())
+        if self.media is not None:
+            h.update(repr(self.media).encode())
+            h.update(np.ascontiguousarray(self.face_medium, np.int64).tobytes())
         return h.hexdigest()
 
     def __repr__(self) -> str:

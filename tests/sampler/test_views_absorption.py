@@ -18,7 +18,8 @@ H, W, HP = 64, 96, 32
 @pytest.fixture(scope="module")
 def setup():
     _, _, ws, i_minus = room_sphere(W, H, HP)
-    tinted = replace(ws, absorption=(8.0, 3.0, 0.5))  # per metre; the sphere is ~0.4 m across
+    sigma = np.array([8.0, 3.0, 0.5], np.float32)  # per metre; the sphere is ~0.4 m across
+    tinted = replace(ws, absorption=tuple(sigma), optical_depth=ws.path_length[..., None] * sigma)
     x0 = torch.rand(1, 3, H, W, generator=torch.Generator().manual_seed(0))
     pano = torch.rand(1, 3, HP, 2 * HP, generator=torch.Generator().manual_seed(1))
     return ws, tinted, i_minus, x0, pano

@@ -1,0 +1,91 @@
+"""What the tracer returns (:mod:`snell_bench.optics.tracer`, :mod:`snell_bench.optics.media`): the
+kinds of ray ends, background hits and refracted paths, and the helpers both tracers share."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+
+__all__ = ["HitKind", "BackgroundHit", "RefractionTrace"]
+
+
+class HitKind(enum.IntEnum):
+    """What a traced ray ends on (stored as int8 in arrays).
+
+    Examples:
+        >>> int(HitKind.OBSERVED), HitKind(3).name
+        (1, 'ESCAPED')
+    """
+
+    NONE = 0  #: not traced (e.g. a pixel that does not see the object)
+    OBSERVED = 1  #: the front side of the background surface, which I⁻ observes
+    UNOBSERVED = 2  #: the box of unobserved space, or the back side of the background surface
+    ESCAPED = 3  #: nothing at all (the ray leaves the scene's box: only numerically possible)
+    TRAPPED = 4  #: still bouncing in the object after ``max_bounces`` interactions
+    LOST = 5  #: inside the object and hits nothing (a crack in an open mesh)
+
+
+BACKGROUND_ID, BOX_ID = 0, 1
+
+
+@dataclass
+class BackgroundHit:
+    """Result of casting rays against the background and the box (one row per ray;
+    :meth:`SceneTracer.cast_background`)."""
+
+    t: np.ndarray  # (N,) distance, inf where nothing is hit
+    kind: np.ndarray  # (N,) int8 HitKind: OBSERVED, UNOBSERVED or ESCAPED
+    point: np.ndarray  # (N, 3) hit point, NaN where nothing is hit
+    on_box: np.ndarray  # (N,) bool: the hit is on the box of unobserved space (not the depth mesh)
+    normal: np.ndarray | None = None  # (N, 3) unit face normal of the hit (depth mesh: towards the camera)
+
+
+@dataclass
+class RefractionTrace:
+    """Result of tracing camera rays through the object (one row per ray; :meth:`SceneTracer.trace`)."""
+
+    kind: np.ndarray  # (N,) int8 HitKind of where the final ray ends
+    on_box: np.ndarray  # (N,) bool: it ends on the box of unobserved space
+    origin: np.ndarray  # (N, 3) origin of the final ray (its last surface point)
+    direction: np.ndarray  # (N, 3) unit direction of the final ray
+    point: np.ndarray  # (N, 3) where the final ray ends, NaN if nowhere
+    bounces: np.ndarray  # (N,) int16 surface interactions (entry, TIR, exit, re-entries)
+    first_point: np.ndarray  # (N, 3) first surface point
+    first_normal: np.ndarray  # (N, 3) unit shading normal there, facing the camera ray
+    first_geometric_normal: np.ndarray  # (N, 3) outward face normal there
+    fresnel: np.ndarray  # (N,) Fresnel reflectance at the first surface
+    reflected: np.ndarray  # (N, 3) unit mirror direction at the first surface
+    #: (N,) length of the path inside the object (over internal reflections and re-entries, up to
+    #: where it leaves, ends on the background inside the glass, or is trapped), in scene units
+    path_length: np.ndarray | None = None
+    #: (N, 3) the path's length in each medium times that medium's absorption σ (linear R, G, B):
+    #: its transmittance is ``exp(-optical_depth)``
+    optical_depth: np.ndarray | None = None
+
+
+def o3d_rays(origins: np.ndarray, directions: np.ndarray) -> o3d.core.Tensor:
+    rays = np.empty((len(origins), 6), np.float32)
+    rays[:, :3] = origins
+    rays[:, 3:] = directions
+    return o3d.core.Tensor.from_numpy(rays)
+
+
+def dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", a, b)
+
+
+def end_rays(res: RefractionTrace, end: np.ndarray, inside: np.ndarray, hb: BackgroundHit, sel, oa, da) -> None:
+    """Record the rays ``end`` (rows ``sel`` of this step's casts) that end here: on the background,
+    the box, or nowhere (``LOST`` when they were inside the object)."""
+    if not len(end):
+        return
+    k = hb.kind[sel].copy()
+    k[inside[end] & (k == HitKind.ESCAPED)] = HitKind.LOST
+    res.kind[end] = k
+    res.on_box[end] = hb.on_box[sel]
+    res.origin[end] = oa[sel]
+    res.direction[end] = da[sel]
+    res.point[end] = hb.point[sel]
