@@ -23,7 +23,7 @@ import numpy as np
 from snell_bench.optics.functional import interact
 from snell_bench.optics.trace_types import HitKind, RefractionTrace, dot_rows, end_rays
 
-__all__ = ["trace_nested", "current_medium"]
+__all__ = ["trace_nested", "current_medium", "nested_interfaces"]
 
 
 def current_medium(inside: np.ndarray, priority: np.ndarray) -> np.ndarray:
@@ -41,6 +41,45 @@ def current_medium(inside: np.ndarray, priority: np.ndarray) -> np.ndarray:
         best = np.where(take, s, best)
         best_p = np.where(take, p, best_p)
     return best
+
+
+def nested_interfaces(obj) -> list[tuple[int, int, int]]:
+    """The interfaces of an object whose shells each lie inside the one before (listed outermost
+    first, as a glass of water): ``(shell, medium inside, medium outside)`` per shell whose surface
+    separates two media (``-1``: air); a shell of lower priority than its container is no interface
+    and is left out.
+
+    Raises:
+        ValueError: a shell's bounding box is not inside the previous shell's (shells that overlap or
+            sit side by side have no single medium outside them).
+
+    Examples:
+        Glass, then water of higher priority, then a core of lower priority than the water:
+
+        >>> from types import SimpleNamespace
+        >>> from snell_bench.config.materials import Medium
+        >>> boxes = [np.array([[-s, -s, -s], [s, s, s]]) for s in (3.0, 2.0, 1.0)]
+        >>> obj = SimpleNamespace(media=(Medium(1.5), Medium(1.33, priority=2), Medium(1.4, priority=1)),
+        ...                       shell_bounds=lambda: boxes)
+        >>> nested_interfaces(obj)
+        [(0, 0, -1), (1, 1, 0)]
+    """
+    bounds = obj.shell_bounds()
+    for k in range(1, len(bounds)):
+        (lo, hi), (plo, phi) = bounds[k], bounds[k - 1]
+        if not ((lo >= plo).all() and (hi <= phi).all()):
+            raise ValueError(
+                f"shell {k} of the object is not inside shell {k - 1}: list the shells outermost first, each "
+                "inside the one before (a glass of water)"
+            )
+    priority = np.array([m.priority for m in obj.media], np.int64)
+    out = []
+    for k in range(len(obj.media)):
+        outside = int(current_medium(np.array([(1 << k) - 1]), priority)[0])
+        inside = int(current_medium(np.array([(1 << (k + 1)) - 1]), priority)[0])
+        if inside != outside:
+            out.append((k, inside, outside))
+    return out
 
 
 def _tables(obj) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -109,7 +109,9 @@ def sample_count(mi, sampler, spp: int) -> int:
 
 
 # ============================================================================ meshes, sensors, emitters, BSDFs
-def mesh(mi, name: str, vertices, faces, *, uv=None, normals=None, bsdf=None, emitter=None, interior=None):
+def mesh(
+    mi, name: str, vertices, faces, *, uv=None, normals=None, bsdf=None, emitter=None, interior=None, exterior=None
+):
     """A Mitsuba triangle mesh.
 
     Args:
@@ -122,6 +124,7 @@ def mesh(mi, name: str, vertices, faces, *, uv=None, normals=None, bsdf=None, em
         bsdf: the mesh's BSDF, or ``None`` (Mitsuba's default).
         emitter: an ``area`` emitter, or ``None``.
         interior: the medium inside the (closed) mesh, or ``None`` (the surroundings').
+        exterior: the medium outside it, or ``None`` (the scene's: none).
 
     Returns:
         The ``mi.Mesh``.
@@ -129,6 +132,8 @@ def mesh(mi, name: str, vertices, faces, *, uv=None, normals=None, bsdf=None, em
     props = mi.Properties()
     if interior is not None:
         props["interior"] = interior
+    if exterior is not None:
+        props["exterior"] = exterior
     if bsdf is not None:
         props["bsdf"] = bsdf
     if emitter is not None:

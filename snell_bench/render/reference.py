@@ -85,6 +85,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from snell_bench.imaging.color import linear_to_srgb
+from snell_bench.optics.media import nested_interfaces
 from snell_bench.render.geometry import object_mask
 from snell_bench.render.pieces import SAMPLERS, check_sampler, sample_count
 from snell_bench.render.reference_passes import (
@@ -188,7 +189,7 @@ def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject) -> tuple[np.
 
     Raises:
         ValueError: a shape does not match the camera, I⁻ has non-finite values, or the object is
-            not placed or has several media.
+            not placed, or has several media whose shells are not each inside the one before.
     """
     img = np.asarray(i_minus, dtype=np.float32)
     if img.ndim != 3 or img.shape[2] != 3:
@@ -204,10 +205,7 @@ def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject) -> tuple[np.
             "pass a depth map of the camera's (height, width)"
         )
     if obj.media is not None:
-        raise ValueError(
-            f"object {obj.name!r} has {len(obj.media)} media (GlassObject.nested): the reference renders an object "
-            "of one material; its warps and true render take the media, this renderer does not yet"
-        )
+        nested_interfaces(obj)  # shells each inside the one before, or a ValueError saying so
     if not obj.placed:
         raise ValueError(
             f"{obj.name}: the object is in its canonical frame; place it first (snell_bench.scene.place_object)"

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from snell_bench.imaging.color import srgb_to_linear
+from snell_bench.optics.media import nested_interfaces
 from snell_bench.render.geometry import (
     background_geometry,
     flaps,
@@ -103,13 +104,29 @@ def build_scene(img: np.ndarray, depth: np.ndarray, camera: Camera, obj: GlassOb
     )
 
 
-def _glass(mi, scene: ReferenceScene, obj: GlassObject, kind: str, **props):
-    """The object's mesh with the BSDF ``kind`` (``int_ior = obj.ior``, ``ext_ior = 1``), filled with
-    the absorbing medium of its material where it absorbs (:func:`~snell_bench.render.pieces.absorbing_medium`)."""
-    bsdf = mi.load_dict({"type": kind, "int_ior": float(obj.ior), "ext_ior": 1.0, **props})
+def _glass(mi, scene: ReferenceScene, obj: GlassObject, kind: str, **props) -> dict:
+    """The object's shapes with the BSDF ``kind``: its mesh (``int_ior = obj.ior``, ``ext_ior = 1``),
+    filled with the absorbing medium of its material where it absorbs
+    (:func:`~snell_bench.render.pieces.absorbing_medium`); for an object of several media one mesh per
+    interface (:func:`~snell_bench.optics.media.nested_interfaces`), each with the IORs and media of
+    its two sides."""
     ov, of, on = scene.obj
-    interior = absorbing_medium(mi, obj.absorption) if obj.absorbs else None
-    return mesh(mi, "object", ov, of, normals=on, bsdf=bsdf, interior=interior)
+    if obj.media is None:
+        bsdf = mi.load_dict({"type": kind, "int_ior": float(obj.ior), "ext_ior": 1.0, **props})
+        interior = absorbing_medium(mi, obj.absorption) if obj.absorbs else None
+        return {"object": mesh(mi, "object", ov, of, normals=on, bsdf=bsdf, interior=interior)}
+    media = [absorbing_medium(mi, m.absorption) if any(m.absorption) else None for m in obj.media] + [None]
+    ior = [m.ior for m in obj.media] + [1.0]
+    shapes = {}
+    for k, inside, outside in nested_interfaces(obj):
+        rows = (3 * np.flatnonzero(obj.face_medium == k)[:, None] + np.arange(3)).ravel()
+        bsdf = mi.load_dict({"type": kind, "int_ior": float(ior[inside]), "ext_ior": float(ior[outside]), **props})
+        name = "object" if k == 0 else f"object_{k}"
+        faces = np.arange(len(rows)).reshape(-1, 3)
+        shapes[name] = mesh(
+            mi, name, ov[rows], faces, normals=on[rows], bsdf=bsdf, interior=media[inside], exterior=media[outside]
+        )
+    return shapes
 
 
 def _emitting(mi, name: str, vf: tuple, rgb: tuple):
@@ -136,7 +153,7 @@ def render_image_pass(
     emitter = texture_emitter(mi, mi.Bitmap(scene.texture))
     shapes = {
         "background": mesh(mi, "background", tv, tf, uv=tuv, bsdf=black_bsdf(mi), emitter=emitter),
-        "object": glass,
+        **glass,
     }
     python_rect = None if s.fresnel and s.reflection else scene.rect
     seeds = [int(s.seed)] if len(counts) == 1 else [2 * int(s.seed), 2 * int(s.seed) + 1]
@@ -165,7 +182,7 @@ def render_unobserved_pass(
         "background": _emitting(mi, "background", scene.observed, _GREEN),
         "back": _emitting(mi, "back", scene.back, _RED),
         "box": _emitting(mi, "box", scene.box, _RED),
-        "object": _glass(mi, scene, obj, REFRACTION_PATH_BSDF),
+        **_glass(mi, scene, obj, REFRACTION_PATH_BSDF),
     }
     s = settings
     return render_linear(

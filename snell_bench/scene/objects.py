@@ -249,6 +249,16 @@ class GlassObject:
         self._one_material("with_ior")
         return replace(self, ior=ior, _cache={})
 
+    def shell_bounds(self) -> list[np.ndarray]:
+        """``(2, 3)`` bounding box of each shell of a nested object (the whole mesh's otherwise)."""
+        if self.media is None:
+            return [np.asarray(self.mesh.bounds, np.float64)]
+        v = np.asarray(self.vertices, np.float64)
+        return [
+            np.stack([v[f].reshape(-1, 3).min(0), v[f].reshape(-1, 3).max(0)])
+            for f in (self.faces[self.face_medium == k] for k in range(len(self.media)))
+        ]
+
     def _one_material(self, what: str) -> None:
         if self.media is not None:
             raise ValueError(f"{what}: this object has several media; build it again with each shell's Medium")

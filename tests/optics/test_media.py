@@ -162,9 +162,8 @@ def test_nested_needs_a_medium_per_face_and_one_material_api_refuses():
 
 def test_warps_of_a_glass_of_water_carry_each_media_absorption():
     """The warps' transmittance of a nested object is exp(-optical depth) of each pixel's path, each
-    medium with its own absorption; the Mitsuba reference refuses it (one material per object)."""
+    medium with its own absorption."""
     from snell_bench.optics import compute_warps
-    from snell_bench.render.reference import ReferenceSettings, render_reference
 
     sg, sw = (1.0, 0.2, 0.0), (0.0, 0.5, 2.0)
     obj = _water_glass(absorption=(sg, sw))
@@ -177,5 +176,15 @@ def test_warps_of_a_glass_of_water_carry_each_media_absorption():
     lo, hi = np.minimum(sg, sw), np.maximum(sg, sw)
     L = ws.path_length[m][:, None].astype(np.float64)
     assert (ws.optical_depth[m] >= L * lo - 1e-6).all() and (ws.optical_depth[m] <= L * hi + 1e-6).all()
-    with pytest.raises(ValueError, match="2 media"):
-        render_reference(np.zeros(cam.shape + (3,), np.float32), np.full(cam.shape, 8.0), cam, obj, ReferenceSettings())
+
+
+def test_interfaces_of_nested_shells_and_refusal_of_side_by_side_ones():
+    from snell_bench.optics.media import nested_interfaces
+
+    assert nested_interfaces(_water_glass()) == [(0, 0, -1), (1, 1, 0)]  # glass|air, water|glass
+    assert nested_interfaces(_water_glass(core_priority=0, glass_priority=1)) == [(0, 0, -1)]  # no water surface
+    beside = _ball(R_IN)
+    beside.apply_translation([2.0, 0.0, 0.0])
+    obj = GlassObject.nested([(_ball(R_OUT), Medium(1.5)), (beside, Medium(1.333, priority=1))], placed=True)
+    with pytest.raises(ValueError, match="shell 1 of the object is not inside shell 0"):
+        nested_interfaces(obj)
