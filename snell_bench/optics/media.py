@@ -109,7 +109,7 @@ def trace_nested(tracer, origins: np.ndarray, directions: np.ndarray, record: li
     o = np.asarray(origins, np.float64).copy()
     d = np.asarray(directions, np.float64)
     d = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    res = _empty(len(o))
+    res = RefractionTrace.empty(len(o))
     res.optical_depth = np.zeros((len(o), 3))
     inside = np.zeros(len(o), np.int64)  # bitmask of the shells each ray is in
     active = np.arange(len(o))
@@ -177,21 +177,3 @@ def _cross(tracer, res, it, act, p, ho, hit_obj, o, d, inside, ior, priority) ->
     d[act] = d_new
     inside[act] = np.where(crossed, after, mask)
     res.bounces[act] += 1
-
-
-def _empty(n: int) -> RefractionTrace:
-    nan3 = np.full((n, 3), np.nan)
-    return RefractionTrace(
-        kind=np.zeros(n, np.int8),
-        on_box=np.zeros(n, bool),
-        origin=nan3.copy(),
-        direction=nan3.copy(),
-        point=nan3.copy(),
-        bounces=np.zeros(n, np.int16),
-        first_point=nan3.copy(),
-        first_normal=nan3.copy(),
-        first_geometric_normal=nan3.copy(),
-        fresnel=np.zeros(n),
-        reflected=nan3.copy(),
-        path_length=np.zeros(n),
-    )

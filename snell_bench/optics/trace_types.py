@@ -65,6 +65,25 @@ class RefractionTrace:
     #: its transmittance is ``exp(-optical_depth)``
     optical_depth: np.ndarray | None = None
 
+    @classmethod
+    def empty(cls, n: int) -> RefractionTrace:
+        """``n`` rays not traced yet: kind NONE, no bounce, NaN points and directions, zero lengths."""
+        nan3 = np.full((n, 3), np.nan)
+        return cls(
+            kind=np.zeros(n, np.int8),
+            on_box=np.zeros(n, bool),
+            origin=nan3.copy(),
+            direction=nan3.copy(),
+            point=nan3.copy(),
+            bounces=np.zeros(n, np.int16),
+            first_point=nan3.copy(),
+            first_normal=nan3.copy(),
+            first_geometric_normal=nan3.copy(),
+            fresnel=np.zeros(n),
+            reflected=nan3.copy(),
+            path_length=np.zeros(n),
+        )
+
 
 def o3d_rays(origins: np.ndarray, directions: np.ndarray) -> o3d.core.Tensor:
     rays = np.empty((len(origins), 6), np.float32)

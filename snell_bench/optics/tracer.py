@@ -299,21 +299,7 @@ class SceneTracer:
         d = np.asarray(directions, np.float64)
         d = d / np.linalg.norm(d, axis=-1, keepdims=True)
         N = len(o)
-        nan3 = np.full((N, 3), np.nan)
-        res = RefractionTrace(
-            kind=np.zeros(N, np.int8),
-            on_box=np.zeros(N, bool),
-            origin=nan3.copy(),
-            direction=nan3.copy(),
-            point=nan3.copy(),
-            bounces=np.zeros(N, np.int16),
-            first_point=nan3.copy(),
-            first_normal=nan3.copy(),
-            first_geometric_normal=nan3.copy(),
-            fresnel=np.zeros(N),
-            reflected=nan3.copy(),
-            path_length=np.zeros(N),
-        )
+        res = RefractionTrace.empty(N)
         inside = np.zeros(N, bool)
         active = np.arange(N)
         for it in range(self.max_bounces + 1):

@@ -54,6 +54,14 @@ def test_sphere_centre_is_the_series_of_its_internal_reflections():
     assert abs((1 - R) * T_grey - p) > tol  # the series is told apart from a single pass
 
 
+def _warps_combination(image: np.ndarray, ws) -> tuple[np.ndarray, np.ndarray]:
+    """``R π^-R + (1 - R) T π^R`` of I⁻ in linear RGB (sRGB out), and the same without ``T``."""
+    lin = srgb_to_linear(image)
+    refl = warp(lin, np.where(ws.reflection_valid[..., None], ws.reflection, np.nan))
+    F, refr = ws.fresnel[..., None], warp(lin, ws.refraction)
+    return linear_to_srgb(F * refl + (1 - F) * ws.transmittance() * refr), linear_to_srgb(F * refl + (1 - F) * refr)
+
+
 def test_tinted_sphere_matches_the_warps_transmittance():
     """Mitsuba's dielectric filled with the medium against ``R π^-R + (1 - R) T π^R`` in linear RGB,
     ``T`` the warps' ``exp(-sigma L)``: at least 30 dB inside the metric mask (clear: the same test
@@ -63,14 +71,10 @@ def test_tinted_sphere_matches_the_warps_transmittance():
     obj = room.obj.with_absorption(sigma)
     ws = compute_warps(room.depth, room.camera, obj, pano_height=16)
     ref = render_reference(room.image, room.depth, room.camera, obj, ReferenceSettings(spp=50, seed=0))
-    lin = srgb_to_linear(room.image)
-    refl = warp(lin, np.where(ws.reflection_valid[..., None], ws.reflection, np.nan))
-    F = ws.fresnel[..., None]
-    expected = linear_to_srgb(F * refl + (1 - F) * ws.transmittance() * warp(lin, ws.refraction))
+    expected, untinted = _warps_combination(room.image, ws)
     m = metric_pixels(ref, ws)
     assert m.sum() > 500
     assert psnr(ref.image, expected, m) >= 30
-    untinted = linear_to_srgb(F * refl + (1 - F) * warp(lin, ws.refraction))
     assert psnr(ref.image, untinted, m) < 25  # the tint is what the reference shows
 
 
@@ -93,12 +97,8 @@ def test_glass_of_water_matches_the_warps():
     obj = GlassObject.nested([(room.obj, Medium(1.5)), (core, Medium(1.333, sigma, priority=1))])
     ws = compute_warps(room.depth, room.camera, obj, pano_height=16)
     ref = render_reference(room.image, room.depth, room.camera, obj, ReferenceSettings(spp=50, seed=0))
-    lin = srgb_to_linear(room.image)
-    refl = warp(lin, np.where(ws.reflection_valid[..., None], ws.reflection, np.nan))
-    F = ws.fresnel[..., None]
-    expected = linear_to_srgb(F * refl + (1 - F) * ws.transmittance() * warp(lin, ws.refraction))
+    expected, untinted = _warps_combination(room.image, ws)
     m = metric_pixels(ref, ws)
     assert m.sum() > 500 and ws.absorbs
     assert psnr(ref.image, expected, m) >= 30
-    untinted = linear_to_srgb(F * refl + (1 - F) * warp(lin, ws.refraction))
     assert psnr(ref.image, untinted, m) < 30
