@@ -243,6 +243,13 @@ def _files(cfg: DictConfig, out: list[str]) -> None:
             f"object.absorption.color={list(color)}: the Cycles reference (the authors' scene) has no absorbing glass; "
             "use reference.renderer=mitsuba (an absorbing interior medium), or a clear object.absorption.color=[1,1,1]"
         )
+    target = str(factory.get("_target_", "")) if isinstance(factory, DictConfig) else ""
+    if target.startswith("snell_bench.scene.vessels.") and str(_get(cfg, "reference.renderer")) == "cycles":
+        if _get(cfg, "reference.enabled"):
+            out.append(
+                f"object={_get(cfg, 'object.name')} is made of several media ({target}): the Cycles reference (the "
+                "authors' scene) has one glass; use reference.renderer=mitsuba (one surface per interface)"
+            )
     bench = _get(cfg, "plan.bench")
     if bench and not Path(str(bench)).is_file():
         out.append(

@@ -246,8 +246,14 @@ class GlassObject:
 
     # ------------------------------------------------------------------ derived objects
     def with_ior(self, ior: str | float) -> GlassObject:
-        self._one_material("with_ior")
+        """The same object of another IOR (of several media: its first shell's, the object's own)."""
+        if self.media is not None:
+            return self._with_first_medium(ior=resolve_ior(ior))
         return replace(self, ior=ior, _cache={})
+
+    def _with_first_medium(self, **change) -> GlassObject:
+        media = (replace(self.media[0], **change), *self.media[1:])
+        return replace(self, media=media, ior=media[0].ior, absorption=media[0].absorption, _cache={})
 
     def shell_bounds(self) -> list[np.ndarray]:
         """``(2, 3)`` bounding box of each shell of a nested object (the whole mesh's otherwise)."""
@@ -258,10 +264,6 @@ class GlassObject:
             np.stack([v[f].reshape(-1, 3).min(0), v[f].reshape(-1, 3).max(0)])
             for f in (self.faces[self.face_medium == k] for k in range(len(self.media)))
         ]
-
-    def _one_material(self, what: str) -> None:
-        if self.media is not None:
-            raise ValueError(f"{what}: this object has several media; build it again with each shell's Medium")
 
     @classmethod
     def nested(cls, shells, name: str = "nested", *, placed: bool | None = None) -> GlassObject:
@@ -296,8 +298,10 @@ class GlassObject:
         )
 
     def with_absorption(self, sigma) -> GlassObject:
-        """The same object of a material with absorption coefficients ``sigma`` (per metre)."""
-        self._one_material("with_absorption")
+        """The same object of a material with absorption coefficients ``sigma`` (per metre); of
+        several media, its first shell's material (the object's own: a glass of water's glass)."""
+        if self.media is not None:
+            return self._with_first_medium(absorption=check_sigma(sigma))
         return replace(self, absorption=sigma, _cache={})
 
     @property

@@ -58,7 +58,8 @@ def test_every_entry_of_every_group_composes(group):
         cfg = apply_method(compose([f"{prefix}{group}={name}", "output_dir=/tmp/x"]))
         assert isinstance(OmegaConf.to_object(cfg.sampler), SamplerSettings), (group, name)
         if group == "object":
-            assert cfg.object.factory._target_.startswith("snell_bench.scene.objects.GlassObject."), name
+            factories = ("snell_bench.scene.objects.GlassObject.", "snell_bench.scene.vessels.")
+            assert cfg.object.factory._target_.startswith(factories), name
         if group == "model":
             assert cfg.model.generator._target_.startswith("snell_bench.models."), name
 
