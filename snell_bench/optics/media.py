@@ -11,7 +11,9 @@ Convention:
       travels in (a shell of lower priority than the current medium), the surface is no interface:
       the ray goes straight on. Otherwise it refracts between the two media's IORs, or reflects
       totally, keeping its set (:func:`~snell_bench.optics.functional.interact`).
-    - Every surface met counts towards ``max_bounces``, false interfaces included.
+    - ``max_bounces`` counts the interfaces a ray meets (refractions and reflections), not the false
+      ones: a ray that meets the object's surface again after ``max_bounces`` interfaces is trapped. A ray is also
+      trapped after ``(max_bounces + 1) * (shells + 1)`` surfaces of any kind.
     - ``path_length`` sums the segments travelled in any shell's medium; ``optical_depth`` the
       segments times that medium's absorption (``exp(-optical_depth)`` is the transmittance).
 """
@@ -23,7 +25,7 @@ import numpy as np
 from snell_bench.optics.functional import interact
 from snell_bench.optics.trace_types import HitKind, RefractionTrace, dot_rows, end_rays
 
-__all__ = ["trace_nested", "current_medium", "nested_interfaces"]
+__all__ = ["current_medium", "interface_faces", "trace_nested"]
 
 
 def current_medium(inside: np.ndarray, priority: np.ndarray) -> np.ndarray:
@@ -43,43 +45,73 @@ def current_medium(inside: np.ndarray, priority: np.ndarray) -> np.ndarray:
     return best
 
 
-def nested_interfaces(obj) -> list[tuple[int, int, int]]:
-    """The interfaces of an object whose shells each lie inside the one before (listed outermost
-    first, as a glass of water): ``(shell, medium inside, medium outside)`` per shell whose surface
-    separates two media (``-1``: air); a shell of lower priority than its container is no interface
-    and is left out.
+def interface_faces(obj) -> tuple[np.ndarray, np.ndarray]:
+    """The media on the two sides of each face of an object of several media: ``(behind, front)``,
+    each ``(F,)`` int64 (a shell's index into ``obj.media``, ``-1``: air); ``behind`` is the side
+    inside the face's own shell (against its normal). Where the two are equal the face is no
+    interface (a shell of lower priority inside another, the water inside a glass's wall).
+
+    Each face is probed at its centroid and near each corner (a tenth of the way to the centroid),
+    against every other shell (Open3D's signed distance: its sign says inside). The shells may
+    overlap, nest or sit side by side, but a face must separate the same two media all over it.
 
     Raises:
-        ValueError: a shell's bounding box is not inside the previous shell's (shells that overlap or
-            sit side by side have no single medium outside them).
+        ValueError: a face crosses another shell's surface (mesh the shells so that their surfaces
+            meet along shared edges, as :func:`~snell_bench.scene.vessels.glass_of_water` does), or
+            lies on it (two coincident surfaces: let one shell overlap the other instead).
 
     Examples:
-        Glass, then water of higher priority, then a core of lower priority than the water:
+        Glass, then a water core of higher priority, then one of lower priority than the water:
 
-        >>> from types import SimpleNamespace
+        >>> import trimesh
         >>> from snell_bench.config.materials import Medium
-        >>> boxes = [np.array([[-s, -s, -s], [s, s, s]]) for s in (3.0, 2.0, 1.0)]
-        >>> obj = SimpleNamespace(media=(Medium(1.5), Medium(1.33, priority=2), Medium(1.4, priority=1)),
-        ...                       shell_bounds=lambda: boxes)
-        >>> nested_interfaces(obj)
-        [(0, 0, -1), (1, 1, 0)]
+        >>> from snell_bench.scene.objects import GlassObject
+        >>> balls = [trimesh.creation.icosphere(2, radius=r) for r in (3.0, 2.0, 1.0)]
+        >>> media = [Medium(1.5), Medium(1.33, priority=2), Medium(1.4, priority=1)]
+        >>> obj = GlassObject.nested(list(zip(balls, media)), placed=True)
+        >>> behind, front = interface_faces(obj)
+        >>> sorted({(int(b), int(f)) for b, f in zip(behind, front)})  # the core's surface: water on both sides
+        [(0, -1), (1, 0), (1, 1)]
     """
-    bounds = obj.shell_bounds()
-    for k in range(1, len(bounds)):
-        (lo, hi), (plo, phi) = bounds[k], bounds[k - 1]
-        if not ((lo >= plo).all() and (hi <= phi).all()):
+    import open3d as o3d
+
+    v, faces, shell = np.asarray(obj.vertices, np.float64), np.asarray(obj.faces), obj.face_medium
+    tri = v[faces]
+    centroid = tri.mean(1)
+    probes = np.concatenate([centroid[None], 0.9 * tri.transpose(1, 0, 2) + 0.1 * centroid[None]])  # (4, F, 3)
+    tol = 1e-6 * float(np.linalg.norm(v.max(0) - v.min(0)))
+    others = np.zeros(probes.shape[:2], np.int64)  # bit s: the probe is inside shell s (s not the face's own)
+    for s in range(len(obj.media)):
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(v, np.float32)),
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(faces[shell == s], np.uint32)),
+        )
+        pts = o3d.core.Tensor.from_numpy(np.ascontiguousarray(probes.reshape(-1, 3), np.float32))
+        sd = scene.compute_signed_distance(pts, nsamples=3).numpy().reshape(probes.shape[:2]).astype(np.float64)
+        foreign = shell != s
+        on = foreign[None] & (np.abs(sd) <= tol)
+        if on.any():
+            f = int(np.flatnonzero(on.any(0))[0])
             raise ValueError(
-                f"shell {k} of the object is not inside shell {k - 1}: list the shells outermost first, each "
-                "inside the one before (a glass of water)"
+                f"face {f} of shell {int(shell[f])} lies on the surface of shell {s}: two shells share a surface; "
+                "let one overlap the other and give it the higher priority"
             )
+        others |= np.where(foreign[None] & (sd < 0), np.int64(1) << s, 0)
+    own = np.left_shift(np.int64(1), shell)
     priority = np.array([m.priority for m in obj.media], np.int64)
-    out = []
-    for k in range(len(obj.media)):
-        outside = int(current_medium(np.array([(1 << k) - 1]), priority)[0])
-        inside = int(current_medium(np.array([(1 << (k + 1)) - 1]), priority)[0])
-        if inside != outside:
-            out.append((k, inside, outside))
-    return out
+    behind = current_medium(others | own, priority)
+    front = current_medium(others & ~own, priority)
+    split = ((behind != behind[0]) | (front != front[0])).any(0)
+    if split.any():
+        f = int(np.flatnonzero(split)[0])
+        crossed = int(np.bitwise_or.reduce(others[:, f]) & ~np.bitwise_and.reduce(others[:, f]))
+        names = [s for s in range(len(obj.media)) if crossed >> s & 1]
+        raise ValueError(
+            f"face {f} of shell {int(shell[f])} crosses the surface of shell {names}: a face must separate the "
+            "same two media all over it; mesh the shells so that their surfaces meet along shared edges"
+        )
+    return behind[0], front[0]
 
 
 def _tables(obj) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -113,7 +145,8 @@ def trace_nested(tracer, origins: np.ndarray, directions: np.ndarray, record: li
     res.optical_depth = np.zeros((len(o), 3))
     inside = np.zeros(len(o), np.int64)  # bitmask of the shells each ray is in
     active = np.arange(len(o))
-    for it in range(tracer.max_bounces + 1):
+    limit = (tracer.max_bounces + 1) * (len(obj.media) + 1)
+    for it in range(limit):
         if len(active) == 0:
             break
         oa, da = o[active], d[active]
@@ -128,10 +161,14 @@ def trace_nested(tracer, origins: np.ndarray, directions: np.ndarray, record: li
         res.optical_depth[active] += seg[:, None] * sigma[cur]
         end_rays(res, active[~hit_obj], inside != 0, hb, ~hit_obj, oa, da)
         act = active[hit_obj]
-        if len(act) == 0 or it == tracer.max_bounces:
-            res.kind[act] = HitKind.TRAPPED
-            res.origin[act], res.direction[act] = o[act], d[act]
+        trapped = (res.bounces[act] >= tracer.max_bounces) | (it == limit - 1)
+        res.kind[act[trapped]] = HitKind.TRAPPED
+        res.origin[act[trapped]], res.direction[act[trapped]] = o[act[trapped]], d[act[trapped]]
+        keep = ~trapped
+        act = act[keep]
+        if len(act) == 0:
             break
+        hit_obj[hit_obj] = keep
         _cross(
             tracer,
             res,
@@ -172,8 +209,10 @@ def _cross(tracer, res, it, act, p, ho, hit_obj, o, d, inside, ior, priority) ->
         res.first_point[act], res.first_normal[act], res.first_geometric_normal[act] = p, nf, ng
         res.fresnel[act] = np.where(false, 0.0, R)
         res.reflected[act] = mirror
+    else:
+        res.interface_transmission[act] *= np.where(crossed & ~false, 1.0 - R, 1.0)
     side = np.where(goes_inside, -1.0, 1.0)
     o[act] = p + (tracer.eps * side)[:, None] * ng
     d[act] = d_new
     inside[act] = np.where(crossed, after, mask)
-    res.bounces[act] += 1
+    res.bounces[act] += ~false

@@ -64,6 +64,8 @@ class RefractionTrace:
     #: (N, 3) the path's length in each medium times that medium's absorption σ (linear R, G, B):
     #: its transmittance is ``exp(-optical_depth)``
     optical_depth: np.ndarray | None = None
+    #: (N,) product of ``1 - R`` over the interfaces crossed after the first (TIR: 1)
+    interface_transmission: np.ndarray | None = None
 
     @classmethod
     def empty(cls, n: int) -> RefractionTrace:
@@ -82,6 +84,7 @@ class RefractionTrace:
             fresnel=np.zeros(n),
             reflected=nan3.copy(),
             path_length=np.zeros(n),
+            interface_transmission=np.ones(n),
         )
 
 

@@ -332,6 +332,8 @@ class SceneTracer:
                 res.first_geometric_normal[act] = ng
                 res.fresnel[act] = R
                 res.reflected[act] = mirror
+            else:  # a later interface: the refracted path keeps 1 - R where it crosses
+                res.interface_transmission[act] *= np.where(goes_inside != inside[act], 1.0 - R, 1.0)
             side = np.where(goes_inside, -1.0, 1.0)
             o[act] = p + (self.eps * side)[:, None] * ng
             d[act] = d_new

@@ -90,7 +90,8 @@ def refraction_warps(
     Returns:
         Flat ``(H * W, ...)`` arrays ``refraction`` (the identity outside the object, NaN where
         invalid), ``refraction_valid``, ``refraction_kind``, ``bounces`` (clipped to 255),
-        ``fresnel``, ``path_length`` and ``optical_depth`` (0 outside the object).
+        ``fresnel``, ``path_length`` and ``optical_depth`` (0 outside the object), ``interface_transmission``
+        (1 outside).
     """
     H, W = camera.shape
     cand = primary.pixels
@@ -111,6 +112,8 @@ def refraction_warps(
     path[cand] = tr.path_length
     depth = np.zeros((H * W, 3), np.float32)
     depth[cand] = tr.optical_depth
+    through = np.ones(H * W, np.float32)
+    through[cand] = tr.interface_transmission
     return {
         "refraction": refraction,
         "refraction_valid": refraction_valid,
@@ -119,6 +122,7 @@ def refraction_warps(
         "fresnel": fres,
         "path_length": path,
         "optical_depth": depth,
+        "interface_transmission": through,
     }
 
 

@@ -24,8 +24,12 @@ __all__ = ["WarpSet", "warp_inputs_hash", "assemble", "WARPS_VERSION", "ARRAY_FI
 #: caches: the version is part of the cache key, and :meth:`WarpSet.load` refuses other versions).
 #: 2: ``pano_refraction_frame`` (π⁻¹ over the whole frame). 3: π⁻¹ and π^-R valid only where the
 #: panorama centre sees the ray's end. 4: ``path_length`` (the refracted path inside the object),
-#: ``optical_depth`` and the object's absorption.
-WARPS_VERSION = 4
+#: ``optical_depth`` and the object's absorption. 5: ``interface_transmission`` (the Fresnel
+#: transmission of the refracted path's later interfaces).
+WARPS_VERSION = 5
+#: The version of the several-media tracer (:mod:`snell_bench.optics.media`), in the key of a nested
+#: object's warps only: a change there leaves every one-material object's cached warps valid.
+NESTED_TRACE_VERSION = 2
 
 ARRAY_FIELDS = (
     "object_mask",
@@ -36,6 +40,7 @@ ARRAY_FIELDS = (
     "fresnel",
     "path_length",
     "optical_depth",
+    "interface_transmission",
     "reflection",
     "reflection_valid",
     "pano_refraction",
@@ -119,6 +124,11 @@ class WarpSet:
     #: (H, W, 3) float32 the refracted path's length in each medium times the medium's absorption σ
     #: (linear R, G, B; 0 outside the object and for clear glass; zeros when not given).
     optical_depth: np.ndarray | None = None
+    #: (H, W) float32 the product of ``1 - R`` over the interfaces the refracted path crosses after
+    #: the first (``R`` each one's Fresnel reflectance; total internal reflections keep everything):
+    #: the share of the refracted light that stays on that path, which the paper's combination
+    #: leaves out (1 outside the object; ones when not given).
+    interface_transmission: np.ndarray | None = None
     input_hash: str = ""
     options: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
@@ -130,6 +140,8 @@ class WarpSet:
             self.path_length = np.zeros(self.fresnel.shape, np.float32)
         if self.optical_depth is None:
             self.optical_depth = np.zeros(self.fresnel.shape + (3,), np.float32)
+        if self.interface_transmission is None:
+            self.interface_transmission = np.ones(self.fresnel.shape, np.float32)
 
     def transmittance(self) -> np.ndarray:
         """``(H, W, 3)`` float32 Beer–Lambert transmittance ``exp(-optical_depth)`` of the refracted
@@ -273,6 +285,8 @@ def warp_inputs_hash(depth: np.ndarray, camera: Camera, obj: GlassObject, option
     h.update(d.tobytes())
     h.update(json.dumps(camera.to_dict(), sort_keys=True).encode())
     h.update(obj.content_hash().encode())
+    if getattr(obj, "media", None) is not None:
+        h.update(f"nested-v{NESTED_TRACE_VERSION}".encode())
     h.update(json.dumps(options, sort_keys=True, default=str).encode())
     return h.hexdigest()
 

@@ -85,7 +85,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from snell_bench.imaging.color import linear_to_srgb
-from snell_bench.optics.media import nested_interfaces
+from snell_bench.optics.media import interface_faces
 from snell_bench.render.geometry import object_mask
 from snell_bench.render.pieces import SAMPLERS, check_sampler, sample_count
 from snell_bench.render.reference_passes import (
@@ -189,7 +189,7 @@ def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject) -> tuple[np.
 
     Raises:
         ValueError: a shape does not match the camera, I⁻ has non-finite values, or the object is
-            not placed, or has several media whose shells are not each inside the one before.
+            not placed, or has several media whose shells' surfaces cross inside a face.
     """
     img = np.asarray(i_minus, dtype=np.float32)
     if img.ndim != 3 or img.shape[2] != 3:
@@ -205,7 +205,7 @@ def _check_inputs(i_minus, depth, camera: Camera, obj: GlassObject) -> tuple[np.
             "pass a depth map of the camera's (height, width)"
         )
     if obj.media is not None:
-        nested_interfaces(obj)  # shells each inside the one before, or a ValueError saying so
+        interface_faces(obj)  # each face between the same two media, or a ValueError saying so
     if not obj.placed:
         raise ValueError(
             f"{obj.name}: the object is in its canonical frame; place it first (snell_bench.scene.place_object)"

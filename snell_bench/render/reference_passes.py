@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from snell_bench.imaging.color import srgb_to_linear
-from snell_bench.optics.media import nested_interfaces
+from snell_bench.optics.media import interface_faces
 from snell_bench.render.geometry import (
     background_geometry,
     flaps,
@@ -108,8 +108,8 @@ def _glass(mi, scene: ReferenceScene, obj: GlassObject, kind: str, **props) -> d
     """The object's shapes with the BSDF ``kind``: its mesh (``int_ior = obj.ior``, ``ext_ior = 1``),
     filled with the absorbing medium of its material where it absorbs
     (:func:`~snell_bench.render.pieces.absorbing_medium`); for an object of several media one mesh per
-    interface (:func:`~snell_bench.optics.media.nested_interfaces`), each with the IORs and media of
-    its two sides."""
+    pair of media that meet (:func:`~snell_bench.optics.media.interface_faces`: faces between equal
+    media are left out), each with the IORs and media of its two sides."""
     ov, of, on = scene.obj
     if obj.media is None:
         bsdf = mi.load_dict({"type": kind, "int_ior": float(obj.ior), "ext_ior": 1.0, **props})
@@ -117,9 +117,12 @@ def _glass(mi, scene: ReferenceScene, obj: GlassObject, kind: str, **props) -> d
         return {"object": mesh(mi, "object", ov, of, normals=on, bsdf=bsdf, interior=interior)}
     media = [absorbing_medium(mi, m.absorption) if any(m.absorption) else None for m in obj.media] + [None]
     ior = [m.ior for m in obj.media] + [1.0]
+    behind, front = interface_faces(obj)
+    pairs = sorted({(int(b), int(f)) for b, f in zip(behind, front) if b != f}, key=lambda p: (p[1] != -1, p))
     shapes = {}
-    for k, inside, outside in nested_interfaces(obj):
-        rows = (3 * np.flatnonzero(obj.face_medium == k)[:, None] + np.arange(3)).ravel()
+    for k, (inside, outside) in enumerate(pairs):
+        picked = np.flatnonzero((behind == inside) & (front == outside))
+        rows = (3 * picked[:, None] + np.arange(3)).ravel()
         bsdf = mi.load_dict({"type": kind, "int_ior": float(ior[inside]), "ext_ior": float(ior[outside]), **props})
         name = "object" if k == 0 else f"object_{k}"
         faces = np.arange(len(rows)).reshape(-1, 3)

@@ -25,9 +25,9 @@ def _ball(radius: float, subdivisions: int = 5) -> trimesh.Trimesh:
     return m
 
 
-def _tracer(obj: GlassObject) -> SceneTracer:
+def _tracer(obj: GlassObject, max_bounces: int = 16) -> SceneTracer:
     cam = Camera.from_fov(16, 12, 90.0)
-    return SceneTracer(build_background(np.full(cam.shape, 30.0), cam), obj, max_bounces=16)
+    return SceneTracer(build_background(np.full(cam.shape, 30.0), cam), obj, max_bounces=max_bounces)
 
 
 def _rays(b_max: float, n: int = 12) -> np.ndarray:
@@ -151,13 +151,46 @@ def test_optical_depth_sums_each_medium():
     assert res.path_length[0] == pytest.approx(2 * R_OUT, abs=8 * (sag + tr.eps))
 
 
-def test_nested_needs_a_medium_per_face_and_one_material_api_refuses():
+def test_nested_needs_a_medium_per_face_and_its_own_material_is_the_first_shells():
     obj = _water_glass()
     assert obj.ior == 1.5 and len(obj.face_medium) == len(obj.faces)
-    with pytest.raises(ValueError, match="several media"):
-        obj.with_ior(1.4)
+    other = obj.with_ior(1.6).with_absorption((1.0, 2.0, 3.0))
+    assert other.ior == 1.6 and other.media[0].ior == 1.6 and other.media[0].absorption == (1.0, 2.0, 3.0)
+    assert other.media[1] == obj.media[1] and other.content_hash() != obj.content_hash()
     with pytest.raises(ValueError, match="face_medium"):
         GlassObject(mesh=_ball(R_OUT), media=(Medium(1.5),), placed=True)
+
+
+def test_max_bounces_counts_interfaces_not_false_ones():
+    """A core of lower priority than the glass adds two false interfaces on the axis: with
+    ``max_bounces=2`` the axial ray still crosses the sphere's two interfaces and is not trapped."""
+    obj = _water_glass(core_priority=0, glass_priority=1)
+    axis = (np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
+    res = _tracer(obj, max_bounces=2).trace(*axis)
+    assert res.kind[0] == HitKind.OBSERVED and res.bounces[0] == 2
+    assert _tracer(obj, max_bounces=1).trace(*axis).kind[0] == HitKind.TRAPPED
+
+
+def test_interface_transmission_of_a_sphere_is_one_minus_its_entry_fresnel():
+    """A ray straight through a sphere leaves at the angle it entered (the chord is symmetric), so by
+    reciprocity the exit keeps ``1 - R`` of the entry's Fresnel reflectance R: the trace's
+    ``interface_transmission`` against its own ``fresnel``, through one medium and through a core of
+    the glass's IOR (an interface of equal IORs reflects nothing)."""
+    import torch
+
+    from snell_bench.optics.functional import fresnel_cos
+
+    cos = torch.linspace(0.4, 1.0, 601, dtype=torch.float64)
+    slope = float(torch.diff(fresnel_cos(cos, 1.0, 1.5)).abs().max() / (cos[1] - cos[0]))
+    err = _normal_error(GlassObject(mesh=_ball(R_OUT), placed=True), CENTRE)
+    for obj in (GlassObject(mesh=_ball(R_OUT), ior=1.5, placed=True), _water_glass(core_ior=1.5)):
+        res = _tracer(obj).trace(np.zeros((144, 3)), _rays(0.45))  # sin(incidence) <= 0.9: cos >= 0.43
+        through = res.kind == HitKind.OBSERVED
+        assert through.sum() > 100 and (res.interface_transmission[~through] <= 1).all()
+        # entry and exit normals each off radial by <= err: the two angles differ by a few err
+        np.testing.assert_allclose(
+            res.interface_transmission[through], 1.0 - res.fresnel[through], atol=8 * err * slope
+        )
 
 
 def test_warps_of_a_glass_of_water_carry_each_media_absorption():
@@ -178,13 +211,27 @@ def test_warps_of_a_glass_of_water_carry_each_media_absorption():
     assert (ws.optical_depth[m] >= L * lo - 1e-6).all() and (ws.optical_depth[m] <= L * hi + 1e-6).all()
 
 
-def test_interfaces_of_nested_shells_and_refusal_of_side_by_side_ones():
-    from snell_bench.optics.media import nested_interfaces
+def test_interfaces_of_nested_overlapping_and_separate_shells():
+    """Each face's two media: nested balls, a ball beside another (now allowed: each is air outside),
+    a core of lower priority (no interface), and refusals of a face that crosses another shell's
+    surface and of two shells sharing a surface."""
+    from snell_bench.optics.media import interface_faces
 
-    assert nested_interfaces(_water_glass()) == [(0, 0, -1), (1, 1, 0)]  # glass|air, water|glass
-    assert nested_interfaces(_water_glass(core_priority=0, glass_priority=1)) == [(0, 0, -1)]  # no water surface
+    def pairs(obj):  # (shell, medium behind, medium in front) of every face
+        behind, front = interface_faces(obj)
+        return sorted({(int(k), int(b), int(f)) for k, b, f in zip(obj.face_medium, behind, front)})
+
+    assert pairs(_water_glass()) == [(0, 0, -1), (1, 1, 0)]  # glass|air, water|glass
+    assert pairs(_water_glass(core_priority=0, glass_priority=1)) == [(0, 0, -1), (1, 0, 0)]  # no water surface
     beside = _ball(R_IN)
     beside.apply_translation([2.0, 0.0, 0.0])
     obj = GlassObject.nested([(_ball(R_OUT), Medium(1.5)), (beside, Medium(1.333, priority=1))], placed=True)
-    with pytest.raises(ValueError, match="shell 1 of the object is not inside shell 0"):
-        nested_interfaces(obj)
+    assert pairs(obj) == [(0, 0, -1), (1, 1, -1)]
+    crossing = _ball(R_IN)
+    crossing.apply_translation([R_OUT, 0.0, 0.0])  # half in, half out: its faces cross the ball's surface
+    obj = GlassObject.nested([(_ball(R_OUT), Medium(1.5)), (crossing, Medium(1.333, priority=1))], placed=True)
+    with pytest.raises(ValueError, match="crosses the surface of shell"):
+        interface_faces(obj)
+    obj = GlassObject.nested([(_ball(R_OUT), Medium(1.5)), (_ball(R_OUT), Medium(1.333, priority=1))], placed=True)
+    with pytest.raises(ValueError, match="lies on the surface of shell"):
+        interface_faces(obj)
