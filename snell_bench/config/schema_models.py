@@ -274,6 +274,9 @@ class RelightConfig:
     #: cache, e.g. the authors' ``relighting-kontext-dev-lora-v3``); ``null``: none.
     lora: Optional[str] = None
     lora_scale: float = 1.0
+    #: What relights (a ``_target_`` node, e.g. ``relight=traced``); ``null``: the model's
+    #: relighter (``model.relighter``).
+    relighter: Any = None
 
     def __post_init__(self) -> None:
         p = Problems("relight")

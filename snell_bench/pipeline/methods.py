@@ -164,9 +164,10 @@ def relight_prompt(cfg: DictConfig) -> str:
 
 
 def relighter_of(cfg: DictConfig, inputs: CellInputs) -> tuple[Any, float]:
-    """``instantiate(model.relighter)`` from the inputs' pool and the seconds its load took.
+    """``instantiate(relight.relighter)``, else ``instantiate(model.relighter)``, from the inputs' pool
+    and the seconds its load took.
     Raises :class:`Skip` when the model has no relighter or it cannot load here."""
-    node = cfg.model.get("relighter")
+    node = cfg.relight.get("relighter") or cfg.model.get("relighter")
     if not node:
         raise Skip(f"model {cfg.model.name!r} has no relighter (model.relighter); {cfg.method.label} cannot run")
     try:
@@ -198,8 +199,11 @@ def relight_image(cfg: DictConfig, inputs: CellInputs, result: CellResult, t: Ti
             scene=inputs.scene,
             obj=inputs.obj,
             warps=warps,
+            panorama=result.panorama,
         )
     result.unrelit = result.image
     result.image = res.image
     result.stats["relight"] = res.to_json()
+    if getattr(relighter, "last_record", None):  # what a traced relighter lit with, and its beams' energy
+        result.stats["relight"]["transport"] = relighter.last_record
     return result

@@ -8,7 +8,9 @@ Convention:
     - ``scene`` (a :class:`~snell_bench.scene.sources.SceneInputs`), ``obj`` (the placed
       :class:`~snell_bench.scene.objects.GlassObject`, camera frame) and ``warps`` (its
       :class:`~snell_bench.optics.warps.WarpSet`) describe the scene the image shows; a relighter
-      that works from the image alone (an image-editing model) ignores them.
+      that works from the image alone (an image-editing model) ignores them; ``panorama`` (the
+      cell's ``(1, 3, h, 2h)`` panorama at the object, or ``None``) is a light probe
+      (:class:`~snell_bench.relight.traced.TracedRelighter`).
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ class Relighter(Protocol):
         scene: Any = None,
         obj: Any = None,
         warps: Any = None,
+        panorama: Any = None,
     ) -> torch.Tensor:
         """The relit image, ``(1, 3, H, W)`` float32 sRGB in [0, 1] on the CPU."""
         ...

@@ -392,8 +392,9 @@ class KontextRelighter:
         scene: Any = None,
         obj: Any = None,
         warps: Any = None,
+        panorama: Any = None,
     ) -> torch.Tensor:
-        """Relight ``image`` for one seed (``scene``, ``obj`` and ``warps`` are not used).
+        """Relight ``image`` for one seed (``scene``, ``obj``, ``warps`` and ``panorama`` are not used).
 
         Args:
             image: ``(1, 3, H, W)`` sRGB in [0, 1].

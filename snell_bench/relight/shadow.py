@@ -447,8 +447,9 @@ class ShadowRelighter:
         scene: Any = None,
         obj: Any = None,
         warps: Any = None,
+        panorama: Any = None,
     ) -> torch.Tensor:
-        """The image with the object's traced shadow for one seed (``prompt`` is not used).
+        """The image with the object's traced shadow for one seed (``prompt`` and ``panorama`` are not used).
 
         Args:
             image: ``(1, 3, H, W)`` sRGB in [0, 1], the scene's camera view with the object.
