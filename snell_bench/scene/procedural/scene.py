@@ -178,6 +178,17 @@ class ProceduralScene:
         """
         return self._field.radiance(origins, directions)
 
+    def albedo(self, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """The diffuse albedo each pixel centre of ``camera`` sees, ``(H, W, 3)`` float32 linear
+        RGB, and whether it is lit (not emissive, not the empty background), ``(H, W)`` bool."""
+        col, lit = self._field.albedo(np.zeros(3), camera.pixel_rays().reshape(-1, 3))
+        return col.reshape(camera.shape + (3,)), lit.reshape(camera.shape)
+
+    def key_direct(self, camera: Camera) -> np.ndarray:
+        """The key light's ``cos θ × falloff × visibility`` at the surface each pixel centre of
+        ``camera`` sees (the shading's direct term without the light's colour), ``(H, W)``."""
+        return self._field.direct_factor(np.zeros(3), camera.pixel_rays().reshape(-1, 3)).reshape(camera.shape)
+
     def mesh(self) -> trimesh.Trimesh:
         """All scene geometry in camera coordinates.
 

@@ -218,6 +218,35 @@ class RadianceField:
         rad[hi] = out
         return rad, t
 
+    def albedo(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The diffuse albedo seen along rays (one batch), and whether it is lit (a hit on a
+        surface that is not emissive): ``(albedo (N, 3) float32, lit (N,) bool)``; 0 and False where
+        a ray hits nothing or an emissive surface."""
+        d = np.asarray(directions, np.float64).reshape(-1, 3)
+        d = d / np.linalg.norm(d, axis=1, keepdims=True)
+        o = np.broadcast_to(np.asarray(origins, np.float64).reshape(-1, 3), d.shape)
+        t, prim, uv = self.cast(o, d)
+        col = np.zeros((len(d), 3), np.float32)
+        lit = np.isfinite(t)
+        lit[lit] = ~self.emissive[self.face_material[prim[lit]]]
+        if lit.any():
+            p, _, ns = self._hit_geometry(o[lit], d[lit], t[lit], prim[lit], uv[lit])
+            col[lit] = self._albedo(p, ns, prim[lit], self.face_material[prim[lit]])[0]
+        return col, lit
+
+    def direct_factor(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """:meth:`key_direct` at the surfaces rays hit (one batch; 0 where they hit nothing)."""
+        d = np.asarray(directions, np.float64).reshape(-1, 3)
+        d = d / np.linalg.norm(d, axis=1, keepdims=True)
+        o = np.broadcast_to(np.asarray(origins, np.float64).reshape(-1, 3), d.shape)
+        t, prim, uv = self.cast(o, d)
+        out = np.zeros(len(d))
+        hit = np.isfinite(t)
+        if hit.any():
+            p, ng, ns = self._hit_geometry(o[hit], d[hit], t[hit], prim[hit], uv[hit])
+            out[hit] = self.key_direct(p, ns, ng, t[hit])
+        return out
+
     def _hit_geometry(self, o, d, t, tri, uv):
         """Hit points, geometric and interpolated shading normals, both facing the ray origin."""
         p = o + t[:, None].astype(np.float64) * d
@@ -256,6 +285,12 @@ class RadianceField:
         L = self.light
         ny = nw[:, 1:2].astype(np.float32)
         amb = L.ambient_sky * (0.5 + 0.5 * ny) + L.ambient_ground * (0.5 - 0.5 * ny)
+        return amb + L.color[None, :] * self.key_direct(p, ns, ng, t)[:, None].astype(np.float32)
+
+    def key_direct(self, p, ns, ng, t) -> np.ndarray:
+        """``cos θ × falloff × visibility`` of the key light at points ``p`` (shading normals
+        ``ns``, geometric ``ng``, hit distances ``t`` scaling the shadow rays' offset): ``(N,)``."""
+        L = self.light
         if L.kind == "point":
             tol = L.vector - p
             dist = np.linalg.norm(tol, axis=1)
@@ -276,4 +311,4 @@ class RadianceField:
             bi = np.nonzero(blocked)[0]
             blocked[bi] = self.casts_shadow[self.face_material[ps[bi]]]
             direct[cand] = np.where(blocked, 0.0, cos[cand] * fall[cand])
-        return amb + L.color[None, :] * direct[:, None].astype(np.float32)
+        return direct
