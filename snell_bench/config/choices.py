@@ -66,11 +66,12 @@ class Job(Choice):
     plan = "plan"
     status = "status"
     export = "export"
+    relight = "relight"
 
 
 #: Jobs whose output is an experiment folder under ``runs_dir`` (their logs go to
 #: ``runs/<experiment>/logs/``).
-SWEEP_JOBS = (Job.grid, Job.report, Job.export)
+SWEEP_JOBS = (Job.grid, Job.report, Job.export, Job.relight)
 
 
 class Source(Choice):

@@ -38,6 +38,7 @@ JOB_LINES = {
     Job.plan: "what a grid will do on this machine (cells, models, time, memory) before doing it; writes nothing",
     Job.status: "where a grid stands across all the jobs working on it (done, running, failed, left); writes nothing",
     Job.export: "the benchmark kit of an experiment: every group's inputs and truth, a manifest and a dataset card",
+    Job.relight: "the relighting methods against a path-traced truth on procedural scenes (+experiment=relighting)",
 }
 
 #: Width of the page's lines (descriptions wrap under their name).

@@ -277,10 +277,13 @@ class RelightConfig:
     #: What relights (a ``_target_`` node, e.g. ``relight=traced``); ``null``: the model's
     #: relighter (``model.relighter``).
     relighter: Any = None
+    #: ``job=relight`` (``+experiment=relighting``): samples per pixel of the path-traced truth.
+    truth_spp: int = 512
 
     def __post_init__(self) -> None:
         p = Problems("relight")
         p.int_at_least("candidates", self.candidates, 1, "", 3)
+        p.int_at_least("truth_spp", self.truth_spp, 2, "", 512)
         if self.steps is not None:
             p.int_at_least("steps", self.steps, 1, " (null: the pipeline's default)", 28)
         p.finite("guidance", self.guidance, lo=0.0, optional=True, fix="null: the pipeline's default")

@@ -90,6 +90,12 @@ def _export(cfg: DictConfig) -> int:
     return int(run_export(cfg)["exit_status"])
 
 
+def _relight(cfg: DictConfig) -> int:
+    from snell_bench.experiment.relighting import run_relighting
+
+    return run_relighting(cfg)
+
+
 JOBS = {
     Job.preview: _preview,
     Job.generate: _generate,
@@ -98,6 +104,7 @@ JOBS = {
     Job.plan: _plan,
     Job.status: _status,
     Job.export: _export,
+    Job.relight: _relight,
 }
 
 

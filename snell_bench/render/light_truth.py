@@ -20,8 +20,8 @@ Convention:
       ``reach`` change; the key light's change only where the whole scene lets the light reach the
       surface (:meth:`~snell_bench.scene.procedural.ProceduralScene.key_direct` > 0), since the
       renders hold the object's surroundings alone.
-    - The glass: Mitsuba's ``dielectric`` (``int_ior``), with its absorbing medium where it absorbs
-      (``volpathmis`` then for the ambient); one material only.
+    - The glass: Mitsuba's ``dielectric`` (``int_ior``), clear, of one material: ``ptracer`` ignores
+      media, so a tinted object (or one of several media) is refused.
     - Both renders of a group use the same seeds and the same bounding box (:func:`_anchor`), so
       every light path that misses the glass is the same in both and cancels in ``ΔE``.
     - Variance: where the glass hides the key light from a pixel's surface point (a shadow ray at
@@ -85,8 +85,12 @@ def _receivers(mi, scene, albedo: float, centre: np.ndarray, reach: float) -> di
 
 
 def _glass(mi, obj) -> dict:
-    if obj.media is not None:
-        raise ValueError("the light truth renders one-material objects; this one has several media")
+    if obj.media is not None or obj.absorbs:
+        raise ValueError(
+            f"the light truth renders clear objects of one material; {obj.name} "
+            f"{'has several media' if obj.media is not None else 'absorbs'}: Mitsuba's particle tracer, which the "
+            "key light's caustics need, ignores media"
+        )
     bsdf = mi.load_dict({"type": "dielectric", "int_ior": float(obj.ior), "ext_ior": 1.0})
     interior = absorbing_medium(mi, obj.absorption) if obj.absorbs else None
     normals = obj.mesh.vertex_normals
@@ -231,7 +235,7 @@ def _deltas(mi, scene, camera, obj, points, *, spp, seed, albedo, max_depth, rea
     paths = {"max_depth": max_depth, "rr_depth": max_depth + 1, "hide_emitters": True}
     groups = {
         "key": (_key_emitter(light, up), {"type": "ptracer", **paths}),
-        "ambient": (_ambient_emitter(mi, light, up), {"type": "volpathmis" if obj.absorbs else "path", **paths}),
+        "ambient": (_ambient_emitter(mi, light, up), {"type": "path", **paths}),
     }
     scale = np.ones(camera.shape + (1,))
     if light.kind != "directional":  # the shading's 1 / (d² + falloff) instead of Mitsuba's 1 / d²
