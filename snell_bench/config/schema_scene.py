@@ -198,6 +198,10 @@ class ObjectConfig:
     #: ``centre_ray`` (the authors': where the ray through the centre of the surface's box meets
     #: the depth mesh, tilted to that triangle's normal, 5 mm up; snell_bench.scene.placement).
     anchor: str = "plane"
+    #: Stand on the surface under the object rather than on the plane fitted to it: lifted until
+    #: its lower surface clears the depth under it (bumps up to 5 % of its size), as a flat base
+    #: stands on a rough table's high points (:func:`snell_bench.scene.resting.rest_on_surface`).
+    rest: bool = False
 
     def __post_init__(self) -> None:
         p = Problems("object")

@@ -39,6 +39,7 @@ from snell_bench.scene.image_source import load_frame, load_photo, photo_info
 from snell_bench.scene.objects import GlassObject
 from snell_bench.scene.photo_size import fit_to_block
 from snell_bench.scene.placement import place_object
+from snell_bench.scene.resting import rest_on_surface
 from snell_bench.scene.sources import SceneInputs
 from snell_bench.utils.paths import data_path
 from snell_bench.utils.tensors import hwc_to_bchw
@@ -237,7 +238,7 @@ def place(obj: GlassObject, scene: SceneInputs, obj_cfg: DictConfig, seed: int =
     """Stage 2b: ``obj`` standing on a supporting surface of the scene (``object.size``,
     ``object.relative_size``, ``object.yaw_deg``), inside ``region`` when given; ``object.anchor``:
     on a plane fitted there, or where the ray through the centre of the region's box meets the
-    depth (the authors' rule)."""
+    depth (the authors' rule); ``object.rest``: then lifted to stand on the surface under it."""
     anchor = str(obj_cfg.get("anchor", "plane"))
     kwargs: dict[str, Any] = {"seed": seed, "max_tilt_deg": float(obj_cfg.max_tilt_deg), "anchor": anchor}
     if scene.up is not None:
@@ -245,7 +246,7 @@ def place(obj: GlassObject, scene: SceneInputs, obj_cfg: DictConfig, seed: int =
     if region is not None:
         kwargs["region"] = region
     try:
-        return place_object(
+        placed = place_object(
             obj,
             scene.depth,
             scene.camera,
@@ -262,6 +263,10 @@ def place(obj: GlassObject, scene: SceneInputs, obj_cfg: DictConfig, seed: int =
             "image centre; for a tilted camera set scene.up (e.g. [0, -0.87, -0.5] for 30 degrees down) or widen "
             "object.max_tilt_deg"
         ) from None
+    if obj_cfg.get("rest"):
+        placed, lift = rest_on_surface(placed, scene.depth, scene.camera)
+        log.info("object.rest: lifted %s by %.3g to stand on the surface under it", obj_cfg.name, lift)
+    return placed
 
 
 # ---------------------------------------------------------------------------- 3. warps
