@@ -20,8 +20,9 @@ Convention:
       ``reach`` change; the key light's change only where the whole scene lets the light reach the
       surface (:meth:`~snell_bench.scene.procedural.ProceduralScene.key_direct` > 0), since the
       renders hold the object's surroundings alone.
-    - The glass: Mitsuba's ``dielectric`` (``int_ior``), clear, of one material: ``ptracer`` ignores
-      media, so a tinted object (or one of several media) is refused.
+    - The glass: Mitsuba's ``dielectric`` (``int_ior``) with the tracer's per-corner shading normals
+      (a cylinder's caps stay flat), clear, of one material: ``ptracer`` ignores media, so a tinted
+      object (or one of several media) is refused.
     - Both renders of a group use the same seeds and the same bounding box (:func:`_anchor`), so
       every light path that misses the glass is the same in both and cancels in ``ΔE``.
     - Variance: where the glass hides the key light from a pixel's surface point (a shadow ray at
@@ -41,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from snell_bench.imaging.color import linear_to_srgb, srgb_to_linear
-from snell_bench.render.pieces import absorbing_medium, mesh, sensor
+from snell_bench.render.pieces import mesh, sensor
 
 __all__ = ["LightTruth", "light_truth"]
 
@@ -92,9 +93,11 @@ def _glass(mi, obj) -> dict:
             "key light's caustics need, ignores media"
         )
     bsdf = mi.load_dict({"type": "dielectric", "int_ior": float(obj.ior), "ext_ior": 1.0})
-    interior = absorbing_medium(mi, obj.absorption) if obj.absorbs else None
-    normals = obj.mesh.vertex_normals
-    return {"glass": mesh(mi, "glass", obj.vertices, obj.faces, normals=normals, bsdf=bsdf, interior=interior)}
+    # the tracer's shading normals, per face corner (sharp edges keep their faces' normals): one
+    # vertex per corner, as the reference renders the object
+    corners = np.asarray(obj.vertices, np.float64)[obj.faces].reshape(-1, 3)
+    faces = np.arange(len(corners)).reshape(-1, 3)
+    return {"glass": mesh(mi, "glass", corners, faces, normals=obj.corner_normals().reshape(-1, 3), bsdf=bsdf)}
 
 
 def _key_emitter(light, up) -> dict:
