@@ -20,8 +20,8 @@ Convention:
       (:meth:`~snell_bench.optics.tracer.SceneTracer.trace`: Snell, total internal reflection,
       absorption), each carrying ``E · disc area / rays`` times ``(1 - R) T_interfaces exp(-σ L)``
       (its first-surface reflection, weight ``R``, is traced too); where it ends on a surface the
-      camera sees, its flux is splatted (bilinear) into the pixel, blurred by ``blur_px`` and divided
-      by the pixel's area.
+      camera sees, its flux is added to the pixel whose footprint holds it, blurred by ``blur_px``
+      and divided by the pixel's area.
     - Environment (:func:`environment_terms`): without the object, the irradiance of every receiver
       from the environment's 9 spherical-harmonic coefficients (Ramamoorthi and Hanrahan 2001); the
       object's change, near it, by ``samples`` cosine-distributed rays per point: a ray that meets the
@@ -160,27 +160,25 @@ def scene_visibility(receiver: Receiver, tracer, key, where: np.ndarray) -> np.n
 
 
 def _splat(camera, depth: np.ndarray, points: np.ndarray, flux: np.ndarray) -> np.ndarray:
-    """Bilinear splat of ``flux`` ``(N, 3)`` at camera-frame ``points`` into ``(H, W, 3)``; points
-    the camera does not see (a depth differing by more than 2 % from the map's) are dropped."""
+    """The flux ``(N, 3)`` landing at camera-frame ``points``, summed per pixel footprint (the pixel
+    whose square ``[x - 0.5, x + 0.5)`` holds the point's projection, as a box-filtered render counts
+    it), ``(H, W, 3)``; points the camera does not see (a depth differing by more than 2 % from the
+    map's at that pixel) are dropped."""
     H, W = camera.shape
     out = np.zeros((H, W, 3), np.float64)
     pix, z = camera.project(points)
     ok = (
         np.isfinite(pix).all(-1)
-        & (pix[:, 0] > -0.5)
+        & (pix[:, 0] >= -0.5)
         & (pix[:, 0] < W - 0.5)
-        & (pix[:, 1] > -0.5)
+        & (pix[:, 1] >= -0.5)
         & (pix[:, 1] < H - 0.5)
     )
-    iu, iv = np.clip(np.rint(pix[ok, 0]).astype(int), 0, W - 1), np.clip(np.rint(pix[ok, 1]).astype(int), 0, H - 1)
+    iu = np.clip(np.floor(pix[ok, 0] + 0.5).astype(int), 0, W - 1)
+    iv = np.clip(np.floor(pix[ok, 1] + 0.5).astype(int), 0, H - 1)
     seen = np.abs(np.asarray(depth, np.float64)[iv, iu] - z[ok]) <= 0.02 * z[ok]
-    pix, flux = pix[ok][seen], flux[ok][seen]
-    x0, y0 = np.floor(pix[:, 0]).astype(int), np.floor(pix[:, 1]).astype(int)
-    fx, fy = pix[:, 0] - x0, pix[:, 1] - y0
-    for dx, dy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-        x, y = np.clip(x0 + dx, 0, W - 1), np.clip(y0 + dy, 0, H - 1)
-        for c in range(3):
-            np.add.at(out[..., c], (y, x), w * flux[:, c])
+    for c in range(3):
+        np.add.at(out[..., c], (iv[seen], iu[seen]), flux[ok][seen, c])
     return out
 
 
