@@ -100,6 +100,7 @@ class Normals(Choice):
 
     interpolated = "interpolated"
     face = "face"
+    radial = "radial"
 
 
 class PanoPrior(Choice):

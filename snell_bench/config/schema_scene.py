@@ -235,7 +235,9 @@ class WarpConfig:
 
     pano_height: int = 1024
     max_bounces: int = 8
-    #: ``interpolated`` (smooth, creased at sharp edges) or ``face``.
+    #: ``interpolated`` (smooth, creased at sharp edges), ``face``, or ``radial`` (from each shell's
+    #: centre: the exact normals of a sphere or concentric spherical shells, whatever the mesh's
+    #: tessellation; wrong for any other shape).
     normals: Normals = Normals.interpolated
     edge_threshold: float = 0.05
     #: Cache folder for warps (content-hashed); ``null`` disables caching.

@@ -193,7 +193,7 @@ def _cross(tracer, res, it, act, p, ho, hit_obj, o, d, inside, ior, priority) ->
     ``inside`` updated in place, the first surface recorded in ``res``."""
     ng = ho["normal"][hit_obj]
     face = ho["face"][hit_obj]
-    ns = tracer.shading_normals(face, ho["uv"][hit_obj], ng)
+    ns = tracer.shading_normals(face, ho["uv"][hit_obj], ng, p)
     shell = tracer.obj.face_medium[face]
     bit = np.left_shift(np.int64(1), shell)
     da, mask = d[act], inside[act]

@@ -8,8 +8,10 @@ Convention:
       cast against both, so an object that cuts into the background is handled (a ray inside the
       glass that reaches the background ends there).
     - Object normals point outwards. Shading normals are interpolated from the object's per-corner
-      normals (``normals="interpolated"``, the default) or are the flat face normals
-      (``normals="face"``). Which side of the surface a ray is on is always decided by the
+      normals (``normals="interpolated"``, the default), are the flat face normals
+      (``normals="face"``), or point from the centre of the hit shell's bounding box
+      (``normals="radial"``: exact for a sphere or concentric spherical shells, whatever the mesh's
+      tessellation; wrong for any other shape). Which side of the surface a ray is on is always decided by the
       *geometric* (face) normal, and where an interpolated normal would send a ray to the wrong
       side of the geometric surface (near silhouettes) the face normal is used for that
       interaction.
@@ -49,7 +51,7 @@ class SceneTracer:
             (:func:`~snell_bench.scene.depth_mesh.build_background`).
         obj: the placed glass object.
         max_bounces: surface interactions per path before it is marked ``TRAPPED`` (>= 1).
-        normals: ``"interpolated"`` or ``"face"`` shading normals (module docstring).
+        normals: ``"interpolated"``, ``"face"`` or ``"radial"`` shading normals (module docstring).
         eps: self-intersection offset; default scaled to the object (module docstring).
         nthreads: Open3D threads (0: all cores).
 
@@ -92,8 +94,8 @@ class SceneTracer:
         eps: float | None = None,
         nthreads: int = 0,
     ) -> None:
-        if normals not in ("interpolated", "face"):
-            raise ValueError(f"normals must be 'interpolated' or 'face', got {normals!r}")
+        if normals not in ("interpolated", "face", "radial"):
+            raise ValueError(f"normals must be 'interpolated', 'face' or 'radial', got {normals!r}")
         if int(max_bounces) != max_bounces or max_bounces < 1:
             raise ValueError(f"max_bounces must be an integer >= 1, got {max_bounces!r}")
         self.obj = obj
@@ -124,6 +126,11 @@ class SceneTracer:
             o3d.core.Tensor.from_numpy(np.ascontiguousarray(obj.faces, np.uint32)),
         )
         self._corner_normals = obj.corner_normals() if normals == "interpolated" else None
+        self._centres = None
+        if normals == "radial":  # the centre of each shell's bounding box, per face
+            centres = np.array([b.mean(0) for b in obj.shell_bounds()])
+            shell = obj.face_medium if obj.media is not None else np.zeros(len(obj.faces), np.int64)
+            self._centres = centres[shell]
 
     # ------------------------------------------------------------------ casting
     def cast_background(self, origins: np.ndarray, directions: np.ndarray) -> BackgroundHit:
@@ -175,7 +182,9 @@ class SceneTracer:
             "normal": r["primitive_normals"].numpy().astype(np.float64),
         }
 
-    def shading_normals(self, face: np.ndarray, uv: np.ndarray, face_normal: np.ndarray) -> np.ndarray:
+    def shading_normals(
+        self, face: np.ndarray, uv: np.ndarray, face_normal: np.ndarray, points: np.ndarray | None = None
+    ) -> np.ndarray:
         """Outward unit shading normals at hits.
 
         Args:
@@ -183,10 +192,15 @@ class SceneTracer:
             uv: ``(N, 2)`` barycentrics ``(u, v)`` in those faces.
             face_normal: ``(N, 3)`` outward face normals (returned as they are with
                 ``normals="face"``, and where the interpolated normal vanishes).
+            points: ``(N, 3)`` the hit points (``normals="radial"`` needs them).
 
         Returns:
             ``(N, 3)`` unit normals.
         """
+        if self._centres is not None:
+            r = np.asarray(points, np.float64) - self._centres[face]
+            norm = np.linalg.norm(r, axis=-1, keepdims=True)
+            return np.where(norm > 1e-12, r / np.maximum(norm, 1e-300), face_normal)
         if self._corner_normals is None:
             return face_normal
         cn = self._corner_normals[face]  # (N, 3, 3)
@@ -324,7 +338,7 @@ class SceneTracer:
             t = ho["t"][hit_obj]
             p = oa[hit_obj] + t[:, None] * da[hit_obj]
             ng = ho["normal"][hit_obj]
-            ns = self.shading_normals(ho["face"][hit_obj], ho["uv"][hit_obj], ng)
+            ns = self.shading_normals(ho["face"][hit_obj], ho["uv"][hit_obj], ng, p)
             d_new, goes_inside, R, mirror, nf = self._interact(d[act], ns, ng)
             if it == 0:
                 res.first_point[act] = p

@@ -159,7 +159,8 @@ def compute_warps(
         obj: a glass object in camera coordinates (placed or built with ``GlassObject.from_mesh``).
         pano_height: height of the 360° panorama (its width is twice that).
         max_bounces: surface interactions per refracted path before it is marked trapped.
-        normals: ``"interpolated"`` (smooth shading normals, creased at sharp edges) or ``"face"``.
+        normals: ``"interpolated"`` (smooth shading normals, creased at sharp edges), ``"face"``, or
+            ``"radial"`` (from each shell's centre: exact for spheres, wrong for other shapes).
         edge_threshold: relative depth jump at which the background mesh is cut.
         up: the scene's up direction in camera coordinates; default ``obj.up``, else ``(0, -1, 0)``.
         eps: self-intersection offset (default: scaled to the object, see

@@ -89,6 +89,35 @@ def test_bouguer_invariant_along_rays_through_concentric_media():
     assert len(record) == 5 and worst < 0.01 * R_IN  # the bound is not vacuous: J is conserved to 1 %
 
 
+def test_bouguer_invariant_to_1e_6_with_radial_normals():
+    """``warps.normals=radial`` (the exact normals of concentric spheres): at every interface the
+    invariant ``n |(p - c) x d|`` of the line through the hit point ``p`` is the same before and after
+    to 1e-6 (refraction keeps the tangential part of ``n d``, and the normal is ``p - c``: float64
+    rounding, about 1e-15); the line that leaves is moved ``eps`` along the face normal (the tracer's
+    self-intersection offset), which changes the invariant by at most ``n eps``."""
+    obj = _water_glass()
+    cam = Camera.from_fov(16, 12, 90.0)
+    tr = SceneTracer(build_background(np.full(cam.shape, 30.0), cam), obj, max_bounces=16, normals="radial")
+    n_of = np.array([1.5, 1.333, 1.0])
+    record: list = []
+    d = _rays(0.45)
+    res = trace_nested(tr, np.zeros_like(d), d, record=record)
+    assert not np.isin(res.kind, [HitKind.TRAPPED, HitKind.LOST]).any() and len(record) >= 5
+    worst_interface, worst_offset = 0.0, 0.0
+    for (rays, o, dd, medium), (rays2, o2, dd2, medium2) in zip(record, record[1:]):
+        keep = np.isin(rays, rays2)
+        o, dd, medium = o[keep], dd[keep], medium[keep]
+        t = tr.cast_object(o, dd)["t"]
+        p = o + t[:, None] * dd  # the hit point, as the tracer computed it
+        j_in = n_of[medium] * np.linalg.norm(np.cross(p - CENTRE, dd), axis=1)
+        j_out = n_of[medium2] * np.linalg.norm(np.cross(p - CENTRE, dd2), axis=1)
+        j_line = n_of[medium2] * np.linalg.norm(np.cross(o2 - CENTRE, dd2), axis=1)
+        worst_interface = max(worst_interface, float(np.abs(j_out - j_in).max()))
+        worst_offset = max(worst_offset, float(np.abs(j_line - j_out).max()))
+    assert worst_interface < 1e-6 * R_IN
+    assert worst_offset <= 1.5 * tr.eps * (1 + 1e-6)
+
+
 def _compare(a, b, crossings: int, eps: float) -> None:
     """Two traces of the same rays through the same interfaces up to ``crossings`` extra surfaces
     met with no change of direction. Each extra surface's ``eps`` offset moves the ray's line by at
