@@ -150,14 +150,13 @@ def true_lights(source, obj) -> LightRig:
     Raises:
         ValueError: the source is not a procedural scene (only those know their lights).
     """
-    f = getattr(source, "_field", None)
-    light = getattr(f, "light", None)
-    if light is None:
+    light = getattr(source, "light", None)
+    if light is None or getattr(source, "up", None) is None:
         raise ValueError(
             f"the true lights are known for procedural scenes only, not for {type(source).__name__}; use the lights "
             "estimated from the panorama (relight=traced)"
         )
-    up = _unit(np.asarray(f.rotation, np.float64).T @ np.array([0.0, 1.0, 0.0]))  # world y in camera frame
+    up = _unit(source.up)  # the world's up in the camera frame
     env = hemisphere_environment(light.ambient_sky, light.ambient_ground, up)
     if light.kind == "directional":
         key = KeyLight(light.vector, light.color, 0.0, note="the scene's directional light")

@@ -60,6 +60,7 @@ __all__ = [
     "jitter_direction",
     "light_direction",
     "occluded_fraction",
+    "orthonormal_basis",
     "scene_up",
     "shadow_fraction_map",
 ]
@@ -79,7 +80,7 @@ def _unit(v) -> np.ndarray:
     return v / n
 
 
-def _basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def orthonormal_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors that complete the unit ``d`` to a right-handed orthonormal basis."""
     a = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     u = np.cross(d, a)
@@ -168,7 +169,7 @@ def jitter_direction(direction, jitter_deg: float, seed: int, up=None) -> np.nda
     cos_t = 1.0 - rng.random() * (1.0 - math.cos(math.radians(float(jitter_deg))))
     phi = 2.0 * math.pi * rng.random()
     sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
-    u, v = _basis(d)
+    u, v = orthonormal_basis(d)
     out = _unit(cos_t * d + sin_t * (math.cos(phi) * u + math.sin(phi) * v))
     if up is not None:
         up = _unit(up)
@@ -208,7 +209,7 @@ def cone_directions(direction, half_angle_deg: float, samples: int) -> np.ndarra
     cos_t = 1.0 - (1.0 - math.cos(math.radians(float(half_angle_deg)))) * (i + 0.5) / samples
     sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t**2))
     phi = i * _GOLDEN_ANGLE
-    u, v = _basis(d)
+    u, v = orthonormal_basis(d)
     out = cos_t[:, None] * d + sin_t[:, None] * (np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v)
     return out / np.linalg.norm(out, axis=1, keepdims=True)
 

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from snell_bench.optics.trace_types import HitKind
-from snell_bench.relight.shadow import Occluder, _basis, cone_directions, occluded_fraction
+from snell_bench.relight.shadow import Occluder, cone_directions, occluded_fraction, orthonormal_basis
 
 __all__ = [
     "Receiver",
@@ -233,7 +233,7 @@ def _point_beam(key, occluder: Occluder, rays: int, rng) -> tuple[np.ndarray, np
     cos_t = 1.0 - (1.0 - cos_a) * i / rays
     sin_t = np.sqrt(np.clip(1.0 - cos_t**2, 0.0, None))
     phi = np.arange(rays) * _GOLDEN_ANGLE + 2.0 * math.pi * rng.random()
-    u, v = _basis(axis)
+    u, v = orthonormal_basis(axis)
     dirs = cos_t[:, None] * axis + sin_t[:, None] * (np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v)
     start = max(0.0, dist - 1.01 * occluder.radius)
     solid = 2.0 * math.pi * (1.0 - cos_a) / rays
@@ -245,7 +245,7 @@ def _distant_beam(key, occluder: Occluder, rays: int, rng) -> tuple[np.ndarray, 
     """Parallel rays (each from a point of the light's disc) over the disc that covers the object's
     bounding sphere seen from the light; the flux each carries."""
     axis = key.direction
-    u, v = _basis(axis)
+    u, v = orthonormal_basis(axis)
     r = occluder.radius
     m = max(1, int(math.sqrt(rays * 4.0 / math.pi)))  # a jittered m x m grid over the disc's square
     cell = 2.0 * r / m

@@ -72,17 +72,11 @@ class LightTruth:
 
 
 def _receivers(mi, scene, albedo: float, centre: np.ndarray, reach: float) -> dict:
-    f = scene._field
-    near = (np.linalg.norm(f.vertices - centre, axis=1) <= reach)[f.faces].any(1)
-    keep = f.casts_shadow[f.face_material] & near
-    faces = f.faces[keep]
-    used = np.unique(faces)
-    remap = np.full(len(f.vertices), -1, np.int64)
-    remap[used] = np.arange(len(used))
+    vertices, faces, normals = scene.shadow_casters()
+    faces = faces[(np.linalg.norm(vertices - centre, axis=1) <= reach)[faces].any(1)]
+    used, faces = np.unique(faces, return_inverse=True)  # only the vertices used: the mesh's bounding box
     bsdf = mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": [albedo] * 3}})
-    return {
-        "receivers": mesh(mi, "receivers", f.vertices[used], remap[faces], normals=f.vertex_normals[used], bsdf=bsdf)
-    }
+    return {"receivers": mesh(mi, "receivers", vertices[used], faces.reshape(-1, 3), normals=normals[used], bsdf=bsdf)}
 
 
 def _glass(mi, obj) -> dict:
@@ -185,10 +179,10 @@ def light_truth(
     from snell_bench.render.variants import set_variant
 
     mi = set_variant()
-    light = scene._field.light
+    light = scene.light
     centre = np.asarray(obj.center, np.float64)
     radius = float(np.linalg.norm(obj.vertices - centre, axis=1).max())
-    points = camera.unproject(_depth(scene, camera))
+    points = camera.unproject(scene.depth(camera))
     halves = _deltas(
         mi, scene, camera, obj, points, spp=spp, seed=seed, albedo=albedo, max_depth=max_depth, reach=reach * radius
     )
@@ -223,9 +217,8 @@ def light_truth(
 
 def _deltas(mi, scene, camera, obj, points, *, spp, seed, albedo, max_depth, reach) -> dict:
     """``{"key": [ΔE of half 1, of half 2], "ambient": [...]}`` (module convention), each ``(H, W, 3)``."""
-    light = scene._field.light
-    up = np.asarray(scene._field.rotation, np.float64).T @ np.array([0.0, 1.0, 0.0])
-    dist = np.linalg.norm(scene._field.vertices, axis=1)
+    light, up = scene.light, np.asarray(scene.up, np.float64)
+    dist = np.linalg.norm(scene.mesh().vertices, axis=1)
     clip = (max(1e-3, 1e-3 * float(np.median(dist))), 10.0 * float(dist.max()))
     base = _receivers(mi, scene, albedo, np.asarray(obj.center, np.float64), reach)
     glass = _glass(mi, obj)
@@ -279,11 +272,6 @@ def _blocked(obj, points: np.ndarray, light) -> np.ndarray:
     rays = np.concatenate([p[ok], v[ok]], 1).astype(np.float32)
     out[ok] = occ.scene.test_occlusions(o3d.core.Tensor.from_numpy(rays), tnear=1e-9, tfar=1.0).numpy()
     return out.reshape(points.shape[:-1])
-
-
-def _depth(scene, camera) -> np.ndarray:
-    t = scene._field.cast_t(np.zeros((1, 3)), camera.pixel_rays().reshape(-1, 3))
-    return (t.astype(np.float64) * camera.pixel_rays()[..., 2].reshape(-1)).reshape(camera.shape)
 
 
 def _object_depth(obj, camera) -> np.ndarray:

@@ -184,6 +184,28 @@ class ProceduralScene:
         col, lit = self._field.albedo(np.zeros(3), camera.pixel_rays().reshape(-1, 3))
         return col.reshape(camera.shape + (3,)), lit.reshape(camera.shape)
 
+    @property
+    def light(self):
+        """The scene's key light and ambient (:class:`~snell_bench.scene.procedural.shading.Light`,
+        camera frame)."""
+        return self._field.light
+
+    def shadow_casters(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The faces whose material casts shadows (those the shading's shadow rays test):
+        ``(vertices (V, 3), faces (F, 3), vertex normals (V, 3))``, camera frame."""
+        f = self._field
+        faces = f.faces[f.casts_shadow[f.face_material]]
+        used = np.unique(faces)
+        index = np.full(len(f.vertices), -1, np.int64)
+        index[used] = np.arange(len(used))
+        return f.vertices[used], index[faces], f.vertex_normals[used]
+
+    def depth(self, camera: Camera) -> np.ndarray:
+        """The z-depth each pixel centre of ``camera`` sees, ``(H, W)`` float64 (inf where nothing)."""
+        d = camera.pixel_rays()
+        t = self._field.cast_t(np.zeros((1, 3)), d.reshape(-1, 3)).astype(np.float64)
+        return (t * d[..., 2].reshape(-1)).reshape(camera.shape)
+
     def key_direct(self, camera: Camera) -> np.ndarray:
         """The key light's ``cos θ × falloff × visibility`` at the surface each pixel centre of
         ``camera`` sees (the shading's direct term without the light's colour), ``(H, W)``."""
