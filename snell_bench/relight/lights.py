@@ -33,16 +33,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from snell_bench.imaging.color import srgb_to_linear
+from snell_bench.relight.shadow import unit_vector
 
 __all__ = ["KeyLight", "LightRig", "estimate_lights", "hemisphere_environment", "panorama_environment", "true_lights"]
-
-
-def _unit(v) -> np.ndarray:
-    v = np.asarray(v, np.float64).reshape(3)
-    n = float(np.linalg.norm(v))
-    if not math.isfinite(n) or n == 0.0:
-        raise ValueError(f"a light direction must be a non-zero finite 3-vector, got {v.tolist()}")
-    return v / n
 
 
 @dataclass(frozen=True)
@@ -66,7 +59,7 @@ class KeyLight:
     falloff: float = 0.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "direction", _unit(self.direction))
+        object.__setattr__(self, "direction", unit_vector(self.direction))
         e = np.asarray(self.irradiance, np.float64).reshape(3)
         if not np.isfinite(e).all() or (e < 0).any():
             raise ValueError(f"a key light's irradiance must be finite and >= 0, got {e.tolist()}")
@@ -131,7 +124,7 @@ def hemisphere_environment(sky, ground, up) -> Callable[[np.ndarray], np.ndarray
     """
     sky_l = np.asarray(sky, np.float64).reshape(3) / math.pi
     ground_l = np.asarray(ground, np.float64).reshape(3) / math.pi
-    up = _unit(up)
+    up = unit_vector(up)
 
     def radiance(d: np.ndarray) -> np.ndarray:
         above = (np.asarray(d, np.float64).reshape(-1, 3) @ up) > 0
@@ -156,7 +149,7 @@ def true_lights(source, obj) -> LightRig:
             f"the true lights are known for procedural scenes only, not for {type(source).__name__}; use the lights "
             "estimated from the panorama (relight=traced)"
         )
-    up = _unit(source.up)  # the world's up in the camera frame
+    up = unit_vector(source.up)  # the world's up in the camera frame
     env = hemisphere_environment(light.ambient_sky, light.ambient_ground, up)
     if light.kind == "directional":
         key = KeyLight(light.vector, light.color, 0.0, note="the scene's directional light")
@@ -223,7 +216,7 @@ def estimate_lights(
     h = pano.shape[0]
     if pano.ndim != 3 or pano.shape[1] != 2 * h or pano.shape[2] != 3:
         raise ValueError(f"the panorama must be (h, 2h, 3), got {pano.shape}")
-    up = _unit(up)
+    up = unit_vector(up)
     lin = srgb_to_linear(pano).astype(np.float64)
     lum = lin @ np.array([0.2126, 0.7152, 0.0722])
     dirs = pano_camera.directions()
@@ -239,7 +232,7 @@ def estimate_lights(
     power = ndimage.sum_labels(lum * omega, labels, index=np.arange(1, count + 1))
     region = labels == 1 + int(np.argmax(power))  # the component that sends the most light
     w = (lum * omega)[region]
-    d = _unit((dirs[region] * w[:, None]).sum(0))
+    d = unit_vector((dirs[region] * w[:, None]).sum(0))
     solid = float(omega[region].sum())
     radius = math.degrees(math.acos(max(-1.0, 1.0 - solid / (2 * math.pi))))
     bound = (lin[region] * omega[region][:, None]).sum(0)

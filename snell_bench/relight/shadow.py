@@ -61,6 +61,7 @@ __all__ = [
     "light_direction",
     "occluded_fraction",
     "orthonormal_basis",
+    "unit_vector",
     "scene_up",
     "shadow_fraction_map",
 ]
@@ -72,7 +73,8 @@ _CHUNK = 1 << 22
 _GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 
 
-def _unit(v) -> np.ndarray:
+def unit_vector(v) -> np.ndarray:
+    """``v`` as a unit float64 3-vector (ValueError for a zero or non-finite one)."""
     v = np.asarray(v, np.float64).reshape(3)
     n = float(np.linalg.norm(v))
     if not math.isfinite(n) or n == 0.0:
@@ -94,7 +96,7 @@ def scene_up(obj: Any = None, scene: Any = None) -> np.ndarray:
     for src in (obj, scene):
         up = getattr(src, "up", None)
         if up is not None:
-            return _unit(up)
+            return unit_vector(up)
     return DEFAULT_UP.copy()
 
 
@@ -115,7 +117,7 @@ def horizontal_frame(up) -> tuple[np.ndarray, np.ndarray]:
         >>> (f + 0.0).tolist(), (r + 0.0).tolist()  # + 0.0 turns -0.0 into 0.0
         ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
     """
-    up = _unit(up)
+    up = unit_vector(up)
     for axis in (np.array([0.0, 0.0, 1.0]), np.array([0.0, -1.0, 0.0])):
         f = axis - (axis @ up) * up
         if np.linalg.norm(f) > 1e-6:
@@ -141,11 +143,11 @@ def light_direction(elevation_deg: float, azimuth_deg: float, up) -> np.ndarray:
         >>> [(np.round(light_direction(el, az, up), 6) + 0.0).tolist() for el, az in [(90, 0), (0, 90)]]
         [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0]]
     """
-    up = _unit(up)
+    up = unit_vector(up)
     forward, right = horizontal_frame(up)
     el, az = math.radians(float(elevation_deg)), math.radians(float(azimuth_deg))
     horizontal = math.cos(az) * -forward + math.sin(az) * right
-    return _unit(math.cos(el) * horizontal + math.sin(el) * up)
+    return unit_vector(math.cos(el) * horizontal + math.sin(el) * up)
 
 
 def jitter_direction(direction, jitter_deg: float, seed: int, up=None) -> np.ndarray:
@@ -160,7 +162,7 @@ def jitter_direction(direction, jitter_deg: float, seed: int, up=None) -> np.nda
     Returns:
         ``(3,)`` float64, unit, uniformly distributed over the cap (solid angle).
     """
-    d = _unit(direction)
+    d = unit_vector(direction)
     if jitter_deg < 0:
         raise ValueError(f"jitter_deg must be >= 0, got {jitter_deg}")
     if jitter_deg == 0:
@@ -170,11 +172,11 @@ def jitter_direction(direction, jitter_deg: float, seed: int, up=None) -> np.nda
     phi = 2.0 * math.pi * rng.random()
     sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
     u, v = orthonormal_basis(d)
-    out = _unit(cos_t * d + sin_t * (math.cos(phi) * u + math.sin(phi) * v))
+    out = unit_vector(cos_t * d + sin_t * (math.cos(phi) * u + math.sin(phi) * v))
     if up is not None:
-        up = _unit(up)
+        up = unit_vector(up)
         if out @ up < 0:
-            out = _unit(out - 2.0 * (out @ up) * up)
+            out = unit_vector(out - 2.0 * (out @ up) * up)
     return out
 
 
@@ -198,7 +200,7 @@ def cone_directions(direction, half_angle_deg: float, samples: int) -> np.ndarra
         >>> d.shape, bool((d[:, 2] >= np.cos(np.radians(10.0)) - 1e-12).all())
         ((32, 3), True)
     """
-    d = _unit(direction)
+    d = unit_vector(direction)
     if int(samples) != samples or samples < 1:
         raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
     if half_angle_deg < 0 or half_angle_deg >= 90:
@@ -269,7 +271,7 @@ def occluded_fraction(occluder: Occluder, points: np.ndarray, directions: np.nda
     out = np.zeros(len(points), np.float32)
     if not len(points):
         return out
-    axis = _unit(dirs.mean(0))
+    axis = unit_vector(dirs.mean(0))
     spread = float(np.arccos(np.clip(dirs @ axis, -1.0, 1.0)).max())
     q = occluder.center - points
     dist = np.linalg.norm(q, axis=1)
