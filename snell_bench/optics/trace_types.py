@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-__all__ = ["HitKind", "BackgroundHit", "RefractionTrace"]
+__all__ = ["HitKind", "BackgroundHit", "ExitRecord", "RefractionTrace"]
 
 
 class HitKind(enum.IntEnum):
@@ -44,6 +44,39 @@ class BackgroundHit:
 
 
 @dataclass
+class ExitRecord:
+    """The last interface where each traced path left the object (NaN / 0 / 1 where it never did):
+    where the light that the exit reflects back inside (Fresnel ``R``) starts, and what the light
+    carried to it. One row per ray; filled by the one-medium tracer."""
+
+    point: np.ndarray  # (N, 3) the exit point
+    geometric_normal: np.ndarray  # (N, 3) its outward face normal
+    shading_normal: np.ndarray  # (N, 3) the shading normal used there, facing the arriving ray
+    mirror: np.ndarray  # (N, 3) the mirror direction back into the object
+    fresnel: np.ndarray  # (N,) the Fresnel reflectance there
+    path_length: np.ndarray  # (N,) the path's length inside before it
+    transmission: np.ndarray  # (N,) ``interface_transmission`` before it
+    adjoint: np.ndarray  # (N,) ``adjoint`` before it
+
+    @classmethod
+    def empty(cls, n: int) -> ExitRecord:
+        nan3 = np.full((n, 3), np.nan)
+        return cls(nan3.copy(), nan3.copy(), nan3.copy(), nan3.copy(), np.zeros(n), np.zeros(n), np.ones(n), np.ones(n))
+
+    def record(self, rows: np.ndarray, sel: np.ndarray, trace: RefractionTrace, *step: np.ndarray) -> None:
+        """Store the rows ``rows`` of a tracer step (``sel`` of its arrays ``point``,
+        ``geometric_normal``, ``shading_normal``, ``mirror``, ``fresnel``, in that order) with
+        ``trace``'s running products."""
+        for name, values in zip(
+            ("point", "geometric_normal", "shading_normal", "mirror", "fresnel"), step, strict=True
+        ):
+            getattr(self, name)[rows] = values[sel]
+        self.path_length[rows] = trace.path_length[rows]
+        self.transmission[rows] = trace.interface_transmission[rows]
+        self.adjoint[rows] = trace.adjoint[rows]
+
+
+@dataclass
 class RefractionTrace:
     """Result of tracing camera rays through the object (one row per ray; :meth:`SceneTracer.trace`)."""
 
@@ -64,8 +97,15 @@ class RefractionTrace:
     #: (N, 3) the path's length in each medium times that medium's absorption σ (linear R, G, B):
     #: its transmittance is ``exp(-optical_depth)``
     optical_depth: np.ndarray | None = None
-    #: (N,) product of ``1 - R`` over the interfaces crossed after the first (TIR: 1)
+    #: (N,) product of ``1 - R`` over the interfaces crossed after the first (TIR: 1; a trace that
+    #: starts inside the object: over every interface it crosses)
     interface_transmission: np.ndarray | None = None
+    #: (N,) product of the adjoint shading-normal factors over the path's interactions
+    #: (:func:`~snell_bench.optics.functional.adjoint_correction`): what light traced from a light
+    #: source along the path carries (1 on flat faces; 1 for camera rays, which do not use it)
+    adjoint: np.ndarray | None = None
+    #: the last exit of each path (:class:`ExitRecord`; ``None``: not recorded: camera rays, several media)
+    exit: ExitRecord | None = None
 
     @classmethod
     def empty(cls, n: int) -> RefractionTrace:
@@ -85,6 +125,7 @@ class RefractionTrace:
             reflected=nan3.copy(),
             path_length=np.zeros(n),
             interface_transmission=np.ones(n),
+            adjoint=np.ones(n),
         )
 
 

@@ -25,12 +25,13 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 
-from snell_bench.optics.functional import interact
+from snell_bench.optics.functional import adjoint_correction, interact
 from snell_bench.optics.media import trace_nested
 from snell_bench.optics.trace_types import (
     BACKGROUND_ID,
     BOX_ID,
     BackgroundHit,
+    ExitRecord,
     HitKind,
     RefractionTrace,
     dot_rows,
@@ -291,8 +292,11 @@ class SceneTracer:
         return interact(d, ns, ng, np.where(from_inside, ior, 1.0), np.where(from_inside, 1.0, ior))
 
     # ------------------------------------------------------------------ full trace
-    def trace(self, origins: np.ndarray, directions: np.ndarray) -> RefractionTrace:
-        """Trace rays that start outside the object and are known to hit it first.
+    def trace(
+        self, origins: np.ndarray, directions: np.ndarray, start_inside: bool = False, from_light: bool = False
+    ) -> RefractionTrace:
+        """Trace rays that start outside the object and are known to hit it first (or, with
+        ``start_inside``, rays that start inside it, just off its surface).
 
         Each ray refracts in, bounces (refraction out, total internal reflection, re-entry for
         non-convex shapes) until it leaves the object for the background, or until
@@ -301,20 +305,28 @@ class SceneTracer:
         off the surface, so the sum is short by at most ``eps`` per segment).
 
         Args:
-            origins: ``(N, 3)`` ray origins outside the object.
+            origins: ``(N, 3)`` ray origins outside the object (inside with ``start_inside``).
             directions: ``(N, 3)`` ray directions (normalised here).
+            start_inside: the rays start inside the object (one medium only): the first
+                segment counts in ``path_length`` and the first interface in
+                ``interface_transmission``, as any later one.
+            from_light: the rays carry a light's light: fill ``adjoint`` and the :class:`ExitRecord`
+                (camera rays need neither; they cost about 15 %).
 
         Returns:
             The :class:`RefractionTrace`.
         """
         if self.obj.media is not None:  # several media: the medium stack (optics.media)
+            if start_inside:
+                raise ValueError("start_inside traces one medium; an object of several media starts from outside")
             return trace_nested(self, origins, directions)
         o = np.asarray(origins, np.float64).copy()
         d = np.asarray(directions, np.float64)
         d = d / np.linalg.norm(d, axis=-1, keepdims=True)
         N = len(o)
         res = RefractionTrace.empty(N)
-        inside = np.zeros(N, bool)
+        res.exit = ExitRecord.empty(N) if from_light else None
+        inside = np.full(N, bool(start_inside))
         active = np.arange(N)
         for it in range(self.max_bounces + 1):
             if len(active) == 0:
@@ -340,13 +352,17 @@ class SceneTracer:
             ng = ho["normal"][hit_obj]
             ns = self.shading_normals(ho["face"][hit_obj], ho["uv"][hit_obj], ng, p)
             d_new, goes_inside, R, mirror, nf = self._interact(d[act], ns, ng)
-            if it == 0:
+            if it == 0:  # the first surface (for a trace from inside: an interface like any other, too)
                 res.first_point[act] = p
                 res.first_normal[act] = nf
                 res.first_geometric_normal[act] = ng
                 res.fresnel[act] = R
                 res.reflected[act] = mirror
-            else:  # a later interface: the refracted path keeps 1 - R where it crosses
+            if from_light:  # an exit's record (the running products before it), then the adjoint factor
+                out = inside[act] & ~goes_inside
+                res.exit.record(act[out], out, res, p, ng, nf, mirror, R)
+                res.adjoint[act] *= adjoint_correction(d[act], d_new, nf, ng)
+            if it > 0 or start_inside:  # a later interface: the refracted path keeps 1 - R where it crosses
                 res.interface_transmission[act] *= np.where(goes_inside != inside[act], 1.0 - R, 1.0)
             side = np.where(goes_inside, -1.0, 1.0)
             o[act] = p + (self.eps * side)[:, None] * ng

@@ -163,3 +163,25 @@ def test_reflect_is_involution_and_preserves_length():
     torch.testing.assert_close(reflect(r, n), d)
     torch.testing.assert_close(torch.linalg.vector_norm(r, dim=-1), torch.ones(100, dtype=torch.float64))
     torch.testing.assert_close((r * n).sum(-1), -(d * n).sum(-1))
+
+
+def test_adjoint_correction_is_one_on_flat_faces_and_reverses_with_the_path():
+    """Veach's adjoint factor |(ns·wi)(ng·wo)| / |(ns·wo)(ng·wi)|: 1 where the shading normal is the
+    face normal, the reciprocal for the reversed path (wo and wi swapped), and the hand value for a
+    tilted shading normal."""
+    from snell_bench.optics.functional import adjoint_correction
+
+    g = torch.Generator().manual_seed(0)
+    unit = lambda: torch.nn.functional.normalize(torch.randn(64, 3, dtype=torch.float64, generator=g), dim=-1).numpy()
+    d, d_new, ng = unit(), unit(), unit()
+    ns = ng + 0.1 * unit()
+    ns /= np.linalg.norm(ns, axis=1, keepdims=True)
+    np.testing.assert_allclose(adjoint_correction(d, d_new, ng, ng), 1.0, rtol=4 * EPS64)
+    np.testing.assert_allclose(
+        adjoint_correction(d, d_new, ns, ng) * adjoint_correction(-d_new, -d, ns, ng), 1.0, rtol=16 * EPS64
+    )
+    s = math.sin(0.2)
+    ns1, ng1 = np.array([[s, 0.0, math.cos(0.2)]]), np.array([[0.0, 0.0, 1.0]])
+    di, do = np.array([[0.0, 0.0, -1.0]]), np.array([[0.6, 0.0, -0.8]])
+    expected = abs(-math.cos(0.2) * -0.8) / abs((0.6 * s - 0.8 * math.cos(0.2)) * -1.0)
+    assert float(adjoint_correction(di, do, ns1, ng1)[0]) == pytest.approx(expected, rel=4 * EPS64)
