@@ -47,7 +47,7 @@ def _relighter(name: str, cfg: DictConfig):
     from snell_bench.relight.traced import TracedRelighter
 
     node = cfg.relight.get("relighter") or {}
-    settings = {k: node[k] for k in ("shadow_samples", "caustic_rays", "env_samples", "key_to_ambient") if k in node}
+    settings = {k: node[k] for k in node if k not in ("_target_", "lights")}  # the config's settings, all of them
     if name == "shadow":
         return ShadowRelighter()
     if name in ("traced", "traced_true"):
@@ -156,14 +156,22 @@ def _json_safe(x):
 
 
 def relighting_table(rows: list[dict]) -> pd.DataFrame:
-    """The per-cell scores, then each method's mean over the cells (``scene = "mean"``)."""
+    """The per-cell scores, then each method's mean over the cells (``scene = "mean"``).
+
+    ``noise_gap_db`` is the truth's self-noise less the method's region PSNR: a perfect relighting
+    scores the self-noise (gap 0 up to the noise estimate's own spread); under ``10 log10 2 = 3.01``
+    dB the method's own error is smaller than the truth's noise (its mean squared error is the sum
+    of the two)."""
     df = pd.DataFrame(rows)
     for k in RELIGHT_METRICS:
         if k not in df:
             df[k] = np.nan
-    cols = ["scene", "object", "method", *RELIGHT_METRICS, "truth_noise_db", "seconds"]
+    if "truth_noise_db" in df:  # a perfect relighting scores the truth's self-noise: what is left is the method's
+        df["noise_gap_db"] = df["truth_noise_db"] - df["psnr_region"]
+    cols = ["scene", "object", "method", *RELIGHT_METRICS, "truth_noise_db", "noise_gap_db", "seconds"]
     df = df.reindex(columns=[c for c in cols if c in df] + (["missing"] if "missing" in df else []))
-    means = df.groupby("method", sort=False)[list(RELIGHT_METRICS) + ["seconds"]].mean(numeric_only=True).reset_index()
+    averaged = [c for c in [*RELIGHT_METRICS, "noise_gap_db", "seconds"] if c in df]
+    means = df.groupby("method", sort=False)[averaged].mean(numeric_only=True).reset_index()
     means.insert(0, "object", "")
     means.insert(0, "scene", "mean")
     return pd.concat([df, means], ignore_index=True)

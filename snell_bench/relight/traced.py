@@ -58,6 +58,7 @@ def relight_ratio(
     env_samples: int,
     seed: int,
     blur_px: float = 0.0,
+    internal_reflections: int = 4,
 ) -> tuple[np.ndarray, dict]:
     """``(H, W, 3)`` float64 ``E_with / E_without`` of I⁻'s receivers (module convention; 1 where no
     receiver), and a record (the lights, each key's beam energy)."""
@@ -73,7 +74,16 @@ def relight_ratio(
     for k, key in enumerate(lights.keys):
         geometry, blocked = key_terms(receiver, key, occluder, shadow_samples)
         caustic, beam = caustic_irradiance(
-            receiver, scene.camera, scene.depth, tracer, occluder, key, caustic_rays, seed + 7919 * (k + 1), blur_px
+            receiver,
+            scene.camera,
+            scene.depth,
+            tracer,
+            occluder,
+            key,
+            caustic_rays,
+            seed + 7919 * (k + 1),
+            blur_px,
+            internal_reflections,
         )
         changed = (blocked > 0) | (caustic > 0).any(-1) | (d_env != 0).any(-1)
         vis = scene_visibility(receiver, tracer, key, changed)
@@ -129,6 +139,8 @@ class TracedRelighter:
         key_to_ambient: a clipped key light's irradiance over the environment's facing up.
         blur_px: the caustic splat's Gaussian blur (pixels; 0: none: a blur carries the light of a caustic hidden behind the object into the pixels beside it).
         max_bounces: interactions per ray inside the glass.
+        internal_reflections: generations of the light an exit reflects back into the glass that
+            the caustic beam follows (0: the refracted path alone).
     """
 
     name = "traced"
@@ -136,12 +148,13 @@ class TracedRelighter:
     def __init__(
         self,
         lights: str = "panorama",
-        shadow_samples: int = 16,
+        shadow_samples: int = 64,
         caustic_rays: int = 400_000,
         env_samples: int = 64,
         key_to_ambient: float = 4.0,
         blur_px: float = 0.0,
         max_bounces: int = 8,
+        internal_reflections: int = 4,
     ):
         if lights not in ("panorama", "true"):
             raise ValueError(
@@ -152,6 +165,7 @@ class TracedRelighter:
             ("caustic_rays", caustic_rays, 0),
             ("env_samples", env_samples, 1),
             ("max_bounces", max_bounces, 1),
+            ("internal_reflections", internal_reflections, 0),
         ):
             if int(value) != value or value < lo:
                 raise ValueError(f"relight.relighter.{key}={value!r}: use an integer >= {lo}")
@@ -164,13 +178,14 @@ class TracedRelighter:
             int(env_samples),
         )
         self.key_to_ambient, self.blur_px, self.max_bounces = float(key_to_ambient), float(blur_px), int(max_bounces)
+        self.internal_reflections = int(internal_reflections)
         self.last_record: dict = {}
 
     def describe(self) -> str:
         return (
             f"shadows and caustics traced through the glass (Open3D), lights {'of the scene' if self.lights == 'true' else 'estimated from the panorama'}, "
             f"differential rendering; {self.shadow_samples} shadow rays, {self.caustic_rays} caustic rays per key light, "
-            f"{self.env_samples} environment rays near the object"
+            f"{self.env_samples} environment rays near the object, {self.internal_reflections} internal reflections followed"
         )
 
     def rig(self, *, scene, obj, warps, panorama) -> LightRig:
@@ -210,6 +225,7 @@ class TracedRelighter:
             env_samples=self.env_samples,
             seed=int(seed),
             blur_px=self.blur_px,
+            internal_reflections=self.internal_reflections,
         )
         refraction = np.where(np.asarray(warps.refraction_valid)[..., None], warps.refraction, np.nan)
         return apply_ratio(image, ratio, refraction=refraction, fresnel=warps.fresnel)

@@ -2,6 +2,7 @@
 the scores and the report, and a finished cell kept on a second run."""
 
 import json
+import math
 
 import pandas as pd
 import pytest
@@ -50,3 +51,25 @@ def test_relighting_experiment_scores_every_method_and_keeps_finished_cells(tmp_
     before = (cell / "scores.json").stat().st_mtime_ns
     assert run_job(_cfg(tmp_path)) == 0  # the finished cell is kept
     assert (cell / "scores.json").stat().st_mtime_ns == before
+
+
+@pytest.mark.slow
+def test_traced_relighting_with_the_true_lights_is_within_the_truths_noise(tmp_path):
+    """The hardest cell of ``+experiment=relighting`` at its own settings (a cylinder under a lamp):
+    ``relight=traced`` with the scene's lights errs by less than the path-traced truth's own noise
+    (their mean squared errors add, so a gap under 10 log10 2 dB)."""
+    cfg = compose(
+        [
+            "+experiment=relighting",
+            "grid.scenes=[living_room]",
+            "grid.objects=[cylinder]",
+            f"runs_dir={tmp_path / 'runs'}",
+            f"reports_dir={tmp_path / 'reports'}",
+            f"output_dir={tmp_path}",
+        ]
+    )
+    assert run_job(cfg) == 0
+    table = pd.read_csv(tmp_path / "reports" / "relighting" / "relighting.csv")
+    row = table[(table["scene"] == "living_room") & (table["method"] == "traced_true")].iloc[0]
+    assert row["noise_gap_db"] < 10 * math.log10(2.0), row.to_dict()
+    assert row["noise_gap_db"] > -1.0  # not better than a perfect relighting by more than the noise estimate's spread

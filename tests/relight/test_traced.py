@@ -1,6 +1,7 @@
 """Traced shadows and caustics: the ball lens's focus and the caustic's centre against closed forms,
-the light through a sphere against the Fresnel integral, the environment's irradiance against the
-hemisphere formula, and the differential compositing."""
+the light through a sphere against the Fresnel integral, a plate's internal reflections against
+the geometric series, a point light's falloff where its light lands, the environment's irradiance
+against the hemisphere formula, and the differential compositing."""
 
 import math
 
@@ -12,7 +13,7 @@ from snell_bench.optics.tracer import SceneTracer
 from snell_bench.relight.lights import KeyLight, LightRig, hemisphere_environment
 from snell_bench.relight.shadow import Occluder
 from snell_bench.relight.traced import TracedRelighter, apply_ratio, relight_ratio
-from snell_bench.relight.transport import caustic_irradiance, receiver_from_depth
+from snell_bench.relight.transport import caustic_irradiance, internal_reflections, receiver_from_depth
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.depth_mesh import build_background
 from snell_bench.scene.objects import GlassObject
@@ -119,6 +120,65 @@ def test_light_through_a_sphere_is_the_fresnel_integral():
     mean = float(((1 - fresnel_cos(cos, 1.0, N)) ** 2 * 2 * torch.from_numpy(s)).mean())
     expected = np.array(key.irradiance) * math.pi * R**2 * mean
     np.testing.assert_allclose(record["flux_refracted_on_receivers"], expected, rtol=3e-3)
+
+
+def test_internal_reflections_of_a_slab_sum_to_the_geometric_series():
+    """A plate of glass: every interface of a ray meets it at the same angle, so of the light
+    entering it the share leaving after k internal reflections is (1 - R)² R^k; with the
+    first-surface reflection, G generations leave R + (1 - R)(1 - R^(G+1)) in all, and generation k
+    starts after k + 1 crossings of d / cos θt. Flat faces (shading normal = face normal, adjoint
+    factor 1), so only rounding is left; incidence 50-75°, where every term exceeds the 1e-4 cut."""
+    import trimesh
+
+    from snell_bench.optics.functional import fresnel_cos
+
+    thick = 0.2
+    plate = trimesh.creation.box(extents=(40.0, 40.0, thick))
+    plate.apply_translation(CENTRE)
+    obj = GlassObject(mesh=plate, ior=N, name="plate")
+    cam, depth = _wall(CENTRE[2] + 4.0)
+    tracer = SceneTracer(build_background(depth, cam, extra_points=obj.vertices), obj, max_bounces=4)
+    theta = np.radians(np.linspace(50.0, 75.0, 11))
+    d = np.stack([np.sin(theta), np.zeros_like(theta), np.cos(theta)], 1)
+    origins = CENTRE - (thick / 2 + 0.1) / d[:, 2:3] * d
+    tr = tracer.trace(origins, d, from_light=True)
+    crossing = thick / np.sqrt(1 - (np.sin(theta) / N) ** 2)
+    generations = 3
+    total = tr.fresnel + (1 - tr.fresnel) * tr.interface_transmission * tr.adjoint
+    for k, (sub, weight, before, index) in enumerate(internal_reflections(tracer, tr, generations)):
+        assert len(index) == len(theta) and (sub.bounces == 1).all()  # each branch leaves at its first interface
+        np.testing.assert_allclose(before, (k + 1) * crossing[index], rtol=1e-9, atol=4 * (k + 1) * tracer.eps)
+        total += np.bincount(index, weights=weight, minlength=len(theta))
+    Rb = fresnel_cos(torch.from_numpy(np.cos(theta)), 1.0, N).numpy()
+    np.testing.assert_allclose(tr.adjoint, 1.0, rtol=1e-12)
+    np.testing.assert_allclose(total, Rb + (1 - Rb) * (1 - Rb ** (generations + 1)), rtol=1e-9)
+    assert ((1 - Rb) * (Rb - Rb ** (generations + 1)) > 1e-3).all()  # what the branches carry
+
+
+def test_a_point_lights_falloff_applies_where_its_light_lands():
+    """The shading's ``1 / (d² + falloff)``: with a falloff, each pixel's caustic is the one without
+    times ``d² / (d² + falloff)`` at the point where its light lands, within that factor's change over
+    the pixel's footprint (not one factor at the object's distance)."""
+    obj = _sphere()
+    cam, depth = _wall(CENTRE[2] + R + BFD, fov=60.0)
+    tracer = SceneTracer(build_background(depth, cam, extra_points=obj.vertices), obj, max_bounces=8)
+    rec = receiver_from_depth(depth, cam)
+    occ = Occluder.from_mesh(obj.vertices, obj.faces)
+    light = CENTRE + np.array([0.05, -0.1, -1.0])
+    falloff = 0.8
+    E = {}
+    for f in (0.0, falloff):
+        key = KeyLight(CENTRE - light, [1.0, 1.0, 1.0], 0.0, position=light, falloff=f)
+        E[f], _ = caustic_irradiance(rec, cam, depth, tracer, occ, key, 100_000, 3, 0.0)
+    lit = E[0.0][..., 1] > 1e-3 * E[0.0][..., 1].max()
+    d = np.linalg.norm(rec.points - light, axis=-1)
+    g = d**2 / (d**2 + falloff)
+    slope = 2 * d * falloff / (d**2 + falloff) ** 2
+    reach = 0.5 * (np.linalg.norm(rec.du, axis=-1) + np.linalg.norm(rec.dv, axis=-1))
+    ratio = E[falloff][..., 1] / np.where(lit, E[0.0][..., 1], 1.0)
+    assert (np.abs(ratio - g)[lit] <= (slope * reach)[lit] + 1e-9).all()
+    dc = np.linalg.norm(CENTRE - light)  # one factor at the object's distance misses it by far
+    assert np.abs(dc**2 / (dc**2 + falloff) - g[lit]).min() > 10 * (slope * reach)[lit].max()
 
 
 def test_environment_seen_through_nothing_changes_nothing_and_compositing_keeps_untouched_pixels():
