@@ -14,8 +14,9 @@ from omegaconf import DictConfig, OmegaConf
 from snell_bench.config import Config
 from snell_bench.config.recipes import BEFORE_SWITCHES
 from snell_bench.experiment.plan import ABSENT, flatten, result_settings, settings_diff
-from snell_bench.reports.records import load_record
+from snell_bench.reports.records import files_problem, load_record
 from snell_bench.utils.io import file_sha256
+from snell_bench.utils.trust import load_yaml
 
 __all__ = [
     "DONE",
@@ -62,32 +63,25 @@ def read_record(path: Path, schema: dict | None = None) -> dict | None:
 # ---------------------------------------------------------------------------- files of a cell
 def cell_files(folder: Path, record_name: str) -> dict[str, dict]:
     """``{relative path: {"bytes": size, "sha256": hash}}`` of every file of a cell folder (hidden
-    files, such as the lock and temporaries, and the record itself left out)."""
+    files, such as the lock and temporaries, the record itself and symbolic links left out)."""
     out = {}
     for path in sorted(folder.rglob("*")):
         rel = path.relative_to(folder)
-        if path.is_file() and rel.as_posix() != record_name and not any(p.startswith(".") for p in rel.parts):
+        if path.is_symlink() or rel.as_posix() == record_name or any(p.startswith(".") for p in rel.parts):
+            continue  # a link is not the cell's (snell_bench writes none): never followed nor hashed
+        if path.is_file():
             out[rel.as_posix()] = {"bytes": path.stat().st_size, "sha256": file_sha256(path)}
     return out
 
 
-def files_problem(folder: Path, record: dict) -> str | None:
-    """Why the files ``record["files"]`` lists do not match the folder (a file missing, or of
-    another size or content), or ``None``."""
-    for rel, want in (record.get("files") or {}).items():
-        path = folder / rel
-        if not path.is_file():
-            return f"{rel} is missing"
-        if path.stat().st_size != want.get("bytes") or file_sha256(path) != want.get("sha256"):
-            return f"{rel} has changed since the cell finished"
-    return None
-
-
 # ---------------------------------------------------------------------------- settings of a cell
 def _saved_settings(folder: Path) -> dict | None:
+    saved, problem = load_yaml(folder / "config.yaml")  # bounded: an alias bomb is refused
+    if problem is not None or not isinstance(saved, dict):
+        return None  # missing or unreadable: the settings are unknown
     try:
-        return result_settings(OmegaConf.load(folder / "config.yaml"))
-    except Exception:  # noqa: BLE001 - missing or unreadable: the settings are unknown
+        return result_settings(OmegaConf.create(saved))
+    except Exception:  # noqa: BLE001 - not a config: the settings are unknown
         return None
 
 

@@ -49,7 +49,6 @@ Layout of an experiment ``E`` under ``runs/``::
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import socket
@@ -93,6 +92,7 @@ from snell_bench.reports.collect import recipe_and_protocol
 from snell_bench.reports.records import GRID_RECORD
 from snell_bench.utils.io import link_or_copy, save_png, write_json, write_text
 from snell_bench.utils.tensors import bchw_to_hwc
+from snell_bench.utils.trust import load_yaml, read_json
 
 log = logging.getLogger(__name__)
 
@@ -271,12 +271,16 @@ def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") ->
     changed: set[str] = set()
     for path in sorted(root.rglob("metrics.json")):
         try:
-            rec = json.loads(path.read_text())
-            if rec.get("status") != "ok" or not (path.parent / "config.yaml").is_file():
+            rec, problem = read_json(path)  # bounded, as every reader of a run folder
+            if problem is not None or rec.get("status") != "ok" or not (path.parent / "config.yaml").is_file():
                 continue
             name, sep, ior = str(rec["object"]).partition("-ior")
             spec = rec.get("object_spec") or (f"{name}:{ior}" if sep else name)
-            recorded = OmegaConf.load(path.parent / "config.yaml")
+            saved, problem = load_yaml(path.parent / "config.yaml")
+            if problem is not None:
+                log.warning("not comparing %s: its config.yaml %s", path.parent, problem)
+                continue
+            recorded = OmegaConf.create(saved)
             mine = result_settings(recorded)
             method = str(rec.get("method_name", rec["method"]))
             base = defaults(str(rec["scene"]), int(rec["variation"]), str(spec), method)

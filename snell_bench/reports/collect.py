@@ -19,9 +19,10 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import pandas as pd
-import yaml
 
-from .records import GRID_RECORD, load_record, non_finite
+from snell_bench.utils.trust import load_yaml
+
+from .records import GRID_RECORD, files_problem, load_record, non_finite
 from .spec import METRICS, MODEL_DESCRIPTIONS, metric_spec
 from .text import as_float, is_missing, reason
 
@@ -135,16 +136,34 @@ def recipe_and_protocol(cfg) -> dict:
     }
 
 
-_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-
-
 def _recorded_config(folder: Path) -> dict:
-    """Recipe and protocol from a cell's ``config.yaml`` (both None where it is missing or unreadable)."""
-    try:
-        cfg = yaml.load((folder / "config.yaml").read_text(), Loader=_LOADER)
-    except (OSError, yaml.YAMLError):
-        cfg = None
+    """Recipe and protocol from a cell's ``config.yaml`` (both None where it is missing or
+    unreadable; read bounded, :func:`~snell_bench.utils.trust.load_yaml`)."""
+    cfg, problem = load_yaml(folder / "config.yaml")
+    if problem is not None and (folder / "config.yaml").exists():
+        log.warning("%s: its config.yaml %s; its recipe and protocol are unknown", folder, problem)
     return recipe_and_protocol(cfg if isinstance(cfg, dict) else None)
+
+
+def _checked_record(path: Path, rel: Path, run_dir: Path, skipped: list) -> dict | None:
+    """A cell's record as the report reads it: ``None`` (and an entry in ``skipped``) when it is
+    not a record; ``failed`` when its files are not those it finished with (the runner's own rule,
+    :func:`~snell_bench.reports.records.files_problem`: the grid computes such a cell again)."""
+    rec, problem = load_record(path, GRID_RECORD)
+    if problem is not None:
+        log.warning("%s is not a cell record, left out of the report: %s", path, problem)
+        skipped.append((path.relative_to(run_dir).as_posix(), problem))
+        return None
+    rec = without_non_finite(rec, rel.as_posix(), path)
+    unfinished = files_problem(path.parent, rec) if rec.get("status") in ("ok", "skipped") else None
+    if unfinished is not None:
+        log.warning("%s: %s; not scored (the grid computes it again)", path.parent, unfinished)
+        rec = {**rec, "status": "failed", "reason": f"not finished: {unfinished}"}
+    if "recipe" not in rec or "protocol" not in rec:  # a cell recorded before the record held them
+        rec = {**_recorded_config(path.parent), **rec}
+    if rec.get("random_weights") and rec.get("status") == "ok":
+        rec = {**rec, "status": RANDOM_WEIGHTS, "reason": _RANDOM_REASON}
+    return rec
 
 
 def _row_from_record(rec: dict, rel: Path) -> dict:
@@ -265,16 +284,9 @@ def collect(run_dir: str | os.PathLike) -> pd.DataFrame:
         if any(p.startswith((".", "_")) for p in rel.parts):
             continue
         seen.add(path.parent)
-        rec, problem = load_record(path, GRID_RECORD)
-        if problem is not None:
-            log.warning("%s is not a cell record, left out of the report: %s", path, problem)
-            skipped.append((path.relative_to(run_dir).as_posix(), problem))
+        rec = _checked_record(path, rel, run_dir, skipped)
+        if rec is None:
             continue
-        rec = without_non_finite(rec, rel.as_posix(), path)
-        if "recipe" not in rec or "protocol" not in rec:  # a cell recorded before the record held them
-            rec = {**_recorded_config(path.parent), **rec}
-        if rec.get("random_weights") and rec.get("status") == "ok":
-            rec = {**rec, "status": RANDOM_WEIGHTS, "reason": _RANDOM_REASON}
         records.append(rec)
         rels.append(rel)
     for path in sorted(run_dir.rglob("config.yaml")):

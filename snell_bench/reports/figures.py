@@ -37,9 +37,9 @@ __all__ = [
 # --------------------------------------------------------------------------------------------
 
 
-def _mask_box(path: Path) -> tuple[float, float, float, float] | None:
+def _mask_box(path: Path, root: Path) -> tuple[float, float, float, float] | None:
     """Bounding box of the white pixels of a mask as fractions (x0, y0, x1, y1) of its size."""
-    img = load_rgb(path)
+    img = load_rgb(path, root)
     if img is None:
         return None
     m = img.mean(-1) > 0.5
@@ -268,8 +268,8 @@ def _row_tiles(
     dirs = [run_dir / r["cell_dir"] for r in rows.values() if r is not None] + [
         run_dir / d for d in same_row["cell_dir"]
     ]
-    ref = next((img for d in dirs if (img := load_rgb(d / "reference.png")) is not None), None)
-    box = next((b for d in dirs if (b := _mask_box(d / "mask.png")) is not None), None)
+    ref = next((img for d in dirs if (img := load_rgb(d / "reference.png", run_dir)) is not None), None)
+    box = next((b for d in dirs if (b := _mask_box(d / "mask.png", run_dir)) is not None), None)
     tiles = [(ref, "no reference.png")]
     for m in methods:
         r = rows[m]
@@ -279,7 +279,7 @@ def _row_tiles(
         why = r["status"] if r["status"] != "ok" else "no image.png"
         if r["status"] != "ok" and isinstance(r.get("reason"), str):
             why += ": " + r["reason"]
-        tiles.append((load_rgb(run_dir / r["cell_dir"] / "image.png"), why))
+        tiles.append((load_rgb(run_dir / r["cell_dir"] / "image.png", run_dir), why))
     return tiles, box
 
 
@@ -369,7 +369,10 @@ def panorama_figure(
         ``out_png`` as a :class:`~pathlib.Path`.
     """
     run_dir = Path(run_dir)
-    rows = [(d, load_rgb(run_dir / d / "image.png"), load_rgb(run_dir / d / PANORAMA_FILE)) for d in cell_dirs]
+    rows = [
+        (d, load_rgb(run_dir / d / "image.png", run_dir), load_rgb(run_dir / d / PANORAMA_FILE, run_dir))
+        for d in cell_dirs
+    ]
     img0 = next((im for _, im, _ in rows if im is not None), None)
     pano0 = next((p for _, _, p in rows if p is not None), None)
     aspect = img0.shape[0] / img0.shape[1] if img0 is not None else 9 / 16

@@ -327,12 +327,12 @@ def _copies(image, out_dir: Path, folder: str, kind: str, alt: str, written: lis
 # --------------------------------------------------------------------------------------------
 
 
-def _cell_error(d: Path, protocol: str) -> tuple[np.ndarray | str, np.ndarray | None]:
+def _cell_error(d: Path, protocol: str, root: Path) -> tuple[np.ndarray | str, np.ndarray | None]:
     """The |error| map of the cell in folder ``d`` and its reference's gray levels, or the reason
     there is none (a string) and None."""
     from snell_bench.metrics import to_gray
 
-    img, ref, mask = (open_image(d / n) for n in ("image.png", "reference.png", "mask.png"))
+    img, ref, mask = (open_image(d / n, root) for n in ("image.png", "reference.png", "mask.png"))
     if img is None or ref is None or mask is None:
         return "no image.png, reference.png or mask.png in the cell", None
     ref_rgb = np.asarray(ref.convert("RGB"))
@@ -383,18 +383,18 @@ def _method_cell(
     why = None if is_missing(why) else one_line(why)
     cell = MethodCell(method, label, cdir, str(r["status"]), why, metric_values(r, shown))
     d = run_dir / cdir
-    img = open_image(d / "image.png") if r["status"] == "ok" else None
+    img = open_image(d / "image.png", run_dir) if r["status"] == "ok" else None
     if img is not None:
         cell.image = _copies(img, out_dir, cdir, "image", f"{cell.label}: {what}", written)
         protocol = r.get("protocol")
         cell.protocol = protocol = "paper" if is_missing(protocol) else str(protocol)
-        err, _ = _cell_error(d, protocol)
+        err, _ = _cell_error(d, protocol, run_dir)
         if isinstance(err, str):
             cell.error_reason = err
         else:
             cell.error_mean = float(np.nanmean(err))
             errors.append((cell, protocol, err[np.isfinite(err)].astype(np.float32)))
-    pano = open_image(d / PANORAMA_FILE) if r["status"] == "ok" else None
+    pano = open_image(d / PANORAMA_FILE, run_dir) if r["status"] == "ok" else None
     if pano is not None:
         cell.panorama = _copies(pano, out_dir, cdir, "panorama", f"panorama of {cell.label}: {what}", written)
     return cell
@@ -436,7 +436,7 @@ def gallery(
         ]
 
         def first(name, dirs=dirs):
-            return next((im for d in dirs if (im := open_image(d / name)) is not None), None)
+            return next((im for d in dirs if (im := open_image(d / name, run_dir)) is not None), None)
 
         what = f"{scene}-{variation} / {obj}"
         tiles, mask_px = {}, 0
@@ -472,7 +472,7 @@ def gallery(
         )
     scale = error_scale([v for _, _, v in errors])
     for cell, protocol, _ in errors:  # computed again: one map at a time in memory, whatever the grid's size
-        err, context = _cell_error(run_dir / str(cell.cell_dir), protocol)
+        err, context = _cell_error(run_dir / str(cell.cell_dir), protocol, run_dir)
         rgb = Image.fromarray(colorize_error(err, scale, context))
         cell.error = _copies(rgb, out_dir, str(cell.cell_dir), "error", f"|error| map of {cell.label}", written)
     return Gallery(rows, [(m, labels.get(m, m)) for m in methods], scale, written)

@@ -24,12 +24,14 @@ Conventions:
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
 
-__all__ = ["GRID_RECORD", "load_record", "record_problem", "non_finite"]
+from snell_bench.utils.io import file_sha256
+from snell_bench.utils.trust import UntrustedPath, read_json, safe_path
+
+__all__ = ["GRID_RECORD", "files_problem", "load_record", "record_problem", "non_finite"]
 
 _STR = {"type": "string"}
 _OPT_STR = {"type": ["string", "null"]}
@@ -194,22 +196,13 @@ def load_record(path: str | Path, schema: dict | None = None) -> tuple[dict | No
 
     Returns:
         ``(record, None)`` for a valid record; ``(None, problem)`` otherwise, the problem in one
-        line: ``"cannot be read: ..."``, ``"not UTF-8 text: ..."``, ``"not valid JSON: ..."``, or
+        line: ``"cannot be read: ..."``, ``"not UTF-8 text: ..."``, ``"not valid JSON: ..."``, too
+        large or too deeply nested (:func:`~snell_bench.utils.trust.read_json`), or
         :func:`record_problem`'s. A missing file is ``(None, "cannot be read: ...")`` too.
     """
-    path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as e:
-        return None, f"cannot be read: {e.strerror or e}"
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as e:
-        return None, f"not UTF-8 text (byte 0x{raw[e.start]:02x} at position {e.start})"
-    try:
-        record = json.loads(text)
-    except ValueError as e:
-        return None, f"not valid JSON: {e}"
+    record, problem = read_json(path)  # bounded: size and nesting (snell_bench.utils.trust)
+    if problem is not None:
+        return None, problem
     problem = record_problem(record, schema)
     return (None, problem) if problem else (record, None)
 
@@ -234,3 +227,21 @@ def non_finite(values: Any) -> dict[str, float]:
         for k, v in values.items()
         if isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isfinite(v)
     }
+
+
+def files_problem(folder: str | Path, record: dict) -> str | None:
+    """Why the files ``record["files"]`` lists do not match the cell ``folder`` (a file missing, or
+    of another size or content, or an entry that leaves the folder or names a link: the record is
+    damaged, :func:`~snell_bench.utils.trust.safe_path`), or ``None``. The one check of a finished
+    cell's files that the runner (:func:`~snell_bench.experiment.cell_state.cell_state`) and the
+    reports share; nothing outside the folder is read or hashed."""
+    for rel, want in (record.get("files") or {}).items():
+        try:
+            path = safe_path(folder, rel, "metrics.json files entry")
+        except UntrustedPath as e:
+            return str(e)
+        if not path.is_file():
+            return f"{rel} is missing"
+        if path.stat().st_size != want.get("bytes") or file_sha256(path) != want.get("sha256"):
+            return f"{rel} has changed since the cell finished"
+    return None

@@ -24,6 +24,7 @@ import pandas as pd
 
 from snell_bench.config.grid import PRESET_AXIS
 from snell_bench.metrics.registry import BUILTIN_METRICS
+from snell_bench.utils.trust import UntrustedPath, safe_path
 
 from .records import GRID_RECORD, load_record, non_finite
 from .text import as_float
@@ -124,9 +125,13 @@ def reference_psnr_vs_max_spp(
             groups.setdefault((r["_group"], r.get("method_name"), r["axis"]), []).append(r)
     out: dict[str, float | None] = {}
 
-    def load(r, name):
-        p = root / r["_group"] / str(r.get("inputs_dir", "")) / name
-        return np.load(p) if p.is_file() else None
+    def load(r, name):  # the record's inputs_dir must stay inside its group (utils.trust.safe_path)
+        try:
+            p = safe_path(root / r["_group"], f"{r.get('inputs_dir', '')}/{name}", "trade-off record's inputs_dir")
+        except UntrustedPath as e:
+            log.warning("%s; its reference PSNR is left out", e)
+            return None
+        return np.load(p, allow_pickle=False) if p.is_file() else None
 
     for recs in groups.values():
         best = max(recs, key=lambda r: float((r.get("overrides") or {})[SPP_KEY]))
