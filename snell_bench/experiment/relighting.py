@@ -27,6 +27,8 @@ from omegaconf import DictConfig
 
 from snell_bench.config.choices import Source
 from snell_bench.metrics.relighting import RELIGHT_METRICS, relight_scores
+from snell_bench.reports.writers import csv_safe
+from snell_bench.utils.io import write_text
 
 log = logging.getLogger(__name__)
 
@@ -178,10 +180,12 @@ def relighting_table(rows: list[dict]) -> pd.DataFrame:
 
 
 def write_report(rows: list[dict], runs: Path, out: Path) -> None:
-    """``relighting.csv``, ``relighting.md`` and ``relighting.png`` under ``out``."""
+    """``relighting.csv`` (atomically; every string that starts like a formula with a ``'`` in front,
+    :func:`~snell_bench.reports.writers.csv_safe`), ``relighting.md`` and ``relighting.png`` under
+    ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     table = relighting_table(rows)
-    table.to_csv(out / "relighting.csv", index=False)
+    write_text(out / "relighting.csv", csv_safe(table).to_csv(index=False, lineterminator="\n"))
     lines = ["# Relighting against a path-traced truth", "", "Methods:", ""]
     lines += [f"- `{k}`: {v}" for k, v in METHODS.items()]
     lines += [
@@ -200,7 +204,8 @@ def _figure(rows: list[dict], runs: Path, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from PIL import Image
+
+    from snell_bench.reports.canvas import load_rgb
 
     cells = sorted({(r["scene"], r["object"]) for r in rows})
     shown = ["truth"] + [m for m in METHODS if any(r["method"] == m and "missing" not in r for r in rows)]
@@ -211,15 +216,17 @@ def _figure(rows: list[dict], runs: Path, path: Path) -> None:
         folder = next((p for p in runs.glob(f"{scene}-*/{obj}") if p.is_dir()), None)
         if folder is None:
             continue
-        unrelit = np.asarray(Image.open(folder / "unrelit.png"), np.float32) / 255
+        unrelit = load_rgb(folder / "unrelit.png", runs)  # bounded, no link followed (utils.trust)
+        if unrelit is None:
+            continue
         for j, name in enumerate(shown):
             f = folder / f"{name}.png"
             ax, axr = axes[2 * i, j], axes[2 * i + 1, j]
             ax.axis("off")
             axr.axis("off")
-            if not f.is_file():
+            img = load_rgb(f, runs)
+            if img is None:
                 continue
-            img = np.asarray(Image.open(f), np.float32) / 255
             ax.imshow(img)
             ax.set_title(f"{name}\n{scene}/{obj}" if j == 0 else name, fontsize=8)
             with np.errstate(divide="ignore", invalid="ignore"):

@@ -43,6 +43,7 @@ from .text import md_code, md_escape, slug
 from .tradeoff import collect_tradeoff, tradeoff_table
 from .tradeoff_text import tradeoff_markdown, tradeoff_notes, tradeoff_summary
 from .writers import (
+    csv_safe,
     plain_markdown,
     skipped_markdown,
     to_csv,
@@ -228,8 +229,8 @@ def _write_reports(df, run_dir: Path, out_dir: Path, name: str, max_rows: int) -
         if not summary.empty:
             title = f"Time saved against fidelity lost ({name})"
             write_text(out_dir / "savings.md", plain_markdown(summary, title, _SAVINGS_NOTE))
-            write_text(out_dir / "savings.csv", summary.to_csv(index=False))
-            write_text(out_dir / "savings_per_cell.csv", per_cell.to_csv(index=False))
+            write_text(out_dir / "savings.csv", csv_safe(summary).to_csv(index=False))
+            write_text(out_dir / "savings_per_cell.csv", csv_safe(per_cell).to_csv(index=False))
             written += [out_dir / "savings.md", out_dir / "savings.csv", out_dir / "savings_per_cell.csv"]
             savings = summary
     _remove_stale_pages(out_dir, ("qualitative", "panorama"))
@@ -364,7 +365,7 @@ def _write_tradeoff_report(df, runs_root: Path, out_dir: Path) -> list[Path]:
     sortable; fidelity against each setting and the Pareto plot, with Plotly)."""
     table = tradeoff_table(df)
     csv = out_dir / "tradeoff.csv"
-    atomic_write_bytes(csv, df.to_csv(index=False, lineterminator="\n").encode())
+    atomic_write_bytes(csv, csv_safe(df).to_csv(index=False, lineterminator="\n").encode())
     md = write_text(
         out_dir / "tradeoff.md", tradeoff_markdown(table, df, f"Speed/accuracy trade-off ({runs_root.name})")
     )

@@ -1,6 +1,7 @@
 """Writing tables: Markdown (:meth:`pandas.DataFrame.to_markdown`, one pipe-table writer for every
 report, the speed/accuracy part's included, :mod:`.tradeoff_text`), LaTeX (booktabs, through
-:meth:`pandas.io.formats.style.Styler.to_latex`) and CSV.
+:meth:`pandas.io.formats.style.Styler.to_latex`) and CSV (every CSV of the package through
+:func:`csv_safe`, so that a spreadsheet reads no cell as a formula).
 
 The Markdown and LaTeX versions of a table from :mod:`.tables` carry a provenance line (which model
 and scene source produced the numbers, how many cells) and notes listing every failed or skipped
@@ -18,9 +19,11 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterable, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
+from pandas.api.types import is_object_dtype, is_string_dtype
 
 from snell_bench.utils.io import write_text
 
@@ -34,6 +37,7 @@ __all__ = [
     "plain_markdown",
     "to_latex",
     "to_csv",
+    "csv_safe",
     "rank_scope",
     "skipped_markdown",
 ]
@@ -296,8 +300,65 @@ def to_latex(
     return tex
 
 
+#: What a spreadsheet reads as the start of a formula (OWASP, "CSV Injection").
+_FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def _defused(value: Any) -> Any:
+    """``value`` with a ``'`` in front if it is a string that starts like a formula, else as it is;
+    a carriage return inside a string becomes a line feed (which the CSV writer quotes; a bare CR it
+    does not, and a spreadsheet would start a new row, and a formula, after it)."""
+    if not isinstance(value, str):
+        return value
+    if "\r" in value[1:]:
+        value = value[0] + value[1:].replace("\r\n", "\n").replace("\r", "\n")
+    return "'" + value if value.startswith(_FORMULA_STARTS) else value
+
+
+def _is_text(dtype: Any) -> bool:
+    """Whether a column or index of this dtype holds strings (object, string or categorical)."""
+    return is_object_dtype(dtype) or is_string_dtype(dtype) or isinstance(dtype, pd.CategoricalDtype)
+
+
+def _defused_labels(labels: pd.Index) -> pd.Index:
+    """An index or the column labels, with every string label and name :func:`_defused`."""
+    if isinstance(labels, pd.MultiIndex):
+        levels = [_defused_labels(labels.get_level_values(i)) for i in range(labels.nlevels)]
+        return pd.MultiIndex.from_arrays(levels, names=[_defused(n) for n in labels.names])
+    out = labels.map(_defused) if _is_text(labels.dtype) else labels
+    return out.rename(_defused(labels.name))
+
+
+def csv_safe(table: pd.DataFrame) -> pd.DataFrame:
+    """A copy of ``table`` that a spreadsheet opens without evaluating any cell as a formula.
+
+    The rule of OWASP's "CSV Injection" (https://owasp.org/www-community/attacks/CSV_Injection):
+    every string that begins with ``=``, ``+``, ``-``, ``@``, a tab or a carriage return gets a
+    single quote ``'`` in front, so that ``=2+5+cmd|' /C calc'!A0`` is written as
+    ``'=2+5+cmd|' /C calc'!A0`` and shown as text. That holds for the cells, the index and the
+    column labels (and their names). Numbers are left as they are (a negative number is a number,
+    not a formula): only the values of object, string and categorical columns are changed, and of
+    those only the strings.
+
+    Args:
+        table: any DataFrame; it is not changed.
+
+    Returns:
+        The neutralised copy, to write with :meth:`pandas.DataFrame.to_csv`.
+    """
+    out = table.copy()
+    for i in range(out.shape[1]):  # by position: column labels may repeat
+        column = out.iloc[:, i]
+        if _is_text(column.dtype):
+            out.isetitem(i, column.astype(object).map(_defused))
+    out.index = _defused_labels(out.index)
+    out.columns = _defused_labels(out.columns)
+    return out
+
+
 def to_csv(table: pd.DataFrame, path: str | os.PathLike | None = None) -> str:
-    """The table's numbers as CSV: index first, NaN as an empty field, full precision.
+    """The table's numbers as CSV: index first, NaN as an empty field, full precision; every string
+    that starts like a formula with a ``'`` in front (:func:`csv_safe`).
 
     Args:
         table: any DataFrame.
@@ -307,7 +368,7 @@ def to_csv(table: pd.DataFrame, path: str | os.PathLike | None = None) -> str:
     Returns:
         The CSV text.
     """
-    text = table.to_csv(index=True, float_format=None, lineterminator="\n")
+    text = csv_safe(table).to_csv(index=True, float_format=None, lineterminator="\n")
     if path is not None:
         write_text(path, text)
     return text
