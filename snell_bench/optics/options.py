@@ -107,18 +107,24 @@ def warp_options(
     return up_vec, options
 
 
-def cache_lookup(cache_dir: str | os.PathLike | None, key: str) -> tuple[Path | None, WarpSet | None]:
+def cache_lookup(
+    cache_dir: str | os.PathLike | None, key: str, shape: tuple[int, int] | None = None
+) -> tuple[Path | None, WarpSet | None]:
     """The cache file of ``key`` and the :class:`WarpSet` it holds.
 
     Args:
         cache_dir: the cache folder, or ``None`` for no caching.
         key: the :func:`~snell_bench.optics.warpset.warp_inputs_hash` of the inputs.
+        shape: the ``(H, W)`` of the request's depth map when the caller knows it, else ``None``.
 
     Returns:
         ``(path or None, cached WarpSet or None)``: ``path`` is ``<cache_dir>/<key>.npz``; the
-        :class:`WarpSet` is loaded when that file exists. An entry that cannot be read (truncated,
-        corrupt, of another version or layout) is a miss: it is logged with its path and the
-        reason, deleted, and the warps are recomputed, never an error.
+        :class:`WarpSet` is loaded when that file exists and holds the warps of ``key``. An entry
+        that cannot be read (truncated, corrupt, of another version or layout, arrays of
+        inconsistent shapes) or holds other warps (its stored ``input_hash`` is not ``key``, its
+        camera is not of ``shape``: :meth:`WarpSet.mismatch`; a file copied under the wrong name)
+        is a miss: it is logged as a warning with its path, deleted, and the warps are recomputed,
+        never an error.
     """
     if cache_dir is None:
         return None, None
@@ -127,13 +133,26 @@ def cache_lookup(cache_dir: str | os.PathLike | None, key: str) -> tuple[Path | 
         return path, None
     log.info("warps: loading cached %s", path)
     try:
-        return path, WarpSet.load(path)
+        cached = WarpSet.load(path)
     except Exception as e:  # noqa: BLE001 - any unreadable entry is a miss; the recomputation overwrites it
         log.warning(
             "warps: cache entry %s cannot be read (%s: %s); deleting it and recomputing", path, type(e).__name__, e
         )
         path.unlink(missing_ok=True)
         return path, None
+    problem = cached.mismatch(key, shape)
+    if problem is not None:
+        log.warning(
+            "warps: cache entry %s was loaded for key %s but holds the warps of input_hash %s (%s); "
+            "deleting it and recomputing",
+            path,
+            key,
+            cached.input_hash or "(none)",
+            problem,
+        )
+        path.unlink(missing_ok=True)
+        return path, None
+    return path, cached
 
 
 def check_object_in_view(obj: GlassObject, camera: Camera) -> None:

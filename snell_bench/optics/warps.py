@@ -201,7 +201,7 @@ def compute_warps(
     checks = dict(verify_visibility=verify_visibility, infinity_tolerance_px=infinity_tolerance_px, variant=variant)
     up_vec, options = warp_options(depth, camera, obj, pano_height, **tracing, **checks)
     key = warp_inputs_hash(depth, camera, obj, options)
-    cache_path, cached = cache_lookup(cache_dir, key)
+    cache_path, cached = cache_lookup(cache_dir, key, tuple(np.shape(depth)))
     if cached is not None:
         return cached
     check_object_in_view(obj, camera)

@@ -18,7 +18,7 @@ from snell_bench.scene.camera import Camera
 from snell_bench.scene.objects import GlassObject
 from snell_bench.utils.io import atomic_write
 
-__all__ = ["WarpSet", "warp_inputs_hash", "assemble", "WARPS_VERSION", "ARRAY_FIELDS", "PANO_FIELDS"]
+__all__ = ["WarpSet", "warp_inputs_hash", "assemble", "WARPS_VERSION", "ARRAY_FIELDS", "PANO_FIELDS", "CHANNELS"]
 
 #: Bump when the meaning or computation of any warp changes, or a field is added (invalidates
 #: caches: the version is part of the cache key, and :meth:`WarpSet.load` refuses other versions).
@@ -56,6 +56,16 @@ ARRAY_FIELDS = (
 
 #: The arrays of a :class:`WarpSet` indexed by panorama pixels; every other one by image pixels.
 PANO_FIELDS = ("pano_to_persp", "pano_to_persp_valid", "pano_to_persp_object")
+#: The trailing (channel) dimension of the arrays that have one; the others are ``(H, W)`` or ``(Hp, Wp)``.
+CHANNELS = {
+    "refraction": 2,
+    "optical_depth": 3,
+    "reflection": 2,
+    "pano_refraction": 2,
+    "pano_refraction_frame": 2,
+    "pano_reflection": 2,
+    "pano_to_persp": 2,
+}
 
 
 @dataclass(eq=False)
@@ -210,7 +220,8 @@ class WarpSet:
             The :class:`WarpSet` it holds.
 
         Raises:
-            ValueError: the file holds warps of another :data:`WARPS_VERSION`.
+            ValueError: the file holds warps of another :data:`WARPS_VERSION`, or arrays whose shapes
+                disagree with each other or its camera and panorama (:meth:`mismatch`).
         """
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(str(z["meta"]))
@@ -220,7 +231,7 @@ class WarpSet:
                     "delete the file to recompute it"
                 )
             arrays = {k: z[k] for k in ARRAY_FIELDS}
-        return cls(
+        ws = cls(
             camera=Camera.from_dict(meta["camera"]),
             pano=PanoramaCamera.from_dict(meta["pano"]),
             ior=float(meta["ior"]),
@@ -230,6 +241,34 @@ class WarpSet:
             stats=meta["stats"],
             **arrays,
         )
+        problem = ws.mismatch()
+        if problem is not None:
+            raise ValueError(f"{path} is inconsistent: {problem}; delete the file to recompute it")
+        return ws
+
+    def mismatch(self, input_hash: str | None = None, shape: tuple[int, int] | None = None) -> str | None:
+        """Why these are not the warps a request expects (a cache entry checked against its key).
+
+        Args:
+            input_hash: the :func:`warp_inputs_hash` of the request (the cache key), or ``None``.
+            shape: the ``(H, W)`` of the request's depth map, or ``None``.
+
+        Returns:
+            ``None`` when the warps fit; else what differs: the stored ``input_hash``, the camera's
+            size against ``shape``, or an array whose shape does not follow from the camera (image
+            arrays) or the panorama (:data:`PANO_FIELDS`) with its :data:`CHANNELS`.
+        """
+        if input_hash is not None and self.input_hash != input_hash:
+            return f"input_hash {self.input_hash or '(none)'} is not {input_hash}"
+        if shape is not None and tuple(shape) != self.camera.shape:
+            return f"the camera is {self.camera.height}x{self.camera.width}, the depth map {tuple(shape)}"
+        for name in ARRAY_FIELDS:
+            base = self.pano.shape if name in PANO_FIELDS else self.camera.shape
+            want = tuple(base) + ((CHANNELS[name],) if name in CHANNELS else ())
+            got = getattr(self, name).shape
+            if got != want:
+                return f"{name} has shape {got}, expected {want}"
+        return None
 
     def summary(self) -> dict:
         """Counts for logs and reports.
