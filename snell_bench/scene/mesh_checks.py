@@ -9,6 +9,7 @@ the ``object.*`` setting or repair that fixes it.
 
 from __future__ import annotations
 
+import itertools
 import logging
 from typing import NamedTuple
 
@@ -29,6 +30,14 @@ MIN_RELATIVE_THICKNESS = 1e-4
 #: Self-crossings closer than this fraction of the mesh's largest side to an edge's ends are not
 #: counted (surfaces that only touch at a vertex; the float32 rounding of the ray caster).
 _CROSSING_TOL = 1e-6
+
+#: Vertices closer than this fraction of the mesh's bounding-box diagonal are one vertex (a triangle
+#: soup: every face with its own copies of its corners, maybe jittered by float rounding), and faces
+#: thinner than it are degenerate. Relative, so a mesh cleans the same in any unit; 1e-8 is
+#: trimesh's own merge tolerance (``trimesh.tol.merge``, absolute) at unit size, so a unit-size mesh
+#: merges as before; far above float64 rounding (1e-16 of a coordinate), and a thousandth of the 1e-5 of
+#: the diagonal the tracer restarts rays off a surface, so no surface it can resolve moves.
+_MERGE_TOL = 1e-8
 
 
 class Crossings(NamedTuple):
@@ -209,6 +218,124 @@ def _wind_consistently(mesh: trimesh.Trimesh, what: str) -> None:
         )
 
 
+def _row_ids(rows: np.ndarray) -> np.ndarray:
+    """The same id for equal rows of an ``(N, K)`` integer array, ``(N,)`` int64 from 0 in the rows'
+    sorted order (``np.unique(rows, axis=0, return_inverse=True)``, several times faster)."""
+    order = np.lexsort(rows.T[::-1])
+    ordered = rows[order]
+    ids = np.empty(len(rows), np.int64)
+    ids[order] = np.cumsum(np.r_[False, (ordered[1:] != ordered[:-1]).any(axis=1)])
+    return ids
+
+
+def _weld_groups(vertices: np.ndarray, tol: float) -> np.ndarray:
+    """A group per vertex, ``(V,)`` int64: vertices within ``tol`` of each other (and chains of
+    them) share one; vertices ``2 sqrt(3) tol`` or more apart only through such chains.
+
+    Eight grids of cells ``2 tol`` wide, each shifted by 0 or ``tol`` along each axis, and a
+    vertex joined to its cell in each: two coordinates less than ``tol`` apart share a cell in the
+    grid unshifted or shifted along that axis, so two vertices less than ``tol`` apart share a cell
+    in one of the eight (rounding to one grid, as trimesh's ``merge_vertices`` does, splits those
+    on either side of a cell's edge). ``O(V log V)`` however many vertices crowd one point.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(vertices)
+    scaled = (vertices - vertices.min(axis=0)) / (2.0 * tol)
+    cells, nodes = [], n
+    for shift in itertools.product((0.0, 0.5), repeat=3):
+        at = _row_ids(np.floor(scaled + shift).astype(np.int64))
+        cells.append(nodes + at)
+        nodes += int(at.max()) + 1
+    joins = coo_matrix((np.ones(8 * n, bool), (np.tile(np.arange(n), 8), np.concatenate(cells))), shape=(nodes, nodes))
+    return connected_components(joins, directed=False)[1][:n].astype(np.int64)
+
+
+def _merge_close_vertices(mesh: trimesh.Trimesh, tol: float) -> int:
+    """Merge the vertices of ``mesh`` within ``tol`` of each other (:func:`_weld_groups`, in
+    place), keeping the first of each group where it is; the number merged away."""
+    group = _weld_groups(np.asarray(mesh.vertices, np.float64), tol)
+    first = np.sort(np.unique(group, return_index=True)[1])  # one vertex per group, in file order
+    if len(first) == len(group):
+        return 0
+    new_index = np.empty(int(group.max()) + 1, np.int64)
+    new_index[group[first]] = np.arange(len(first))
+    mesh.update_vertices(mask=first, inverse=new_index[group])
+    return len(group) - len(first)
+
+
+def _drop_duplicate_faces(mesh: trimesh.Trimesh, what: str) -> int:
+    """Keep the first of faces with the same three vertices, either winding (in place); the number
+    dropped.
+
+    Raises:
+        ValueError: every face has a copy wound the other way (a surface and its reverse, with no
+            volume between them).
+    """
+    f = np.asarray(mesh.faces, np.int64)
+    group = _row_ids(np.sort(f, axis=1))
+    if group.max() + 1 == len(f):
+        return 0
+    rolled = np.take_along_axis(f, (np.argmin(f, axis=1)[:, None] + np.arange(3)) % 3, axis=1)
+    ccw = rolled[:, 1] < rolled[:, 2]  # the winding, seen from the smallest vertex
+    windings = np.zeros((group.max() + 1, 2), bool)
+    windings[group, ccw.astype(np.int64)] = True
+    if windings.all():
+        raise ValueError(
+            f"{what}: the mesh encloses almost no volume (each of its {len(windings):,} faces also appears wound the "
+            f"other way: its surfaces lie on top of each other); {_SOLID_FIX}"
+        )
+    mesh.update_faces(np.sort(np.unique(group, return_index=True)[1]))  # the first of each, in order
+    return len(f) - len(mesh.faces)
+
+
+def _weld(mesh: trimesh.Trimesh, what: str) -> str:
+    """Lossless clean-ups of ``mesh`` (in place), whatever ``repair``: merge vertices within
+    :data:`_MERGE_TOL` of its diagonal, drop degenerate faces (thinner than that) and duplicate
+    ones, and unreferenced vertices; logs what was done and returns it (``""``: nothing)."""
+    diagonal = float(np.linalg.norm(np.ptp(np.asarray(mesh.vertices), axis=0)))
+    tol = _MERGE_TOL * diagonal
+    merged = _merge_close_vertices(mesh, tol) if tol > 0 else 0
+    keep = mesh.nondegenerate_faces(height=tol) if tol > 0 else np.zeros(len(mesh.faces), bool)
+    degenerate = int((~keep).sum())
+    mesh.update_faces(keep)
+    duplicate = _drop_duplicate_faces(mesh, what) if len(mesh.faces) else 0
+    mesh.remove_unreferenced_vertices()
+    done = [f"merged {merged:,} duplicate vertices"] if merged else []
+    if degenerate or duplicate:
+        done.append(f"dropped {degenerate:,} degenerate and {duplicate:,} duplicate faces")
+    summary = ", ".join(done)
+    if summary:
+        log.info("%s: %s", what, summary)
+    return summary
+
+
+def _refuse_open(mesh: trimesh.Trimesh, what: str, *, repair: bool, cleaned: str) -> None:
+    """Raise the ``ValueError`` for a mesh that is not watertight: its boundary and non-manifold
+    edges, what was ``cleaned`` already, and what to do."""
+    uses = np.unique(np.asarray(mesh.edges_sorted), axis=0, return_counts=True)[1]
+    boundary, non_manifold = int((uses == 1).sum()), int((uses > 2).sum())
+    edges = ", and ".join(
+        [f"{boundary:,} boundary edges, of one face only"] * bool(boundary)
+        + [f"{non_manifold:,} non-manifold edges, of three faces or more"] * bool(non_manifold)
+    )
+    if repair:
+        hint = "object.repair=true (repair=True) could not close it: repair the mesh in a mesh editor"
+    elif boundary:
+        hint = "set object.repair=true (repair=True in Python) to fill simple holes"
+    else:
+        hint = (
+            "object.repair=true cannot join surfaces that meet three or more at an edge: repair the mesh in a mesh "
+            "editor"
+        )
+    raise ValueError(
+        f"{what}: the mesh is not watertight ({edges}{'; already cleaned: ' + cleaned if cleaned else ''}), so "
+        f"refraction through it is undefined; {hint}, or set object.allow_open=true (allow_open=True) to trace it "
+        "anyway (rays may leak through the holes)"
+    )
+
+
 def _clean_mesh(
     mesh: trimesh.Trimesh,
     *,
@@ -217,8 +344,9 @@ def _clean_mesh(
     what: str,
     allow_self_intersecting: bool = False,
 ) -> trimesh.Trimesh:
-    """A copy of ``mesh`` fit for tracing: vertices merged, degenerate faces removed, holes filled
-    (``repair``), faces wound outwards; see :meth:`GlassObject.from_file` for what is refused.
+    """A copy of ``mesh`` fit for tracing: vertices merged, degenerate and duplicate faces removed
+    (:func:`_weld`), holes filled (``repair``), faces wound outwards; see
+    :meth:`GlassObject.from_file` for what is refused.
 
     Raises:
         ValueError: the mesh is refused (``what`` names it in the message).
@@ -228,13 +356,7 @@ def _clean_mesh(
     if not np.all(np.isfinite(mesh.vertices)):
         raise ValueError(f"{what}: the mesh has non-finite vertex coordinates")
     mesh = mesh.copy()
-    mesh.merge_vertices(merge_tex=True, merge_norm=True)
-    keep = mesh.nondegenerate_faces()
-    n_degenerate = int((~keep).sum())
-    if n_degenerate:
-        log.info("%s: removed %d degenerate faces", what, n_degenerate)
-        mesh.update_faces(keep)
-    mesh.remove_unreferenced_vertices()
+    cleaned = _weld(mesh, what)
     if len(mesh.faces) == 0:
         raise ValueError(f"{what}: every face is degenerate (zero area), so the mesh encloses no volume; {_SOLID_FIX}")
     _check_not_flat(mesh, what)
@@ -247,16 +369,7 @@ def _clean_mesh(
         _check_thickness(mesh, what)
     if not mesh.is_watertight:
         if not allow_open:
-            hint = (
-                "object.repair=true (repair=True) could not close it: repair the mesh in a mesh editor"
-                if repair
-                else "set object.repair=true (repair=True in Python) to fill simple holes"
-            )
-            raise ValueError(
-                f"{what}: the mesh is not watertight (it has boundary edges), so refraction through it is "
-                f"undefined; {hint}, or set object.allow_open=true (allow_open=True) to trace it anyway (rays may "
-                "leak through the holes)"
-            )
+            _refuse_open(mesh, what, repair=repair, cleaned=cleaned)
         log.warning("%s: tracing a mesh that is not watertight (allow_open=True)", what)
     if _signed_volume(mesh) < 0:  # wound inside-out: the normals point in
         mesh.invert()
