@@ -13,6 +13,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from snell_bench.config import Config
 from snell_bench.config.recipes import BEFORE_SWITCHES
+from snell_bench.experiment.input_content import CONTENT
 from snell_bench.experiment.plan import ABSENT, flatten, result_settings, settings_diff
 from snell_bench.reports.records import files_problem, load_record
 from snell_bench.utils.io import file_sha256
@@ -32,7 +33,7 @@ __all__ = [
     "cell_state",
 ]
 
-DONE = ("ok", "skipped")
+DONE = ("ok", "skipped", "degenerate")
 
 
 @dataclass
@@ -139,12 +140,14 @@ def changed_settings(cell: Cell, record: dict, current: dict, current_hash: str)
     old = _saved_settings(cell.folder)
     if old is None:
         return ChangedCell(cell, {})
+    old = {**old, **(record.get("input_sha256") or {})}  # the input files' content when it finished
     defaults = _schema_defaults()
     diff = {
         k: (a, b)
         for k, (a, b) in settings_diff(old, current).items()
-        # a setting added to the schema since the cell finished, at its default: the cell had that behaviour
-        if not (a == ABSENT and k in defaults and defaults[k] == b)
+        # a setting added to the schema since the cell finished, at its default: the cell had that
+        # behaviour; an input file's content not recorded (a cell of before): taken as unchanged
+        if not (a == ABSENT and ((k in defaults and defaults[k] == b) or k.endswith(CONTENT)))
     }
     return ChangedCell(cell, diff) if diff else None
 
@@ -164,7 +167,7 @@ class State:
 
     @property
     def done(self) -> bool:
-        return self.kind in ("done", "skipped")
+        return self.kind in ("done", "skipped", "degenerate")
 
 
 def cell_state(

@@ -20,8 +20,9 @@ method, or x a setting of the grid's axes; a group of the benchmark kit). :func:
   it expires (``lock``: ``auto``, ``flock`` or ``lease``; :mod:`snell_bench.utils.locks`);
 - ``fn(cell, shared)`` computes one cell and returns its record's fields; it raises
   :class:`~snell_bench.pipeline.Skip` for a method that cannot run here (``skipped`` with the
-  reason) and any other exception for a failure (``failed`` with the reason and traceback); the
-  loop goes on either way;
+  reason), :class:`~snell_bench.pipeline.Degenerate` for a result that could not mean anything
+  (``degenerate`` with the reason; done, in no mean) and any other exception for a failure
+  (``failed`` with the reason and traceback); the loop goes on either way;
 - ``shared`` (:class:`SharedCache`) computes a value once per key for all cells that need it
   (the inputs of a scene and object) and drops it after the last of them; a value whose
   computation failed fails every cell that needs it, with that error;
@@ -59,8 +60,9 @@ from snell_bench.experiment.cell_state import (
     read_record,
     record_done,
 )
+from snell_bench.experiment.input_content import CONTENT, input_content
 from snell_bench.experiment.plan import result_settings, settings_hash
-from snell_bench.pipeline import Skip
+from snell_bench.pipeline import Degenerate, Skip
 from snell_bench.utils.io import write_json, write_text
 from snell_bench.utils.locks import CLAIM_NAMES, DEFAULT_TTL_S, LOCK_NAME, check_ttl, choose_lock, claim
 
@@ -271,8 +273,11 @@ def run_cells(
         The summary: ``cells``; the counts ``ok``, ``failed``, ``skipped``, ``cached`` (finished before),
         ``busy`` (claimed by another process); ``failures`` as ``[cell folder, reason]`` pairs.
     """
-    settings = {id(c): result_settings(c.config) for c in cells}
+    settings = {id(c): {**result_settings(c.config), **input_content(c.config)} for c in cells}
     hashes = {k: settings_hash(v) for k, v in settings.items()}
+    for c in cells:  # the record keeps the input files' hashes, to compare with on the next run
+        if contents := {k: v for k, v in settings[id(c)].items() if k.endswith(CONTENT)}:
+            c.record = {**c.record, "input_sha256": contents}
 
     def status(cell: Cell, warn: bool = True) -> str | ChangedCell:  # todo, done, or changed (warn: why todo)
         current = lambda: (settings[id(cell)], hashes[id(cell)])
@@ -285,7 +290,7 @@ def run_cells(
 
     states = {id(c): status(c) for c in cells}
     todo = _todo(cells, states, policy)
-    counts = Counter({"ok": 0, "failed": 0, "skipped": 0, "busy": 0, "cached": len(cells) - len(todo)})
+    counts = Counter({"ok": 0, "failed": 0, "skipped": 0, "degenerate": 0, "busy": 0, "cached": len(cells) - len(todo)})
     failures: list[tuple[str, str]] = []
     root.mkdir(parents=True, exist_ok=True)
     lock = choose_lock(policy.lock, root, key=policy.lock_key)
@@ -343,6 +348,9 @@ def _run_one(cell, fn, shared, record_name, settings_hash, failures) -> dict:
         record.update(fn(cell, shared))
     except Skip as e:
         record.update(status="skipped", reason=str(e))
+    except Degenerate as e:  # a result that could not mean anything: recorded, in no mean
+        record.update(status="degenerate", reason=str(e))
+        log.warning("cell %s is degenerate: %s", cell.folder, e)
     except KeyboardInterrupt:
         raise
     except Exception as e:  # noqa: BLE001 - recorded; the sweep goes on

@@ -166,7 +166,7 @@ class CellState:
 
     @property
     def done(self) -> bool:
-        return self.state in ("done", "skipped")
+        return self.state in ("done", "skipped", "degenerate")
 
 
 def cell_states(cfg: DictConfig, parts: GridParts) -> list[CellState]:

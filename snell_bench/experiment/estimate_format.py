@@ -209,6 +209,7 @@ def _short(text: str, n: int = 48) -> str:
 _STATE_WORDS = {
     "done": "done",
     "skipped": "skipped (done)",
+    "degenerate": "degenerate (done)",
     "changed": "other settings",
     "files": "files changed",
     "failed": "failed before",
@@ -220,7 +221,7 @@ _STATE_WORDS = {
 def _cells_text(plan: Plan) -> list[str]:
     """The grid, its cells done and left, per method, and the warnings."""
     counts = plan.counts()
-    done = counts["done"] + counts["skipped"]
+    done = counts["done"] + counts["skipped"] + counts["degenerate"]
     out = [
         f"job=plan: experiment {plan.experiment} -> {plan.root} (nothing written, nothing downloaded)",
         f"  model={plan.model}, recipe={plan.recipe}",
@@ -234,7 +235,7 @@ def _cells_text(plan: Plan) -> list[str]:
         mine = Counter(c.state for c in plan.cells if c.method == m)
         row = {"method": m, "cells": sum(mine.values())}
         row.update({_STATE_WORDS[s]: mine[s] for s in _STATE_WORDS if counts[s]})
-        row["left"] = sum(n for s, n in mine.items() if s not in ("done", "skipped"))
+        row["left"] = sum(n for s, n in mine.items() if s not in ("done", "skipped", "degenerate"))
         rows.append(row)
     return [*out, _table(rows), *("WARNING: " + w for w in plan.warnings)]
 

@@ -23,6 +23,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from snell_bench.experiment.cells import Cell
+from snell_bench.experiment.input_content import input_content
 from snell_bench.experiment.plan import result_settings, settings_hash
 from snell_bench.pipeline import CellInputs
 from snell_bench.utils.io import atomic_write, atomic_write_bytes, save_npy, save_png, write_json
@@ -110,8 +111,11 @@ def inputs_settings(cfg: DictConfig) -> dict:
     """The settings a group's inputs are computed with: the cell's
     :func:`~snell_bench.experiment.plan.result_settings` without the method's keys, which stages
     1-5 do not read (every method of a group shares its inputs), nor ``grid.converged_spp`` (the
-    converged references are kept apart, :mod:`~snell_bench.experiment.converged`)."""
-    return {k: v for k, v in result_settings(cfg).items() if not k.startswith(("method.", "grid."))}
+    converged references are kept apart, :mod:`~snell_bench.experiment.converged`); with the content
+    of the input files (:func:`~snell_bench.experiment.input_content.input_content`), so inputs kept
+    from a photo or mesh since changed are not read back."""
+    settings = {**result_settings(cfg), **input_content(cfg)}
+    return {k: v for k, v in settings.items() if not k.startswith(("method.", "grid."))}
 
 
 def inputs_file(cell: Cell) -> Path:

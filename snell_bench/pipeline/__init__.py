@@ -29,6 +29,7 @@ model's load time is reported by every cell that uses it.
 from snell_bench.pipeline.cell import (
     CellInputs,
     CellResult,
+    Degenerate,
     Skip,
     apply_method,
     cell_seed,
@@ -64,6 +65,7 @@ __all__ = [
     "SceneInputs",
     "CellInputs",
     "CellResult",
+    "Degenerate",
     "Skip",
     "ModelPool",
     "model_bytes",

@@ -29,6 +29,7 @@ __all__ = [
     "CellInputs",
     "CellResult",
     "Skip",
+    "Degenerate",
     "apply_method",
     "cell_seed",
     "generator_on_procedural",
@@ -46,6 +47,12 @@ __all__ = [
 
 class Skip(Exception):
     """A method that cannot run here; the message says why."""
+
+
+class Degenerate(Exception):
+    """A cell whose result could not mean anything, detected by the pipeline (the object's warps void
+    over every object pixel, an empty metric mask, a reference without one finite pixel): recorded
+    as ``degenerate`` with the message, shown in the reports and in no mean."""
 
 
 @dataclass

@@ -30,7 +30,8 @@ from snell_bench.config.materials import absorption_coefficients
 from snell_bench.models.segment import surface_region as segment_surface
 from snell_bench.models.sizes import node_weights_bytes
 from snell_bench.optics.warps import WarpSet, compute_warps
-from snell_bench.pipeline.cell import CellInputs, build, cell_seed, kwargs_for, node_key, plain
+from snell_bench.pipeline.cell import CellInputs, Degenerate, build, cell_seed, kwargs_for, node_key, plain
+from snell_bench.pipeline.degenerate import reference_problem, warps_problem
 from snell_bench.pipeline.pool import ModelPool
 from snell_bench.render import render_reference as render
 from snell_bench.render import render_true
@@ -377,16 +378,20 @@ def prepare_inputs(cfg: DictConfig, *, references: bool = True, pool: ModelPool 
     t.seconds["scene"] -= sum(x.seconds for x in pool.loads[loads:] if x.kind == "generator")
     with t("warps"):
         ws = trace_warps(scene, obj, cfg.warps)
-    if not ws.stats.get("object_pixels", 1):
+    if not ws.object_mask.any():
         raise ValueError(
             f"object {cfg.object.name!r} covers no pixel of the {scene.camera.width}x{scene.camera.height} image "
             f"(object.size={cfg.object.size}, object.relative_size={cfg.object.relative_size}): nothing to trace or "
             "score; make it larger (object.size, object.relative_size) or the image larger (scene.width, scene.height)"
         )
+    if (problem := warps_problem(ws, cfg.warps.max_bounces)) is not None:
+        raise Degenerate(problem)
     reference, reason, true = None, "not rendered", None
     if references:
         with t("reference"):
             reference, reason = render_reference(cfg, scene, obj)
+        if (problem := reference_problem(reference)) is not None:
+            raise Degenerate(problem)
         with t("true_render"):
             true = render_true_scene(cfg, scene, obj)
     return CellInputs(

@@ -10,7 +10,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from snell_bench.config import Source
 from snell_bench.metrics import load_scorers, score_cell
-from snell_bench.pipeline.cell import CellInputs, CellResult, node_key, plain, prompt_of
+from snell_bench.pipeline.cell import CellInputs, CellResult, Degenerate, node_key, plain, prompt_of
+from snell_bench.pipeline.degenerate import warps_problem
 from snell_bench.pipeline.inputs import trace_warps
 from snell_bench.pipeline.methods import relight_image, sample_method
 from snell_bench.pipeline.pool import ModelPool
@@ -101,6 +102,8 @@ def sample_stage(cfg: DictConfig, inputs: CellInputs) -> CellResult:
     if plain(cfg.warps) != inputs.warps_config:
         with t("warps"):
             warps = trace_warps(inputs.scene, inputs.obj, cfg.warps)
+        if (problem := warps_problem(warps, cfg.warps.max_bounces)) is not None:
+            raise Degenerate(problem)
     result = sample_method(cfg, inputs, warps, t)
     _check_result(cfg, result, warps)
     if result.warps is None:  # a user's method need not hand its warps back

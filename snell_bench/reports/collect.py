@@ -155,7 +155,7 @@ def _checked_record(path: Path, rel: Path, run_dir: Path, skipped: list) -> dict
         skipped.append((path.relative_to(run_dir).as_posix(), problem))
         return None
     rec = without_non_finite(rec, rel.as_posix(), path)
-    unfinished = files_problem(path.parent, rec) if rec.get("status") in ("ok", "skipped") else None
+    unfinished = files_problem(path.parent, rec) if rec.get("status") in ("ok", "skipped", "degenerate") else None
     if unfinished is not None:
         log.warning("%s: %s; not scored (the grid computes it again)", path.parent, unfinished)
         rec = {**rec, "status": "failed", "reason": f"not finished: {unfinished}"}

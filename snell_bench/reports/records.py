@@ -7,8 +7,9 @@ with a warning naming its path and the problem, and count it (their "files skipp
 cell loop computes that cell again. A record is data only: nothing in it is ever run.
 
 Conventions:
-    - ``status`` is ``"ok"``, ``"failed"`` or ``"skipped"``; ``reason`` is a string (why) or null,
-      and a string for ``failed`` and ``skipped``.
+    - ``status`` is ``"ok"``, ``"failed"``, ``"skipped"`` or ``"degenerate"`` (a result that could
+      not mean anything, :class:`~snell_bench.pipeline.Degenerate`); ``reason`` is a string (why) or
+      null, and a string for the last three.
     - The identity keys are required: ``scene`` (string) and ``variation`` (integer >= 0), then
       ``object`` and ``method``, strings; a cell of a setting (``grid.axes``) also names its
       ``setting``, ``method_name`` and ``setting_overrides``.
@@ -42,7 +43,7 @@ _OBJECT = {"type": "object"}
 _OPT_OBJECT = {"type": ["object", "null"]}
 
 _COMMON_PROPERTIES = {
-    "status": {"enum": ["ok", "failed", "skipped"]},
+    "status": {"enum": ["ok", "failed", "skipped", "degenerate"]},
     "reason": _OPT_STR,
     "experiment": _STR,
     "scene": _STR,
@@ -63,6 +64,7 @@ _COMMON_PROPERTIES = {
     "reference": _OPT_OBJECT,
     "decisions": _OBJECT,
     "settings_hash": _STR,
+    "input_sha256": {"type": "object", "additionalProperties": _STR},
     "traceback": _STR,
     "files": {
         "type": "object",
@@ -75,7 +77,7 @@ _COMMON_PROPERTIES = {
 
 #: A reason is a string where the cell did not finish ok.
 _REASON_WHEN_NOT_OK = {
-    "if": {"properties": {"status": {"enum": ["failed", "skipped"]}}, "required": ["status"]},
+    "if": {"properties": {"status": {"enum": ["failed", "skipped", "degenerate"]}}, "required": ["status"]},
     "then": {"required": ["reason"], "properties": {"reason": _STR}},
 }
 

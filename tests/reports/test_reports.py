@@ -508,7 +508,7 @@ NOT_CELLS = {
     "no_reason": (json.dumps({**GOOD, "status": "failed"}).encode(), "reason: None is not of type 'string'"),
     "status": (
         json.dumps({**GOOD, "status": "done"}).encode(),
-        "status: 'done' is not one of ['ok', 'failed', 'skipped']",
+        "status: 'done' is not one of ['ok', 'failed', 'skipped', 'degenerate']",
     ),
     "truncated": (b'{"status": "ok", "scene"', "not valid JSON: Expecting ':' delimiter: line 1 column 25 (char 24)"),
     "latin1": ('{"scene": "caf\xe9"}'.encode("latin-1"), "not UTF-8 text (byte 0xe9 at position 14)"),
