@@ -4,11 +4,14 @@
 Exit status:
     - ``0``: done; also a sweep whose cells failed with ``grid.allow_failures=true``. Skipped cells (a method that cannot
       run here) are never failures.
-    - ``1``: an error stopped the run, said in one line where it is a setting: a config value or
-      folder refused before any work (:class:`~snell_bench.config.preflight.Preflight`), a job that
-      cannot do what it was asked (``job=report`` without cells,
-      :class:`~snell_bench.experiment.JobError`), finished cells of other settings; and any other
-      exception.
+    - ``1``: an error stopped the run, said in one line (``Error: ...``, no traceback) where it is a
+      setting: a config value or folder refused before any work
+      (:class:`~snell_bench.config.preflight.Preflight`), a photo or depth file refused before any
+      work (its size, values or camera: :class:`~snell_bench.config.ConfigError`), a job that
+      cannot do what it was asked (``job=report`` without cells, or a report the system refuses to
+      write: :class:`~snell_bench.experiment.JobError`), finished cells of other settings; and any
+      other exception, with its traceback (a bug). A grid whose report cannot be written logs that
+      as one ERROR line and keeps the status of its cells.
     - ``2``: the command line cannot be parsed (Hydra's override grammar, :func:`override_problem`,
       which says how to quote the argument; or an unknown flag), before anything is written.
     - ``3``: the sweep ran and wrote its report, but cells failed

@@ -38,7 +38,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import InterpolationResolutionError, OmegaConfBaseException
 
-from snell_bench.config.camera import MAX_FOV_DEG, fov_problem
+from snell_bench.config.camera import MAX_FOV_DEG, fov_problem, intrinsics_problem
 from snell_bench.config.choices import DTYPE_NAMES, METHOD_KINDS, Job, Source, dtype_name
 from snell_bench.config.compose import plugin_methods
 from snell_bench.config.errors import ConfigError, Problems, is_int, is_number
@@ -280,10 +280,44 @@ def _scene_models(cfg: DictConfig, out: list[str]) -> None:
         )
 
 
+def _image_width(cfg: DictConfig) -> tuple[int, str] | None:
+    """The width in pixels that ``scene.intrinsics`` are given in, and how to name it: the photo
+    file's as stored (its header, no pixel decoded) or ``scene.width``; ``None`` where the photo
+    cannot be read (:func:`_files` and the photo's own checks say why)."""
+    if _get(cfg, "scene.source") != Source.image:
+        width = _get(cfg, "scene.width")
+        return (width, "scene.width") if is_int(width) and width >= 1 else None
+    from PIL import Image
+
+    image = _get(cfg, "scene.image")
+    try:
+        with Image.open(data_path(image, "scene.image", "image file")) as im:
+            return int(im.size[0]), f"scene.image={str(image)!r}"
+    except (OSError, ValueError, TypeError, SyntaxError, Image.DecompressionBombError):
+        return None
+
+
+def _implied_fov(cfg: DictConfig, intrinsics: Any, out: list[str]) -> None:
+    """The horizontal field of view that ``scene.intrinsics`` imply over the image's width, in
+    the range of ``scene.fov_deg`` (:func:`~snell_bench.config.camera.intrinsics_problem`)."""
+    k = list(intrinsics) if isinstance(intrinsics, (list, tuple)) or OmegaConf.is_list(intrinsics) else None
+    if k is None or len(k) != 4 or not all(is_number(v) and math.isfinite(v) for v in k) or not k[0] > 0:
+        return  # the scene node's own check names it
+    width = _image_width(cfg)
+    if width is None:
+        return
+    size, rel = _get(cfg, "object.size"), _get(cfg, "object.relative_size")
+    rel = rel if size is None and is_number(rel) and math.isfinite(rel) and rel > 0 else None
+    problem = intrinsics_problem(k, width[0], rel, width[1])
+    if problem:
+        out.append(problem)
+
+
 def _camera(cfg: DictConfig, out: list[str]) -> None:
     """The camera of a photo or a generated scene: one of ``scene.intrinsics`` and
     ``scene.fov_deg`` (a photo with a depth file needs one), and a field of view in which the
-    object at its default size fits (:mod:`snell_bench.config.camera`). A procedural scene has
+    object at its default size fits, given or implied by the intrinsics over the image's width
+    (:mod:`snell_bench.config.camera`). A procedural scene has
     its camera: a preview or a generation of one would ignore either setting, so neither may be
     set (a sweep's settings apply to all its scenes, photos among them)."""
     source = _get(cfg, "scene.source")
@@ -308,6 +342,8 @@ def _camera(cfg: DictConfig, out: list[str]) -> None:
             "scene.source=image with scene.depth needs the camera: set scene.intrinsics=[fx,fy,cx,cy] (pixels of the "
             "image file) or scene.fov_deg (the horizontal field of view in degrees, e.g. scene.fov_deg=60)"
         )
+    elif intrinsics is not None:
+        _implied_fov(cfg, intrinsics, out)
     size, rel = _get(cfg, "object.size"), _get(cfg, "object.relative_size")
     if is_number(fov) and 0 < fov <= MAX_FOV_DEG and size is None and is_number(rel) and math.isfinite(rel) and rel > 0:
         problem = fov_problem(fov, rel)

@@ -6,29 +6,33 @@ its status across the jobs working on it, and the benchmark kit of its groups (`
 ``grid.allow_failures``; :data:`~.cells.CELLS_FAILED_EXIT`). A job
 that cannot do what it was asked raises :class:`JobError`, one line saying what to run instead;
 :class:`CellsFailed` is what a job of a multirun raises for its failed cells
-(:mod:`snell_bench.__main__` turns both into the process's exit status)."""
+(:mod:`snell_bench.__main__` turns both into the process's exit status).
+
+The report (:func:`write_report`, by ``job=report`` and at the end of a grid) that the operating
+system refuses to write (a full disk, a folder without write permission) is one line naming the
+folder, the system's reason and the fix: ``job=report`` raises it as :class:`ReportNotWritten`
+(exit status 1); a grid logs it as an error and keeps the exit status its cells decided."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from hydra.errors import CompactHydraException
 from omegaconf import DictConfig
 
 from snell_bench.config import Job, check_config
 from snell_bench.config.preflight import check_output_folders, nothing_to_report
+from snell_bench.experiment.report_job import CellsFailed, JobError, ReportNotWritten, grid_report, write_report
 
-__all__ = ["run_job", "JOBS", "JobError", "CellsFailed", "nothing_to_report"]
-
-
-class JobError(CompactHydraException):
-    """A job cannot do what it was asked (nothing to report, cells of other settings): the message
-    says what to run. Hydra prints a ``CompactHydraException`` as its message alone."""
-
-
-class CellsFailed(CompactHydraException):
-    """Cells of a sweep failed (their records and the report say why): raised by a job of a
-    multirun, so that Hydra runs every other job first and then exits non-zero."""
+__all__ = [
+    "run_job",
+    "JOBS",
+    "JobError",
+    "CellsFailed",
+    "ReportNotWritten",
+    "grid_report",
+    "nothing_to_report",
+    "write_report",
+]
 
 
 def _preview(cfg: DictConfig) -> None:
@@ -54,7 +58,7 @@ def _grid(cfg: DictConfig) -> int:
 
 
 def _report(cfg: DictConfig) -> None:
-    from snell_bench.reports import NoCells, build_reports, summary_line
+    from snell_bench.reports import NoCells
 
     name = cfg.experiment_name
     out = Path(cfg.reports_dir) / name
@@ -66,10 +70,11 @@ def _report(cfg: DictConfig) -> None:
             check_same_settings(root)
         except ValueError as e:  # cells of other settings: the message says what to run
             raise JobError(f"job=report: {e}") from None
-        paths = build_reports(root, out, name)
+        write_report(root, out, name)
     except NoCells as e:
         raise JobError(nothing_to_report(cfg.runs_dir, name, str(e))) from None
-    print(summary_line(out, paths))
+    except ReportNotWritten as e:
+        raise ReportNotWritten(f"job=report: {e}") from e.__cause__
 
 
 def _plan(cfg: DictConfig) -> None:

@@ -89,7 +89,7 @@ from snell_bench.pipeline import (
     scorers_of,
 )
 from snell_bench.reports.collect import recipe_and_protocol
-from snell_bench.reports.records import GRID_RECORD
+from snell_bench.reports.records import GRID_RECORD, files_problem
 from snell_bench.utils.io import link_or_copy, save_png, write_json, write_text
 from snell_bench.utils.tensors import bchw_to_hwc
 from snell_bench.utils.trust import load_yaml, read_json
@@ -272,8 +272,8 @@ def check_same_settings(root: Path, *, on_change_key: str = "grid.on_change") ->
     for path in sorted(root.rglob("metrics.json")):
         try:
             rec, problem = read_json(path)  # bounded, as every reader of a run folder
-            if problem is not None or rec.get("status") != "ok" or not (path.parent / "config.yaml").is_file():
-                continue
+            if problem is not None or rec.get("status") != "ok" or files_problem(path.parent, rec) is not None:
+                continue  # not a finished cell (the runner's rule): computed again, not compared
             name, sep, ior = str(rec["object"]).partition("-ior")
             spec = rec.get("object_spec") or (f"{name}:{ior}" if sep else name)
             saved, problem = load_yaml(path.parent / "config.yaml")
@@ -392,7 +392,8 @@ def _count_start(folder: Path) -> int:
 
 
 def run_grid(cfg: DictConfig) -> dict:
-    """Run the grid of ``cfg`` (see the module docs), then build its report (``grid.report``).
+    """Run the grid of ``cfg`` (see the module docs), then build its report (``grid.report``; one the
+    system refuses to write is one ERROR line: :func:`~snell_bench.experiment.report_job.grid_report`).
 
     The summary (also ``summary.json``) holds ``exit_status``: 3 when cells this run computed
     failed, unless ``grid.allow_failures=true`` (:func:`~snell_bench.experiment.cells.failures_verdict`);
@@ -428,13 +429,10 @@ def run_grid(cfg: DictConfig) -> dict:
     if g.report and g.shard is not None and not all((c.folder / "metrics.json").is_file() for c in every):
         print(f"report: left to the last job of the grid (or run job=report experiment_name={exp})")
     elif g.report:
-        from snell_bench.reports import build_reports, summary_line
+        from snell_bench.experiment.report_job import grid_report
 
         check_same_settings(root)
-        out = Path(cfg.reports_dir) / exp
-        paths = build_reports(root, out, exp)
-        print(summary_line(out, paths))
-        summary["reports"] = [str(p) for p in paths]
+        summary["reports"] = grid_report(root, Path(cfg.reports_dir) / exp, exp)  # an OSError: one ERROR line
     return summary
 
 
@@ -487,7 +485,8 @@ def _compute(cfg: DictConfig, g: GridConfig, cells: list[Cell], summary_root: Pa
 def _print_summary(exp: str, summary: dict, meaning: str) -> None:
     print(
         f"{exp}: {summary['ok']} ok, {summary['cached']} already done, {summary['skipped']} skipped, "
-        f"{summary['failed']} failed{meaning}"
+        + (f"{summary['degenerate']} degenerate, " if summary.get("degenerate") else "")
+        + f"{summary['failed']} failed{meaning}"
         + (f", {summary['busy']} left to another process" if summary["busy"] else "")
     )
     for cdir, reason in summary["failures"]:

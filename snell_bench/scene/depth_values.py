@@ -9,8 +9,11 @@ Convention:
 
 Values that contradict ``scale`` are refused, naming ``scene.depth_scale`` and what to set: an 8-bit
 integer file, a scale below 1 for an integer file, and a depth all nearer than
-:data:`NEAREST_SCENE_M` or with a median farther than :data:`FARTHEST_MEDIAN_M`. The reader of
-each file format is in :mod:`snell_bench.scene.depth_files`.
+:data:`NEAREST_SCENE_M` or with a median farther than :data:`FARTHEST_MEDIAN_M`. A depth whose
+values are all negative (OpenGL's camera-frame z) is refused with the advice to negate it. Each
+refusal is a :class:`~snell_bench.config.errors.ConfigError` (a ``ValueError``), one line that the
+command line prints without a traceback. The reader of each file format is in
+:mod:`snell_bench.scene.depth_files`.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import math
 
 import numpy as np
 
+from snell_bench.config.errors import ConfigError
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.depth_files import DEPTH_SUFFIXES, PathLike, read_depth_file
 from snell_bench.scene.photo_file import PhotoHeader, _existing_file
@@ -69,10 +73,11 @@ def load_depth(
 
     Raises:
         FileNotFoundError: no file at ``path``.
-        ValueError: a folder, an unknown suffix, an unreadable file, more than one distinct channel,
+        ValueError: a folder.
+        ConfigError: an unknown suffix, an unreadable file, more than one distinct channel,
             an unknown ``kind`` (``scene.depth_kind``), ``"range"`` without a camera, a size other
-            than the camera's, no valid pixel at all, or values that contradict ``scale``
-            (:func:`depth_from_raw`).
+            than the camera's, no valid pixel at all (all negative: the message says to negate
+            them), or values that contradict ``scale`` (:func:`depth_from_raw`).
         ImportError: an ``.exr`` file without the OpenEXR package.
 
     Examples:
@@ -86,7 +91,10 @@ def load_depth(
     """
     _check_depth_args(scale, kind, camera)
     p = _existing_file(path, key, f"a depth file ({', '.join(DEPTH_SUFFIXES)})")
-    raw = read_depth_file(p, path, key)
+    try:
+        raw = read_depth_file(p, path, key)
+    except ValueError as e:  # the reader's refusal names the key and the fix
+        raise ConfigError([str(e)]) from e
     depth = depth_from_raw(raw, path, scale=scale, kind=kind, camera=camera, key=key, photo=photo)
     valid = np.isfinite(depth)
     log.info(
@@ -103,14 +111,18 @@ def load_depth(
 def _check_depth_args(scale, kind: str, camera: Camera | None) -> float | None:
     """``scale`` as a float (``None`` stays), after checking ``scale``, ``kind`` and ``camera``."""
     if kind not in DEPTH_KINDS:
-        raise ValueError(
-            f"scene.depth_kind={kind!r} is not a depth kind; choices: z|range "
-            "(z: the distance along the optical axis; range: the distance along the pixel's ray)"
+        raise ConfigError(
+            [
+                f"scene.depth_kind={kind!r} is not a depth kind; choices: z|range "
+                "(z: the distance along the optical axis; range: the distance along the pixel's ray)"
+            ]
         )
     if kind == "range" and camera is None:
-        raise ValueError(
-            "scene.depth_kind=range needs the camera to turn ray distances into z: pass camera= "
-            "(set scene.intrinsics or scene.fov_deg)"
+        raise ConfigError(
+            [
+                "scene.depth_kind=range needs the camera to turn ray distances into z: pass camera= "
+                "(set scene.intrinsics or scene.fov_deg)"
+            ]
         )
     return None if scale is None else _check_scale(scale)
 
@@ -149,9 +161,29 @@ def depth_from_raw(
         float32 ``(H, W)`` z in metres, NaN where missing.
 
     Raises:
-        ValueError: see :func:`load_depth`.
+        ConfigError: see :func:`load_depth`.
     """
     scale = _check_depth_args(scale, kind, camera)
+    problem = _type_problem(raw, scale, path, key)
+    if problem is not None:
+        raise ConfigError([problem])
+
+    if camera is not None and raw.shape != camera.shape:
+        raise ConfigError([_shape_message(raw.shape, camera, path, key, photo)])
+    depth = raw.astype(np.float64) / (1.0 if scale is None else scale)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(depth) & (depth > 0)
+    if not valid.any():
+        raise ConfigError([_no_depth_message(depth, path, key)])
+    if kind == "range":
+        depth = depth / np.linalg.norm(camera.pixel_rays(normalize=False), axis=-1)
+    depth = np.where(valid, depth, np.nan).astype(np.float32)
+    _check_plausible(raw, depth[valid], scale, path, key)
+    return depth
+
+
+def _type_problem(raw: np.ndarray, scale: float | None, path: PathLike, key: str) -> str | None:
+    """Why values of ``raw``'s type cannot be read at ``scale`` (see :func:`depth_from_raw`), or ``None``."""
     if raw.dtype.kind in "iu":
         if raw.dtype.itemsize == 1:
             steps = (
@@ -159,40 +191,42 @@ def depth_from_raw(
                 if scale is None
                 else f" (at scene.depth_scale={scale:g}: steps of {1 / scale:.3g} m up to {255 / scale:.3g} m)"
             )
-            raise ValueError(
+            return (
                 f"{key}='{path}' is an 8-bit file: its 256 levels{steps} are a picture of depth made for viewing, "
                 "not a measurement; save the depth as a 16-bit PNG with its units per metre in scene.depth_scale "
                 "(e.g. millimetres and scene.depth_scale=1000), or as float metres (.npy, .pfm, .exr, 32-bit .tif) "
                 "with scene.depth_scale=null"
             )
         if scale is None:
-            raise ValueError(
+            return (
                 f"{key}='{path}' holds integers ({raw.dtype}): set scene.depth_scale to the file's units per "
                 "metre (metres = value / scale), e.g. scene.depth_scale=5000 for TUM RGB-D, 1000 for millimetres"
             )
         if scale < 1.0:
-            raise ValueError(
-                f"scene.depth_scale={scale:g} is below 1 for the integer file {key}='{path}': the scale is file units "
-                f"per metre (metres = value / scale), not metres per unit; set scene.depth_scale={1 / scale:g}"
+            return (
+                f"scene.depth_scale={scale:g} is below 1 for the integer file {key}='{path}': the scale is file "
+                "units per metre (metres = value / scale), not metres per unit; "
+                f"set scene.depth_scale={1 / scale:g}"
             )
     elif raw.dtype.kind != "f":
-        raise ValueError(f"{key}='{path}' holds {raw.dtype} values, not numbers; save the depth as numbers")
+        return f"{key}='{path}' holds {raw.dtype} values, not numbers; save the depth as numbers"
+    return None
 
-    if camera is not None and raw.shape != camera.shape:
-        raise ValueError(_shape_message(raw.shape, camera, path, key, photo))
-    depth = raw.astype(np.float64) / (1.0 if scale is None else scale)
+
+def _no_depth_message(depth: np.ndarray, path: PathLike, key: str) -> str:
+    """The error of a depth without a valid (finite, positive) value; when its values are negative
+    it says to negate them (OpenGL and some renderers store the camera-frame z, negative in front)."""
     with np.errstate(invalid="ignore"):
-        valid = np.isfinite(depth) & (depth > 0)
-    if not valid.any():
-        raise ValueError(
-            f"{key}='{path}' has no valid depth: all {depth.size} pixels are 0, negative, NaN or infinite; "
-            f"set {key} to a depth map (and scene.depth_scale to its units per metre)"
-        )
-    if kind == "range":
-        depth = depth / np.linalg.norm(camera.pixel_rays(normalize=False), axis=-1)
-    depth = np.where(valid, depth, np.nan).astype(np.float32)
-    _check_plausible(raw, depth[valid], scale, path, key)
-    return depth
+        negative = int((np.isfinite(depth) & (depth < 0)).sum())
+    fix = f"set {key} to a depth map (and scene.depth_scale to its units per metre)"
+    if negative == 0:
+        return f"{key}='{path}' has no valid depth: all {depth.size} pixels are 0, NaN or infinite; {fix}"
+    which = f"all {depth.size} pixels are" if negative == depth.size else f"{negative} of its {depth.size} pixels are"
+    rest = "" if negative == depth.size else " (the others 0, NaN or infinite)"
+    return (
+        f"{key}='{path}' has no valid depth: {which} negative{rest}: if the file stores depth as negative z "
+        f"(OpenGL), negate it (save -depth); else {fix}"
+    )
 
 
 def _shape_message(shape: tuple, camera: Camera, path: PathLike, key: str, photo: PhotoHeader | None) -> str:
@@ -239,10 +273,16 @@ def _check_plausible(raw: np.ndarray, metres: np.ndarray, scale: float | None, p
         else "set scene.depth_scale to the file's units per metre (metres = value / scale)"
     )
     kind = "integer" if integer else "float"
-    raise ValueError(
-        f"{key}='{path}' ({kind} values, median {raw_median:.4g}) read at scene.depth_scale="
-        f"{'null' if scale is None else f'{scale:g}'} is implausible as depth in metres: {problem}; {hint}"
-        + (" (a float file is read as metres without a scale)" if raw.dtype.kind == "f" and scale is not None else "")
+    raise ConfigError(
+        [
+            f"{key}='{path}' ({kind} values, median {raw_median:.4g}) read at scene.depth_scale="
+            f"{'null' if scale is None else f'{scale:g}'} is implausible as depth in metres: {problem}; {hint}"
+            + (
+                " (a float file is read as metres without a scale)"
+                if raw.dtype.kind == "f" and scale is not None
+                else ""
+            )
+        ]
     )
 
 
@@ -252,8 +292,10 @@ def _check_scale(scale) -> float:
     except (TypeError, ValueError):
         s = math.nan
     if isinstance(scale, bool) or not (math.isfinite(s) and s > 0):
-        raise ValueError(
-            f"scene.depth_scale={scale!r} must be a positive number of file units per metre "
-            "(metres = value / scale), e.g. 5000 for TUM RGB-D, 1000 for millimetres"
+        raise ConfigError(
+            [
+                f"scene.depth_scale={scale!r} must be a positive number of file units per metre "
+                "(metres = value / scale), e.g. 5000 for TUM RGB-D, 1000 for millimetres"
+            ]
         )
     return s

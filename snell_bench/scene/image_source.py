@@ -10,8 +10,10 @@ Convention (that of :mod:`snell_bench.scene.camera`):
 
 Error messages name the configuration key to change (``scene.image``, ``scene.depth``,
 ``scene.depth_scale``, ``scene.depth_kind``, ``scene.intrinsics``, ``scene.fov_deg``), what was wrong
-and how to fix it. Bad values raise ``ValueError``, missing files ``FileNotFoundError``; a depth
-format whose reader is not installed (OpenEXR) raises ``ImportError``.
+and how to fix it. A photo, a depth file or a setting that cannot be used raises
+:class:`~snell_bench.config.errors.ConfigError` (a ``ValueError``: one line, which the command line
+prints without a traceback), a missing file ``FileNotFoundError``; a depth format whose reader is
+not installed (OpenEXR) raises ``ImportError``.
 
 Depth formats (by file suffix, case-insensitive):
     - ``.png``, ``.pgm``: integer (8- or 16-bit) via Pillow; ``scale`` required.
@@ -54,11 +56,13 @@ the file readers: :mod:`snell_bench.scene.depth_files`) and its size
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
+from snell_bench.config.errors import ConfigError
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.depth_files import DEPTH_SUFFIXES, PathLike, read_depth_file, read_pfm
 from snell_bench.scene.depth_values import (
@@ -81,6 +85,7 @@ from snell_bench.scene.photo_file import (
 from snell_bench.scene.photo_size import _resize_image, fit_to_block, max_side_size
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 __all__ = [
     "DEPTH_KINDS",
@@ -105,6 +110,18 @@ __all__ = [
     "read_pfm",
     "read_photo_header",
 ]
+
+
+def _refusing(call: Callable[..., T], *args, **kwargs) -> T:
+    """``call(*args, **kwargs)``, a check of the photo's file or size (:func:`read_photo_header`,
+    :func:`load_image`, :func:`max_side_size`) whose ``ValueError`` (one line naming the key and
+    the fix) is raised as :class:`~snell_bench.config.errors.ConfigError`."""
+    try:
+        return call(*args, **kwargs)
+    except ConfigError:
+        raise
+    except ValueError as e:
+        raise ConfigError([str(e)]) from e
 
 
 # ---------------------------------------------------------------------------------------------- frame
@@ -188,16 +205,17 @@ def load_photo(
         neither ``intrinsics`` nor ``fov_deg`` is given: the estimator's), the file's header.
 
     Raises:
-        FileNotFoundError, ValueError: see :func:`load_image`, :func:`photo_camera` and
+        FileNotFoundError: no file at ``image``.
+        ConfigError: a photo or setting refused by :func:`load_image`, :func:`photo_camera` or
             :func:`max_side_size`.
     """
-    header = read_photo_header(image)
+    header = _refusing(read_photo_header, image)
     camera = (
         None if intrinsics is None and fov_deg is None else photo_camera(header, intrinsics=intrinsics, fov_deg=fov_deg)
     )
-    img = load_image(image)
+    img = _refusing(load_image, image)
     _log_orientation(header, image, False)
-    size = max_side_size(img.shape[1], img.shape[0], max_side, block=block)
+    size = _refusing(max_side_size, img.shape[1], img.shape[0], max_side, block=block)
     if size != (img.shape[1], img.shape[0]):
         if camera is not None:
             img, _, camera = fit_to_block(img, None, camera, 1, mode="resize", size=size)
@@ -241,9 +259,10 @@ def inspect_photo(
         or field of view).
 
     Raises:
-        FileNotFoundError, ValueError: see :func:`load_frame`.
+        FileNotFoundError: see :func:`load_frame`.
+        ConfigError: see :func:`load_frame`; also a photo smaller than one ``block``.
     """
-    header = read_photo_header(image)
+    header = _refusing(read_photo_header, image)
     w0, h0 = header.upright_size
     camera = None
     if depth is not None or intrinsics is not None or fov_deg is not None:
@@ -257,11 +276,17 @@ def inspect_photo(
             log.debug("not checking scene.depth='%s' before the run: %s", depth, e)
         else:
             depth_from_raw(raw, depth, scale=depth_scale, kind=depth_kind, camera=camera, photo=header)
-    size = max_side_size(w0, h0, max_side, block=block or 1)
+    size = _refusing(max_side_size, w0, h0, max_side, block=block or 1)
     w, h = size
     if block is not None and block > 1:
         if w < block or h < block:
-            raise ValueError(f"scene.image is {w}x{h}, smaller than one {block}x{block} block; use a larger image")
+            raise ConfigError(
+                [
+                    f"scene.image='{image}' is {w}x{h} pixels, smaller than one {block}x{block} block of the "
+                    f"generator (model.multiple={block}); set scene.image to a photo of at least {block}x{block} "
+                    "pixels (a few hundred a side, e.g. 640x480)"
+                ]
+            )
         w, h = w - w % block, h - h % block
     info = photo_info(header, max_side, size, (w, h))
     info["fx"] = None if camera is None else float(camera.K[0, 0]) * size[0] / w0
@@ -303,15 +328,17 @@ def load_frame(
         The :class:`RGBDFrame`; its ``info`` is :func:`photo_info`.
 
     Raises:
-        FileNotFoundError, ValueError, ImportError: see :func:`load_image`, :func:`load_depth`,
-            :func:`photo_camera`, :func:`max_side_size` and :func:`fit_to_block`.
+        FileNotFoundError, ImportError: see :func:`load_image` and :func:`load_depth`.
+        ConfigError: a photo, depth file or setting refused by :func:`load_image`,
+            :func:`load_depth`, :func:`photo_camera` or :func:`max_side_size`.
+        ValueError: a photo smaller than one ``block`` (:func:`fit_to_block`).
     """
-    header = read_photo_header(image)
+    header = _refusing(read_photo_header, image)
     cam = photo_camera(header, intrinsics=intrinsics, fov_deg=fov_deg)
-    img = load_image(image)
+    img = _refusing(load_image, image)
     _log_orientation(header, image, depth is not None)
     dep = None if depth is None else load_depth(depth, scale=depth_scale, kind=depth_kind, camera=cam, photo=header)
-    resized = max_side_size(cam.width, cam.height, max_side, block=block or 1)
+    resized = _refusing(max_side_size, cam.width, cam.height, max_side, block=block or 1)
     if resized != (cam.width, cam.height):
         img, dep, cam = fit_to_block(img, dep, cam, 1, mode="resize", size=resized)
         log.info("scene.image='%s' resized to %dx%d (scene.max_side=%d)", image, resized[0], resized[1], max_side)

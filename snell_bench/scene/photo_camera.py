@@ -3,7 +3,9 @@ upright photo a file's EXIF orientation shows (:func:`photo_camera`).
 
 Convention: a :class:`~snell_bench.scene.camera.Camera`, ``K`` in pixels of the image,
 integer pixel coordinates at pixel centres (OpenCV); intrinsics ``[fx, fy, cx, cy]``; a field of
-view is horizontal, in degrees. Error messages name ``scene.intrinsics`` or ``scene.fov_deg``.
+view is horizontal, in degrees. Error messages name ``scene.intrinsics`` or ``scene.fov_deg``; a
+setting that no camera fits raises :class:`~snell_bench.config.errors.ConfigError` (a ``ValueError``),
+one line that the command line prints without a traceback.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from snell_bench.config.errors import ConfigError
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.photo_file import PhotoHeader, orient_intrinsics
 
@@ -36,7 +39,8 @@ def camera_from(
         The :class:`Camera`.
 
     Raises:
-        ValueError: neither or both given; intrinsics not four finite numbers, a focal length <= 0,
+        ValueError: a width or height that is not a positive integer.
+        ConfigError: neither or both given; intrinsics not four finite numbers, a focal length <= 0,
             or a principal point outside the image (``scene.intrinsics``); a field of view outside
             (0, 180) (``scene.fov_deg``).
 
@@ -52,9 +56,11 @@ def camera_from(
     width, height = int(width), int(height)
     if (intrinsics is None) == (fov_deg is None):
         got = "both" if intrinsics is not None else "neither"
-        raise ValueError(
-            f"set exactly one of scene.intrinsics ([fx, fy, cx, cy] in pixels) and scene.fov_deg (the horizontal "
-            f"field of view in degrees); got {got}"
+        raise ConfigError(
+            [
+                f"set exactly one of scene.intrinsics ([fx, fy, cx, cy] in pixels) and scene.fov_deg (the horizontal "
+                f"field of view in degrees); got {got}"
+            ]
         )
     if fov_deg is not None:
         try:
@@ -62,34 +68,36 @@ def camera_from(
         except (TypeError, ValueError):
             fov = math.nan
         if isinstance(fov_deg, bool) or not (0.0 < fov < 180.0):
-            raise ValueError(f"scene.fov_deg={fov_deg!r} must be a horizontal field of view in degrees in (0, 180)")
+            raise ConfigError([f"scene.fov_deg={fov_deg!r} must be a horizontal field of view in degrees in (0, 180)"])
         return Camera.from_fov(width, height, fov)
 
     hint = "set scene.intrinsics=[fx, fy, cx, cy] (pixels; from a 3x3 K: [K00, K11, K02, K12])"
     if isinstance(intrinsics, str | bytes) or not isinstance(intrinsics, Sequence | np.ndarray):
-        raise ValueError(f"scene.intrinsics={intrinsics!r} is not a list of four numbers; {hint}")
+        raise ConfigError([f"scene.intrinsics={intrinsics!r} is not a list of four numbers; {hint}"])
     vals = (
         list(np.asarray(intrinsics, dtype=object).reshape(-1))
         if isinstance(intrinsics, np.ndarray)
         else list(intrinsics)
     )
     if len(vals) != 4:
-        raise ValueError(f"scene.intrinsics={vals!r} has {len(vals)} values, not 4; {hint}")
+        raise ConfigError([f"scene.intrinsics={vals!r} has {len(vals)} values, not 4; {hint}"])
     try:
         if any(isinstance(v, bool | str | bytes) for v in vals):
             raise TypeError
         fx, fy, cx, cy = (float(v) for v in vals)
     except (TypeError, ValueError):
-        raise ValueError(f"scene.intrinsics={vals!r} holds values that are not numbers; {hint}") from None
+        raise ConfigError([f"scene.intrinsics={vals!r} holds values that are not numbers; {hint}"]) from None
     if not all(math.isfinite(v) for v in (fx, fy, cx, cy)):
-        raise ValueError(f"scene.intrinsics={vals!r} must be finite numbers (no NaN or inf); {hint}")
+        raise ConfigError([f"scene.intrinsics={vals!r} must be finite numbers (no NaN or inf); {hint}"])
     if fx <= 0 or fy <= 0:
-        raise ValueError(f"scene.intrinsics: the focal lengths fx={fx}, fy={fy} must be > 0 (pixels); {hint}")
+        raise ConfigError([f"scene.intrinsics: the focal lengths fx={fx}, fy={fy} must be > 0 (pixels); {hint}"])
     if not (-0.5 <= cx <= width - 0.5 and -0.5 <= cy <= height - 0.5):
-        raise ValueError(
-            f"scene.intrinsics: the principal point (cx, cy) = ({cx}, {cy}) is outside the {width}x{height} image "
-            f"(x in [-0.5, {width - 0.5}], y in [-0.5, {height - 0.5}]); the intrinsics must be in pixels of this "
-            "image: scale them if they were calibrated at another resolution"
+        raise ConfigError(
+            [
+                f"scene.intrinsics: the principal point (cx, cy) = ({cx}, {cy}) is outside the {width}x{height} image "
+                f"(x in [-0.5, {width - 0.5}], y in [-0.5, {height - 0.5}]); the intrinsics must be in pixels of this "
+                "image: scale them if they were calibrated at another resolution"
+            ]
         )
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     return Camera(K=K, width=width, height=height)
@@ -113,19 +121,21 @@ def photo_camera(
         The :class:`Camera` of the upright photo.
 
     Raises:
-        ValueError: as :func:`camera_from` (the message says when the photo was turned by EXIF).
+        ConfigError: as :func:`camera_from` (the message says when the photo was turned by EXIF).
     """
     if intrinsics is None or fov_deg is not None:
         w, h = header.upright_size
         return camera_from(w, h, intrinsics=intrinsics, fov_deg=fov_deg)
     try:
         camera_from(header.width, header.height, intrinsics=intrinsics)
-    except ValueError as e:
+    except ConfigError as e:
         if header.orientation == 1:
             raise
-        raise ValueError(
-            f"{e} (scene.intrinsics are in pixels of the file as stored, {header.width}x{header.height}; "
-            f"{header.rotation()})"
+        raise ConfigError(
+            [
+                f"{e} (scene.intrinsics are in pixels of the file as stored, {header.width}x{header.height}; "
+                f"{header.rotation()})"
+            ]
         ) from None
     w, h = header.upright_size
     k = orient_intrinsics(intrinsics, header.width, header.height, header.orientation)
