@@ -10,11 +10,19 @@ import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-__all__ = ["ConfigError", "MAX_SEED", "Problems", "is_int", "is_number"]
+__all__ = ["ConfigError", "MAX_SEED", "MAX_SPP", "Problems", "is_int", "is_number"]
 
 #: The largest seed a setting takes: a cell's seed is ``seed + scene.variation``, and
 #: ``torch.Generator.manual_seed`` takes at most ``2**64 - 1``, so each stays below ``2**63``.
 MAX_SEED = 2**63 - 1
+#: The most samples per pixel a setting takes (``reference.spp``, ``grid.converged_spp``, ...): 64 times
+#: the converged reference of the paper preset (1058) and of the authors' Cycles render (1024). The
+#: renderers set the ceiling: Mitsuba's samplers hold the sample count and a pass's wavefront (pixels x
+#: samples) in 32-bit integers, so a pass stays below ``2**32`` samples (at 65,536 samples per pixel a
+#: window of 256 x 256 pixels fills one; Mitsuba splits a larger window into passes), and the
+#: procedural true render and the relighting truth trace one frame per sample; a typo such as
+#: ``spp=1000000000`` would fail inside Dr.Jit or run for days.
+MAX_SPP = 2**16
 
 
 class ConfigError(ValueError):
@@ -62,6 +70,12 @@ class Problems(list):
             self.append(f"{key}={v!r}: must be an integer >= {lo}{why}; {fix}")
         elif hi is not None and v > hi:
             self.append(f"{key}={v!r}: must be an integer <= {hi}{why}; {fix}")
+
+    def spp(self, name: str, v: Any, example: int, lo: int = 1, why: str = "") -> None:
+        """``v`` is a sample count in ``[lo, MAX_SPP]`` (:data:`MAX_SPP`); ``why``: what else the
+        line says, e.g. ``"null: off; "``."""
+        why = f" ({why}samples per pixel: a converged reference takes about 1,000)"
+        self.int_at_least(name, v, lo, why, example, hi=MAX_SPP)
 
     def seed(self, name: str, v: Any, why: str = "") -> None:
         """``v`` is an integer in ``[0, MAX_SEED]`` (:data:`MAX_SEED`)."""

@@ -156,13 +156,14 @@ class ReferenceConfig:
     def __post_init__(self) -> None:
         p = Problems("reference")
         p.nonempty_or_null("blender_python", self.blender_python, "a Python with bpy")
-        p.int_at_least("cycles_spp", self.cycles_spp, 1, "", 1024)
+        # every sample count at most MAX_SPP (config/errors.py: what the renderers take)
+        p.spp("cycles_spp", self.cycles_spp, 1024)
         p.finite("ior", self.ior, lo=1.0, hi=4.0, optional=True, fix="e.g. reference.ior=1.5 (null: the object's)")
-        p.int_at_least("spp", self.spp, 1, "", 242)
+        p.spp("spp", self.spp, 242)
         if self.unobserved_spp is not None:
-            p.int_at_least("unobserved_spp", self.unobserved_spp, 1, "", 25)
+            p.spp("unobserved_spp", self.unobserved_spp, 25, why="null: spp; ")
         p.int_at_least("crop_margin_px", self.crop_margin_px, 0, "", 4)
-        p.int_at_least("true_spp", self.true_spp, 1, "", 4)
+        p.spp("true_spp", self.true_spp, 4)
         if self.true_max_bounces is not None:
             p.int_at_least("true_max_bounces", self.true_max_bounces, 1, " (null: warps.max_bounces)", 16)
         # a pixel counts when its unobserved share is below the threshold: 0 would leave no pixel to score

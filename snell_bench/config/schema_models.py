@@ -283,7 +283,8 @@ class RelightConfig:
     def __post_init__(self) -> None:
         p = Problems("relight")
         p.int_at_least("candidates", self.candidates, 1, "", 3)
-        p.int_at_least("truth_spp", self.truth_spp, 2, "", 512)
+        # two halves of at least 1 sample each; at most MAX_SPP (config/errors.py: one traced frame per sample)
+        p.spp("truth_spp", self.truth_spp, 512, lo=2)
         if self.steps is not None:
             p.int_at_least("steps", self.steps, 1, " (null: the pipeline's default)", 28)
         p.finite("guidance", self.guidance, lo=0.0, optional=True, fix="null: the pipeline's default")

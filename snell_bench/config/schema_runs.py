@@ -91,7 +91,8 @@ class GridConfig:
     def __post_init__(self) -> None:
         p = Problems("grid")
         if self.converged_spp is not None:
-            p.int_at_least("converged_spp", self.converged_spp, 1, " (null: no converged reference)", 1058)
+            # at most MAX_SPP (config/errors.py: what the renderers take), far past 1058, the paper's count
+            p.spp("converged_spp", self.converged_spp, 1058, why="null: no converged reference; ")
         p.int_at_least("shards", self.shards, 1, " (jobs the groups are split between)", 2)
         if self.shard is not None:
             p.int_at_least("shard", self.shard, 0, " (this job's shard; null: every group)", 0)

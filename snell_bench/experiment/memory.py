@@ -5,7 +5,8 @@ and compares it with the budget ``models.host_memory_gb`` (``null``: this machin
 process's cgroup limit where lower: :func:`memory_budget`). Above the budget it stops the run
 before any work with one line naming the estimate, the stage that peaks, the budget and the
 settings that fix it, with values that fit (``scene.max_side=<n>`` for a photo, ``scene.width``
-and ``scene.height`` otherwise, ``warps.pano_height`` where the panorama alone can make it fit);
+and ``scene.height`` otherwise, ``warps.pano_height`` where the panorama alone can make it fit, the
+faces a simplified copy of a large mesh file may have);
 above :data:`WARN_FRACTION` of the budget it warns. For a photo the same pass checks the photo
 before any cell runs (:func:`~snell_bench.scene.image_source.inspect_photo`: its header, the
 intrinsics, the depth file's bit depth, scale, value range and shape against the upright photo),
@@ -22,7 +23,10 @@ stages keep included, times :data:`MARGIN`::
 - ``P0``: pixels of the photo as read, before ``scene.max_side`` (a procedural scene: ``P x
   scene.supersample²``, the pixels it renders);
 - ``base``: the process with its libraries (Python, PyTorch, Open3D, Hydra: 0.99 GB measured) and
-  what a stage loads once (Mitsuba's LLVM back end: 0.2 GB).
+  what a stage loads once (Mitsuba's LLVM back end: 0.2 GB);
+- the object's mesh, in every stage: :data:`~snell_bench.experiment.memory_mesh.MESH_BYTES_PER_FACE`
+  (2,400) times its faces, from the mesh file's header (:mod:`~snell_bench.experiment.memory_mesh`,
+  measured there: a mesh of 5,242,880 faces is estimated at 14.5 GB).
 
 ===========  =======  =========  ===========  ======  =============================================
 stage        base GB  a (B/px)   b (B/pano    c (B/   what grows
@@ -83,13 +87,23 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
 from snell_bench.config.choices import Source
 from snell_bench.config.errors import ConfigError
+from snell_bench.experiment.memory_mesh import fitting_faces, object_faces
+from snell_bench.experiment.memory_model import (
+    COEFFICIENTS,
+    MARGIN,
+    PROCEDURAL_SCENE,
+    STAGES,
+    MemoryEstimate,
+    _gb,
+    stage_bytes,
+)
 
 log = logging.getLogger(__name__)
 
@@ -110,26 +124,6 @@ __all__ = [
     "stage_bytes",
 ]
 
-#: The stages whose peaks are estimated, in the order they run (``true_render``: procedural
-#: scenes with ``reference.true_render``).
-STAGES = ("scene", "warps", "reference", "true_render", "sampler", "metrics")
-#: Per stage ``(base GB, a, b, c)``: the peak is ``base * 1e9 + a P + b Q + c P0`` bytes (see the
-#: module's table). ``base`` holds the process with its libraries (Python, PyTorch, Open3D, Hydra:
-#: 0.99 GB measured) and what a stage loads once (Mitsuba's LLVM back end).
-COEFFICIENTS: dict[str, tuple[float, float, float, float]] = {
-    "scene": (1.0, 100.0, 0.0, 30.0),
-    "warps": (1.0, 520.0, 145.0, 0.0),
-    "reference": (1.2, 2650.0, 30.0, 0.0),
-    "true_render": (1.2, 950.0, 0.0, 0.0),
-    "sampler": (1.25, 780.0, 360.0, 0.0),
-    "metrics": (1.35, 550.0, 220.0, 0.0),
-}
-#: The scene stage of a procedural scene, which renders ``scene.supersample``² pixels per pixel
-#: (``P0 = P x supersample²``).
-PROCEDURAL_SCENE = (1.1, 250.0, 0.0, 30.0)
-#: The estimate is the model times this: the model lies above every measured peak, and the margin
-#: covers images larger than the largest measured (4.3 Mpx) and other scene content.
-MARGIN = 1.15
 #: Above this share of the budget a run starts with a warning.
 WARN_FRACTION = 0.75
 #: A cgroup limit at or above this is "no limit".
@@ -145,137 +139,21 @@ class HostMemoryError(ConfigError):
         self.estimate = estimate
 
 
-def stage_bytes(
-    pixels: float,
-    pano_pixels: float,
-    read_pixels: float,
-    *,
-    reference: bool = True,
-    true_render: bool = False,
-    procedural: bool = False,
-) -> dict[str, float]:
-    """The model's peak bytes per stage (module docstring), :data:`MARGIN` included.
-
-    Args:
-        pixels: ``P``, pixels of I⁻.
-        pano_pixels: ``Q``, pixels of the panorama.
-        read_pixels: ``P0``, pixels of the photo as read (of a procedural scene: ``P`` times
-            ``scene.supersample``²).
-        reference: whether the reference is rendered (``reference.enabled``).
-        true_render: whether the true render of a procedural scene is (``reference.true_render``).
-        procedural: a procedural scene (its scene stage is :data:`PROCEDURAL_SCENE`).
-
-    Returns:
-        ``{stage: bytes}`` for the stages that run.
-
-    Examples:
-        >>> round(stage_bytes(640 * 480, 512 * 1024, 640 * 480)["reference"] / 1e9, 2)
-        2.33
-    """
-    out = {}
-    for stage in STAGES:
-        if (stage == "reference" and not reference) or (stage == "true_render" and not true_render):
-            continue
-        base, a, b, c = PROCEDURAL_SCENE if (stage == "scene" and procedural) else COEFFICIENTS[stage]
-        out[stage] = MARGIN * (base * 1e9 + a * pixels + b * pano_pixels + c * read_pixels)
-    return out
-
-
-@dataclass(frozen=True)
-class MemoryEstimate:
-    """A cell's estimated peak host memory (:func:`estimate_memory`).
-
-    Attributes:
-        size: ``(width, height)`` of I⁻ as the cell uses it.
-        pano_height: ``warps.pano_height`` (the panorama is twice as wide).
-        source: ``scene.source``.
-        scene: ``scene.name``.
-        read_size: ``(width, height)`` of the photo as read (upright, before ``scene.max_side``);
-            ``None`` for other sources.
-        supersample: ``scene.supersample`` of a procedural scene (1 otherwise).
-        reference: whether the reference is rendered.
-        true_render: whether the true render of a procedural scene is.
-        photo: what :func:`~snell_bench.scene.image_source.inspect_photo` found (photos only).
-    """
-
-    size: tuple[int, int]
-    pano_height: int
-    source: str
-    scene: str = ""
-    read_size: tuple[int, int] | None = None
-    supersample: int = 1
-    reference: bool = True
-    true_render: bool = False
-    photo: dict | None = field(default=None, compare=False)
-
-    def at(self, size: tuple[int, int] | None = None, pano_height: int | None = None) -> dict[str, float]:
-        """Bytes per stage at ``size`` and ``pano_height`` (default: the cell's own); a photo is
-        still read at its own size."""
-        w, h = self.size if size is None else size
-        ph = self.pano_height if pano_height is None else int(pano_height)
-        read = w * h * self.supersample**2 if self.read_size is None else self.read_size[0] * self.read_size[1]
-        procedural = self.source == Source.procedural.value
-        return stage_bytes(
-            w * h, 2 * ph * ph, read, reference=self.reference, true_render=self.true_render, procedural=procedural
-        )
-
-    @property
-    def stages(self) -> dict[str, float]:
-        """Bytes at the peak of each stage that runs (:data:`STAGES`)."""
-        return self.at()
-
-    @property
-    def peak_bytes(self) -> float:
-        """Bytes at the cell's peak: the largest stage's."""
-        return max(self.stages.values())
-
-    @property
-    def stage(self) -> str:
-        """The stage that peaks."""
-        stages = self.stages
-        return max(stages, key=stages.get)
-
-    def describe(self) -> str:
-        """``"scene=<name>: a cell needs about <GB> of host memory at its peak (<stage> ...)"``."""
-        w, h = self.size
-        photo = ""
-        if self.read_size is not None and tuple(self.read_size) != (w, h):
-            photo = f" from a photo of {self.read_size[0]}x{self.read_size[1]}"
-        return (
-            f"scene={self.scene}: a cell needs about {_gb(self.peak_bytes)} of host memory at its peak (the "
-            f"{self.stage} stage, I⁻ of {w}x{h}{photo}, panorama {2 * self.pano_height}x{self.pano_height})"
-        )
-
-    def as_dict(self) -> dict[str, Any]:
-        """JSON-ready: GB per stage, the peak, the stage and the sizes."""
-        return {
-            "peak_gb": round(self.peak_bytes / 1e9, 3),
-            "stage": self.stage,
-            "stages_gb": {k: round(v / 1e9, 3) for k, v in self.stages.items()},
-            "size": list(self.size),
-            "read_size": None if self.read_size is None else list(self.read_size),
-            "pano_height": self.pano_height,
-            "source": self.source,
-            "scene": self.scene,
-        }
-
-
-def _gb(b: float) -> str:
-    return f"{b / 1e9:.1f} GB"
-
-
 # ---------------------------------------------------------------------------------------------- sizes
 def _photo(cfg: DictConfig) -> dict | None:
     """:func:`~snell_bench.scene.image_source.inspect_photo` of the cell's photo (``None`` when the
-    photo is not an image Pillow reads: its cell reports that)."""
+    photo is not an image Pillow reads: its cell reports that; one over the pixel limit is refused
+    here)."""
     from snell_bench.scene.image_source import inspect_photo
-    from snell_bench.scene.photo_file import read_photo_header
+    from snell_bench.scene.photo_file import PhotoTooLargeError, read_photo_header
     from snell_bench.utils.paths import data_path
 
     sc = cfg.scene
     image = data_path(sc.image, "scene.image", "image file")
     try:
         read_photo_header(image)
+    except PhotoTooLargeError:
+        raise
     except ValueError as e:
         log.warning("memory guard: %s; not estimated", e)
         return None
@@ -309,7 +187,11 @@ def estimate_memory(cfg: DictConfig) -> MemoryEstimate | None:
     sc = cfg.scene
     source = sc.source
     ref = cfg.reference
+    faces, mesh, exact = object_faces(cfg.object)
     common = dict(
+        faces=faces,
+        mesh=mesh,
+        faces_exact=exact,
         pano_height=cfg.warps.pano_height,
         source=source.value,
         scene=sc.name,
@@ -400,7 +282,8 @@ def fitting_pano_height(est: MemoryEstimate, budget: float) -> int | None:
 
 
 def _fixes(est: MemoryEstimate, budget: float, block: int) -> list[str]:
-    """What brings ``est`` within ``budget``, with values that fit: each a phrase ("set k=v")."""
+    """What brings ``est`` within ``budget``, with values that fit: each a phrase ("set k=v"; for a
+    mesh file, the faces a simplified copy may have)."""
     fixes = []
     size = fitting_size(est, budget, block)
     if size is not None and size != est.size:
@@ -417,6 +300,9 @@ def _fixes(est: MemoryEstimate, budget: float, block: int) -> list[str]:
     ph = fitting_pano_height(est, budget)
     if ph is not None and ph < est.pano_height:
         fixes.append(f"set warps.pano_height={ph}")
+    most = fitting_faces(est.peak_bytes - est.mesh_bytes, budget, est.mesh_bytes / max(est.faces, 1))
+    if est.mesh.startswith("object.path=") and most is not None and most < est.faces:
+        fixes.append(f"use a simplified copy of the mesh with at most {most:,} faces ({est.mesh})")
     return fixes
 
 
@@ -435,6 +321,8 @@ _KEYS = (
     "scene.width",
     "scene.height",
     "scene.supersample",
+    "object.factory",
+    "object.path",
     "model.multiple",
     "warps.pano_height",
     "reference.enabled",
@@ -462,10 +350,11 @@ def check_memory(cells_or_cfgs: Iterable[Any], *, warn_fraction: float = WARN_FR
 
     Raises:
         HostMemoryError: an estimate above the budget; the one-line message names the estimate,
-            the stage that peaks, the image, the budget and the settings that fix it, with values
-            that fit.
-        ValueError, FileNotFoundError: a photo that would be refused when loaded (its depth's bit
-            depth, scale, values or shape; its intrinsics), so that no cell runs first.
+            the stage that peaks, the image, the object's mesh where it takes 0.1 GB or more, the
+            budget and the settings that fix it, with values that fit.
+        ValueError, FileNotFoundError: a photo that would be refused when loaded (its pixels over
+            :data:`~snell_bench.scene.photo_file.MAX_PHOTO_PIXELS`; its depth's bit depth, scale,
+            values or shape; its intrinsics), so that no cell runs first.
     """
     seen: dict[tuple, MemoryEstimate | None] = {}
     for item in cells_or_cfgs:

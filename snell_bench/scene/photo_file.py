@@ -10,23 +10,46 @@ Convention (that of :mod:`snell_bench.scene.camera`):
 
 Error messages name the configuration key to change (``scene.image``); bad values raise
 ``ValueError``, missing files ``FileNotFoundError``.
+
+Pixel limit: a photo of more than :data:`MAX_PHOTO_PIXELS` pixels is refused from its header, before
+any pixel is decoded (:class:`PhotoTooLargeError`, naming the long side to downscale it to). Pillow's
+own decompression-bomb check is lifted while a photo's header is read, so this limit, and its
+advice, applies instead.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+import math
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from PIL import Image, ImageOps
 
+from snell_bench.config.errors import ConfigError
 from snell_bench.scene.depth_files import PathLike
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EXIF_ORIENTATION", "PhotoHeader", "load_image", "orient_intrinsics", "read_photo_header"]
+__all__ = [
+    "EXIF_ORIENTATION",
+    "MAX_PHOTO_PIXELS",
+    "PhotoHeader",
+    "PhotoTooLargeError",
+    "load_image",
+    "orient_intrinsics",
+    "read_photo_header",
+]
+
+#: The most pixels a photo may have (100 Mpx, near Pillow's own warning at 89.5 Mpx). A photo is
+#: decoded whole before ``scene.max_side`` resizes it (about 30 bytes a pixel: 3 GB at the limit),
+#: and no cell uses a photo near this size: the reference renders 2.65 kB per pixel of I⁻
+#: (:mod:`snell_bench.experiment.memory`), so a photo this large runs only with ``scene.max_side``
+#: far below it, and a copy downscaled first loses nothing.
+MAX_PHOTO_PIXELS = 100_000_000
 
 #: The EXIF tag of the orientation.
 EXIF_ORIENTATION = 0x0112
@@ -54,6 +77,14 @@ _ORIENTATION_WORDS = {
     7: "transversed (mirrored about its anti-diagonal)",
     8: "rotated by 90 degrees counter-clockwise",
 }
+
+
+class PhotoTooLargeError(ConfigError):
+    """A photo of more than :data:`MAX_PHOTO_PIXELS` pixels (one line: the key, the size, the limit
+    and the long side to downscale it to); a refused input, printed without a traceback."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__([message])
 
 
 # ---------------------------------------------------------------------------------------------- files
@@ -93,6 +124,7 @@ def load_image(path: PathLike, *, key: str = "scene.image", orient: bool = True)
 
     Raises:
         FileNotFoundError: no file at ``path``.
+        PhotoTooLargeError: the photo has more than :data:`MAX_PHOTO_PIXELS` pixels (nothing decoded).
         ValueError: ``path`` is a folder, or the file is not a readable image.
 
     Examples:
@@ -105,19 +137,67 @@ def load_image(path: PathLike, *, key: str = "scene.image", orient: bool = True)
         ((2, 4, 3), dtype('float32'), [1.0, 0.0, 0.20000000298023224])
     """
     p = _existing_file(path, key, "an image file (PNG or JPEG)")
-    try:
-        with Image.open(p) as im:
+    with _open_photo(p, path, key) as im:
+        try:
             im.load()
             if orient:
                 im = ImageOps.exif_transpose(im)
             img = _to_rgb01(im)
-    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as e:
-        raise ValueError(
-            f"{key}='{path}' is not a readable image ({type(e).__name__}: {e}); "
-            f"set {key} to a PNG or JPEG file, or re-save the file as one"
-        ) from e
+        except (OSError, SyntaxError, ValueError) as e:
+            raise _unreadable(path, key, e) from e
     log.info("loaded %s: %dx%d image", p, img.shape[1], img.shape[0])
     return img
+
+
+def _unreadable(path: PathLike, key: str, e: BaseException) -> ValueError:
+    return ValueError(
+        f"{key}='{path}' is not a readable image ({type(e).__name__}: {e}); "
+        f"set {key} to a PNG or JPEG file, or re-save the file as one"
+    )
+
+
+def _fitting_side(width: int, height: int, limit: int = MAX_PHOTO_PIXELS) -> int:
+    """The longest side a ``width x height`` photo downscaled to at most ``limit`` pixels (its
+    aspect ratio kept) may have.
+
+    Examples:
+        >>> _fitting_side(12000, 9200)
+        11420
+    """
+    long, short = max(width, height), min(width, height)
+    side = math.isqrt(limit * long // short)
+    while side * max(1, round(side * short / long)) > limit:
+        side -= 1
+    return side
+
+
+@contextmanager
+def _open_photo(p: Path, path: PathLike, key: str) -> Iterator[Image.Image]:
+    """``with _open_photo(p, path, key) as im``: the photo opened (its header read, no pixel
+    decoded) with Pillow's decompression-bomb limit lifted, and :data:`MAX_PHOTO_PIXELS` applied
+    instead.
+
+    Raises:
+        PhotoTooLargeError: more than :data:`MAX_PHOTO_PIXELS` pixels.
+        ValueError: not an image Pillow can open.
+    """
+    before = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = None  # only while the header is read: the size is checked below
+    try:
+        im = Image.open(p)
+    except (OSError, SyntaxError, ValueError) as e:
+        raise _unreadable(path, key, e) from e
+    finally:
+        Image.MAX_IMAGE_PIXELS = before
+    with im:
+        w, h = im.size
+        if w * h > MAX_PHOTO_PIXELS:
+            raise PhotoTooLargeError(
+                f"{key}='{path}' is {w}x{h} pixels ({w * h / 1e6:.1f} Mpx), more than the "
+                f"{MAX_PHOTO_PIXELS / 1e6:g} Mpx a photo may have (it is decoded whole before scene.max_side "
+                f"resizes it): downscale the file to at most {_fitting_side(w, h)} pixels on its long side"
+            )
+        yield im
 
 
 def _to_rgb01(im: Image.Image) -> np.ndarray:
@@ -186,6 +266,7 @@ def read_photo_header(path: PathLike, *, key: str = "scene.image") -> PhotoHeade
 
     Raises:
         FileNotFoundError: no file at ``path``.
+        PhotoTooLargeError: the photo has more than :data:`MAX_PHOTO_PIXELS` pixels.
         ValueError: ``path`` is a folder, or not an image Pillow can open.
 
     Examples:
@@ -200,15 +281,12 @@ def read_photo_header(path: PathLike, *, key: str = "scene.image") -> PhotoHeade
         (PhotoHeader(width=40, height=30, orientation=6), (30, 40))
     """
     p = _existing_file(path, key, "an image file (PNG or JPEG)")
-    try:
-        with Image.open(p) as im:
-            width, height = im.size
+    with _open_photo(p, path, key) as im:
+        width, height = im.size
+        try:
             orientation = int(im.getexif().get(EXIF_ORIENTATION, 1) or 1)
-    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as e:
-        raise ValueError(
-            f"{key}='{path}' is not a readable image ({type(e).__name__}: {e}); "
-            f"set {key} to a PNG or JPEG file, or re-save the file as one"
-        ) from e
+        except (OSError, SyntaxError, ValueError) as e:
+            raise _unreadable(path, key, e) from e
     return PhotoHeader(int(width), int(height), orientation if orientation in _ORIENTATIONS else 1)
 
 
