@@ -273,11 +273,7 @@ def run_cells(
         The summary: ``cells``; the counts ``ok``, ``failed``, ``skipped``, ``cached`` (finished before),
         ``busy`` (claimed by another process); ``failures`` as ``[cell folder, reason]`` pairs.
     """
-    settings = {id(c): {**result_settings(c.config), **input_content(c.config)} for c in cells}
-    hashes = {k: settings_hash(v) for k, v in settings.items()}
-    for c in cells:  # the record keeps the input files' hashes, to compare with on the next run
-        if contents := {k: v for k, v in settings[id(c)].items() if k.endswith(CONTENT)}:
-            c.record = {**c.record, "input_sha256": contents}
+    settings, hashes = _settings_of(cells)
 
     def status(cell: Cell, warn: bool = True) -> str | ChangedCell:  # todo, done, or changed (warn: why todo)
         current = lambda: (settings[id(cell)], hashes[id(cell)])
@@ -338,6 +334,16 @@ def _todo(cells: Sequence[Cell], states: dict, policy: Policy) -> list[Cell]:
     for c in changed:
         log.info("cell %s: settings changed; computing it again (%s=recompute)", c.cell.name, policy.on_change_key)
     return [c for c in cells if states[id(c)] != "done"]
+
+
+def _settings_of(cells: list[Cell]) -> tuple[dict, dict]:
+    """``({id: result settings with the input files' content}, {id: their hash})``; each cell's
+    record keeps its input files' hashes (``input_sha256``), to compare with on the next run."""
+    settings = {id(c): {**result_settings(c.config), **input_content(c.config)} for c in cells}
+    for c in cells:
+        if contents := {k: v for k, v in settings[id(c)].items() if k.endswith(CONTENT)}:
+            c.record = {**c.record, "input_sha256": contents}
+    return settings, {k: settings_hash(v) for k, v in settings.items()}
 
 
 def _run_one(cell, fn, shared, record_name, settings_hash, failures) -> dict:

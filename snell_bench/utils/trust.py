@@ -108,10 +108,12 @@ def json_depth(value, limit: int = MAX_JSON_DEPTH) -> int:
 
 
 def read_json(path: str | os.PathLike, *, max_bytes: int = MAX_JSON_BYTES, max_depth: int = MAX_JSON_DEPTH):
-    """``(value, None)`` of a JSON file, or ``(None, problem)``: unreadable, larger than
+    """``(value, None)`` of a JSON file, or ``(None, problem)``: a link, unreadable, larger than
     ``max_bytes``, not UTF-8, not JSON, or nested deeper than ``max_depth`` (checked before
     parsing, so a deep file cannot exhaust the parser's stack)."""
     path = Path(path)
+    if path.is_symlink():
+        return None, f"a symbolic link ({path} -> {os.readlink(path)}); snell_bench writes none and does not follow one"
     try:
         size = path.stat().st_size
         if size > max_bytes:
@@ -149,12 +151,14 @@ def _bracket_depth(text: str) -> int:
 
 def load_yaml(path: str | os.PathLike, *, max_bytes: int = MAX_YAML_BYTES, max_nodes: int = MAX_YAML_NODES):
     """``(value, None)`` of a YAML file read safely (plain data only), or ``(None, problem)``:
-    unreadable, larger than ``max_bytes``, not YAML, or one that would expand to more than
+    a link, unreadable, larger than ``max_bytes``, not YAML, or one that would expand to more than
     ``max_nodes`` nodes (aliases counted as the copies they stand for, from the composed graph,
     before anything is expanded: an alias bomb is refused in milliseconds)."""
     import yaml
 
     path = Path(path)
+    if path.is_symlink():
+        return None, f"a symbolic link ({path} -> {os.readlink(path)}); snell_bench writes none and does not follow one"
     try:
         size = path.stat().st_size
         if size > max_bytes:
