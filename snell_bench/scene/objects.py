@@ -385,17 +385,27 @@ def _up_axis_transform(up_axis: str) -> np.ndarray:
 
 
 def _corner_normals(mesh: trimesh.Trimesh, crease_angle_deg: float) -> np.ndarray:
-    faces = np.asarray(mesh.faces)
+    """``(F, 3, 3)``: each corner's area-weighted mean of the normals of the faces around its vertex
+    within the crease angle. Computed over the (corner, face around its vertex) pairs alone: their
+    number is the sum of each vertex's valence squared, so a vertex that many faces meet (a UV
+    sphere's pole) costs its own pairs, not the largest valence times every corner."""
+    faces = np.asarray(mesh.faces, np.int64)
     fn = np.asarray(mesh.face_normals, dtype=np.float64)  # unit
     area = np.asarray(mesh.area_faces, dtype=np.float64)
-    vf = np.asarray(mesh.vertex_faces)  # (V, max_valence), padded with -1
-    nbr = vf[faces]  # (F, 3, k) faces around each corner's vertex
-    valid = nbr >= 0
-    nbr_safe = np.where(valid, nbr, 0)
-    nbr_n = fn[nbr_safe]  # (F, 3, k, 3)
-    cos = np.einsum("fckd,fd->fck", nbr_n, fn)
-    w = np.where(valid & (cos >= math.cos(math.radians(crease_angle_deg)) - 1e-9), area[nbr_safe], 0.0)
-    n = np.einsum("fck,fckd->fcd", w, nbr_n)
+    corners = faces.ravel()  # corner i is of face i // 3
+    order = np.argsort(corners, kind="stable")
+    counts = np.bincount(corners, minlength=len(mesh.vertices))
+    starts = np.cumsum(counts) - counts
+    around = order // 3  # the faces around each vertex, grouped by vertex
+    rep = counts[corners]  # pairs per corner
+    corner = np.repeat(np.arange(len(corners)), rep)
+    offset = np.arange(len(corner)) - np.repeat(np.cumsum(rep) - rep, rep)
+    nbr = around[np.repeat(starts[corners], rep) + offset]
+    own = fn[corner // 3]
+    cos = np.einsum("pd,pd->p", fn[nbr], own)
+    w = np.where(cos >= math.cos(math.radians(crease_angle_deg)) - 1e-9, area[nbr], 0.0)
+    n = np.stack([np.bincount(corner, weights=w * fn[nbr, d], minlength=len(corners)) for d in range(3)], -1)
+    n = n.reshape(-1, 3, 3)
     norm = np.linalg.norm(n, axis=-1, keepdims=True)
     fallback = np.broadcast_to(fn[:, None, :], n.shape)
     return np.where(norm > 1e-12, n / np.maximum(norm, 1e-300), fallback)
