@@ -27,6 +27,7 @@ from snell_bench.experiment.input_content import input_content
 from snell_bench.experiment.plan import result_settings, settings_hash
 from snell_bench.pipeline import CellInputs
 from snell_bench.utils.io import atomic_write, atomic_write_bytes, save_npy, save_png, write_json
+from snell_bench.utils.trust import read_signed, signed
 
 log = logging.getLogger(__name__)
 
@@ -129,12 +130,15 @@ def read_inputs(path: Path) -> tuple[CellInputs, dict[str, Path]] | None:
     """The group inputs kept at ``path`` (:func:`keep_inputs`) and their files beside it, or
     ``None`` when there is no such file, it cannot be read (logged), or a file it lists is gone.
     The inputs have no model pool: give them the reader's (``inputs.pool = pool``)."""
-    try:
-        with open(path, "rb") as f:
-            kept = pickle.load(f)
-        inputs, files = kept["inputs"], {name: path.parent / name for name in kept["files"]}
-    except FileNotFoundError:
+    if not path.exists() and not path.is_symlink():
         return None
+    payload, problem = read_signed(path)  # a pickle runs code: loaded only when this user signed it
+    if problem is not None:
+        log.warning("%s; computing the inputs again", problem)
+        return None
+    try:
+        kept = pickle.loads(payload)  # noqa: S301 - signed by this user (utils.trust.signed)
+        inputs, files = kept["inputs"], {name: path.parent / name for name in kept["files"]}
     except Exception as e:  # noqa: BLE001 - any unreadable pickle: computed again
         log.warning("%s cannot be read (%s: %s); computing the inputs again", path, type(e).__name__, e)
         return None
@@ -150,4 +154,4 @@ def keep_inputs(inputs: CellInputs, files: dict[str, Path], path: Path) -> None:
         if old != path:
             old.unlink(missing_ok=True)
     kept = {"inputs": replace(inputs, pool=None), "files": sorted(files)}
-    atomic_write(path, lambda f: pickle.dump(kept, f, protocol=5), binary=True)
+    atomic_write(path, lambda f: f.write(signed(pickle.dumps(kept, protocol=5))), binary=True)

@@ -33,6 +33,7 @@ CPU stand-ins) is rebuilt per cell in this order: it is the group's, not the swe
 
 from __future__ import annotations
 
+import io
 import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -48,6 +49,7 @@ from snell_bench.pipeline import CellInputs, CellResult, ModelPool, prepare_inpu
 from snell_bench.pipeline.cell import node_key
 from snell_bench.pipeline.inputs import generate_i_minus
 from snell_bench.utils.io import atomic_write
+from snell_bench.utils.trust import read_signed, signed
 
 if TYPE_CHECKING:
     from snell_bench.experiment.prefetch import Prefetcher
@@ -178,7 +180,9 @@ class ModelMajor:
                 log.warning("sampling %s ahead of relighting failed (%s); the cell will say why", cell.name, e)
                 return
             path = cell.folder / UNRELIT_FILE
-            atomic_write(path, lambda f: torch.save(result, f), binary=True)
+            buf = io.BytesIO()
+            torch.save(result, buf)
+            atomic_write(path, lambda f: f.write(signed(buf.getvalue())), binary=True)  # read back signed only
             self._unrelit[cell.folder] = path
 
     def take_unrelit(self, cell: Cell) -> CellResult | None:
@@ -188,7 +192,10 @@ class ModelMajor:
         if path is None:
             return None
         try:
-            return torch.load(path, weights_only=False)
+            payload, problem = read_signed(path)  # a pickle runs code: loaded only when this user signed it
+            if problem is not None:
+                raise ValueError(problem)
+            return torch.load(io.BytesIO(payload), weights_only=False)
         except Exception as e:  # noqa: BLE001
             log.warning("%s cannot be read (%s); sampling again", path, e)
             return None

@@ -13,13 +13,21 @@ Convention:
       before any pixel is decoded (:func:`open_image`).
     - A reader that refuses returns the reason in one line (naming the file); the caller treats the
       cell as damaged (recomputed by the runner, left out by the reports with that reason).
+    - The two files a run keeps as Python objects (a group's kept inputs, a result sampled ahead)
+      are pickles, which run code when loaded: they carry an HMAC-SHA256 of their bytes under a
+      key only this user can read (``$SNELL_BENCH_KEY_FILE``, else
+      ``~/.cache/snell_bench/signing.key``, made on first use with mode 0600), and are loaded only
+      when it matches (:func:`signed`, :func:`read_signed`); one that does not is computed again.
 """
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import json
 import logging
 import os
+import secrets
 import warnings
 from pathlib import Path, PurePosixPath
 
@@ -34,7 +42,9 @@ __all__ = [
     "load_yaml",
     "open_image",
     "read_json",
+    "read_signed",
     "safe_path",
+    "signed",
 ]
 
 log = logging.getLogger(__name__)
@@ -238,3 +248,59 @@ def open_image(
         return None, f"{path} has more pixels than a run's image may have ({max_pixels:,}): {e}"
     except (OSError, SyntaxError, ValueError) as e:
         return None, f"{path} is not a readable image ({type(e).__name__}: {e})"
+
+
+_MAGIC = b"snell_bench signed v1\n"
+_KEY: bytes | None = None
+
+
+def _key() -> bytes:
+    """This user's signing key (32 random bytes), made on first use; a key that cannot be kept
+    (no writable home) lives for this process only, so what it signs is computed again later."""
+    global _KEY
+    if _KEY is None:
+        cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+        path = Path(os.environ.get("SNELL_BENCH_KEY_FILE") or cache / "snell_bench" / "signing.key")
+        try:
+            if not path.is_file():
+                path.parent.mkdir(parents=True, exist_ok=True)
+                tmp = path.with_name(f".{path.name}.{os.getpid()}")
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+                with os.fdopen(fd, "wb") as f:
+                    f.write(secrets.token_bytes(32))
+                try:  # the first process to link its key wins; the others read that one
+                    os.link(tmp, path)
+                except FileExistsError:
+                    pass
+                finally:
+                    tmp.unlink(missing_ok=True)
+            key = path.read_bytes()
+            if len(key) < 32:
+                raise OSError(f"{len(key)} bytes, not a key")
+            _KEY = key
+        except OSError as e:
+            log.warning("no signing key at %s (%s): files kept as Python objects are computed again later", path, e)
+            _KEY = secrets.token_bytes(32)
+    return _KEY
+
+
+def signed(payload: bytes) -> bytes:
+    """``payload`` with this user's HMAC-SHA256 in front, for :func:`read_signed`."""
+    return _MAGIC + hmac.new(_key(), payload, hashlib.sha256).digest() + payload
+
+
+def read_signed(path: str | os.PathLike) -> tuple[bytes | None, str | None]:
+    """``(payload, None)`` of a file :func:`signed` wrote with this user's key, or ``(None,
+    problem)``: missing, a link, unsigned or signed otherwise (changed since, or by someone else)."""
+    path = Path(path)
+    if path.is_symlink():
+        return None, f"{path} is a symbolic link; snell_bench writes none and does not follow one"
+    try:
+        blob = path.read_bytes()
+    except OSError as e:
+        return None, f"{path} cannot be read: {e.strerror or e}"
+    head, n = len(_MAGIC), hashlib.sha256().digest_size
+    mac, payload = blob[head : head + n], blob[head + n :]
+    if blob[:head] != _MAGIC or not hmac.compare_digest(mac, hmac.new(_key(), payload, hashlib.sha256).digest()):
+        return None, f"{path} is not signed with this user's key (changed since it was written, or not written here)"
+    return payload, None

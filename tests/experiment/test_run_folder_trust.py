@@ -200,3 +200,32 @@ def test_an_oversized_image_is_refused_from_its_header(run, caplog, size):
     _png_header_only(_record(root).parent / "image.png", *size)
     assert _report(root) == 0
     assert "more pixels than a run's image may have" in caplog.text
+
+
+class _Payload:
+    """A pickle that writes a file when it is loaded (what a planted pickle could do)."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def test_a_kept_pickle_runs_nothing_unless_this_user_signed_it(tmp_path, caplog):
+    import pickle
+
+    from snell_bench.experiment.files import read_inputs
+    from snell_bench.utils.trust import read_signed, signed
+
+    marker = tmp_path / "ran"
+    kept = tmp_path / "_inputs" / "inputs-0.pkl"
+    kept.parent.mkdir()
+    kept.write_bytes(pickle.dumps({"inputs": _Payload(marker), "files": []}))  # unsigned
+    assert read_inputs(kept) is None and not marker.exists()
+    forged = signed(b"x")[:-1] + pickle.dumps({"inputs": _Payload(marker), "files": []})  # a signature of other bytes
+    kept.write_bytes(forged)
+    assert read_inputs(kept) is None and not marker.exists()
+    assert "not signed with this user's key" in caplog.text
+    kept.write_bytes(signed(b"payload"))
+    assert read_signed(kept) == (b"payload", None)
