@@ -16,30 +16,28 @@ Measured: an icosphere (``trimesh.creation.icosphere``, subdivisions 6, 7 and 8:
 OBJ, read through :meth:`~snell_bench.scene.objects.GlassObject.from_file` (trimesh's arrays and
 caches, the cleaning steps), placed (a copy), and traced by a
 :class:`~snell_bench.optics.tracer.SceneTracer` (the ray-casting scene's BVH, the corner normals)
-in a fresh process; its peak (``ru_maxrss``) minus the same process without the object (0.77 GB:
-the libraries), bytes per face:
+in a fresh process; its peak (``ru_maxrss``) minus the peak just before (the libraries loaded and a
+small object traced once), bytes per face:
 
-======  ==========  ========  ==========================================================
-format  faces       B/face    note
-======  ==========  ========  ==========================================================
-PLY     81,920      2,194
-PLY     327,680     2,133
-PLY     1,310,720   2,094     2.74 GB; of it 0.85 kB a face to read and place (the scene stage)
-STL     327,680     2,332     an STL repeats each corner: 1.7 kB a face to read and weld
-STL     1,310,720   2,248
-OBJ     327,680     2,028
-OBJ     1,310,720   1,984
-======  ==========  ========  ==========================================================
+======  ==========  ========
+format  faces       B/face
+======  ==========  ========
+PLY     81,920      1,901
+PLY     327,680     2,224
+PLY     1,310,720   2,267
+STL     81,920      1,565
+STL     327,680     2,385
+STL     1,310,720   1,799
+OBJ     81,920      1,460
+OBJ     327,680     2,125
+OBJ     1,310,720   1,800
+======  ==========  ========
 
-Mitsuba's copy of the object for the reference (its corners split, its BVH) peaked lower, at
-0.57 to 0.98 kB a face with the object held. :data:`MESH_BYTES_PER_FACE` lies above every
-measured peak; with the guard's margin of 15 % the estimate is 1.18 to 1.39 times them (a mesh of
-5,242,880 faces: 14.5 GB).
-
-Not counted: a vertex shared by very many faces. The corner normals
-(:meth:`~snell_bench.scene.objects.GlassObject.corner_normals`) hold temporaries of ``F x 3 x k``
-values, ``k`` the most faces at one vertex (6 on the icosphere): a UV sphere of 158,400 faces with
-400 faces at each pole peaked at 13 GB (82 kB a face).
+Mitsuba's copy of the object for the reference (its corners split, its
+BVH) peaked lower, at 0.57 to 0.98 kB a face with the object held. :data:`MESH_BYTES_PER_FACE`
+lies at or above every measured peak; with the guard's margin of 15 % the estimate is 1.16 to 1.89
+times them (a mesh of 5,242,880 faces: 14.5 GB). A vertex that very many faces meet costs its
+own faces squared in the corner normals, not the largest valence times every corner.
 """
 
 from __future__ import annotations

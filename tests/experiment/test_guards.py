@@ -84,7 +84,7 @@ def test_a_5m_face_mesh_stops_the_run_naming_the_mesh_and_the_faces_that_fit(tmp
     assert "more than the budget of 8.0 GB" in msg and "raise models.host_memory_gb" in msg
     most = int(msg.split("simplified copy of the mesh with at most ")[1].split()[0].replace(",", ""))
     est = e.value.estimate
-    assert est.faces == SCAN_FACES and est.mesh_bytes == pytest.approx(memory.MARGIN * 2400 * SCAN_FACES)
+    assert est.faces == SCAN_FACES and est.mesh_bytes == pytest.approx(memory.MARGIN * MESH_BYTES_PER_FACE * SCAN_FACES)
     # the count named fits, and is the largest that does
     assert replace(est, faces=most).peak_bytes <= 8e9 < replace(est, faces=most + 1).peak_bytes
 
@@ -106,8 +106,10 @@ def test_a_procedural_object_counts_the_faces_its_factory_makes():
 
 @pytest.mark.slow
 def test_the_bytes_per_face_bound_a_measured_load_and_trace(tmp_path):
-    """A 327,680-face icosphere read, placed and traced in a process of its own: its peak above the
-    same process before (ru_maxrss) lies below MESH_BYTES_PER_FACE a face, and not far below."""
+    """A 327,680-face icosphere read, placed and traced in a process of its own: its peak
+    (ru_maxrss) above the process's resident memory just before (psutil: the current size, not an
+    earlier peak of the imports) is covered by the guard's estimate (MESH_BYTES_PER_FACE a face
+    times the margin), and is not a small fraction of it (a coefficient far too pessimistic)."""
     import trimesh
 
     mesh = trimesh.creation.icosphere(subdivisions=7, radius=0.5)
@@ -115,12 +117,13 @@ def test_the_bytes_per_face_bound_a_measured_load_and_trace(tmp_path):
     code = f"""
 import json, resource
 import numpy as np
+import psutil
 from snell_bench.scene.objects import GlassObject
 from snell_bench.optics.tracer import SceneTracer
 from snell_bench.scene.camera import Camera
 from snell_bench.scene.depth_mesh import build_background
 rss = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-base = rss()
+base = psutil.Process().memory_info().rss
 T = np.eye(4); T[:3, 3] = [0.0, -0.5, 3.0]
 obj = GlassObject.from_file({str(tmp_path / "ico.ply")!r}).transformed(T)
 cam = Camera.from_fov(64, 48, 60.0)
@@ -131,7 +134,9 @@ print(json.dumps({{"faces": len(obj.faces), "bytes": rss() - base}}))
     assert proc.returncode == 0, proc.stderr[-3000:]
     run = json.loads(proc.stdout.strip().splitlines()[-1])
     assert run["faces"] == len(mesh.faces)
-    assert 0.7 * MESH_BYTES_PER_FACE * run["faces"] <= run["bytes"] <= MESH_BYTES_PER_FACE * run["faces"]
+    assert (
+        0.3 * MESH_BYTES_PER_FACE * run["faces"] <= run["bytes"] <= memory.MARGIN * MESH_BYTES_PER_FACE * run["faces"]
+    ), run
 
 
 # ---------------------------------------------------------------------------------------------- sample counts
