@@ -1,6 +1,8 @@
 """Shared fixtures: small analytic scenes with known answers."""
 
+import logging
 import os
+import sys
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -66,3 +68,26 @@ def integrate_flow(gen, z, cond, steps: int = 400):
             return gen.posterior_mean(z, float(a), cond)
         z = z + (float(b) - float(a)) * gen.velocity(z, float(a), cond)
     return z
+
+
+@pytest.fixture
+def run_cli(tmp_path, monkeypatch):
+    """``cli()`` in this process with these arguments (runs and reports under tmp_path): its exit
+    status. Hydra's logging set-up is undone afterwards."""
+    from snell_bench.__main__ import cli
+
+    root = logging.getLogger()
+    saved = root.handlers[:], root.level
+
+    def run(*args: str) -> int:
+        argv = [*args, f"runs_dir={tmp_path / 'runs'}", f"reports_dir={tmp_path / 'reports'}"]
+        monkeypatch.setattr(sys, "argv", ["snell_bench", *argv])
+        try:
+            cli()
+        except SystemExit as e:
+            return e.code
+        return 0
+
+    yield run
+    root.handlers[:], _ = saved
+    root.setLevel(saved[1])

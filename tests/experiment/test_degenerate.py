@@ -3,36 +3,19 @@ reference without one finite pixel are ``degenerate`` cells, shown and in no mea
 and the runner agree on which cells are finished (one rule)."""
 
 import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+from tiny_runs import smoke_cfg
 
-from snell_bench.config import compose
 from snell_bench.pipeline.degenerate import reference_problem, warps_problem
 
-TINY = [
-    "scene.width=96",
-    "scene.height=64",
-    "warps.pano_height=32",
-    "warps.cache_dir=null",
-    "sampler.steps=4",
-    "reference.spp=2",
-    "reference.true_spp=1",
-    "grid.scenes=[living_room]",
-]
+EXTRA = ["grid.scenes=[living_room]"]
 
 
-def _cfg(root, *more):
-    return compose(
-        [
-            "+experiment=smoke",
-            *TINY,
-            f"runs_dir={root / 'runs'}",
-            f"reports_dir={root / 'reports'}",
-            f"output_dir={root}",
-            *more,
-        ]
-    )
+def _cfg(root: Path, *more):
+    return smoke_cfg(root, *EXTRA, *more)
 
 
 def test_every_object_ray_trapped_is_a_degenerate_cell_in_no_mean(tmp_path, caplog):

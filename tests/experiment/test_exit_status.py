@@ -4,14 +4,12 @@ for a job that cannot run (``job=report`` without cells), in a single run and in
 every job still runs."""
 
 import json
-import logging
 import os
 import subprocess
 import sys
 
 import pytest
 
-from snell_bench.__main__ import cli
 from snell_bench.experiment.cells import CELLS_FAILED_EXIT, failures_verdict
 from tests.experiment.test_runner import REPO
 
@@ -40,27 +38,6 @@ def open_box(tmp_path):
     path = tmp_path / "open_box.ply"
     box.export(path)
     return path
-
-
-@pytest.fixture
-def run_cli(tmp_path, monkeypatch):
-    """``cli()`` in this process with these arguments (and runs/reports under tmp_path): its exit
-    status. Hydra's logging set-up is undone afterwards."""
-    root = logging.getLogger()
-    saved = root.handlers[:], root.level
-
-    def run(*args: str) -> int:
-        argv = [*args, f"runs_dir={tmp_path / 'runs'}", f"reports_dir={tmp_path / 'reports'}"]
-        monkeypatch.setattr(sys, "argv", ["snell_bench", *argv])
-        try:
-            cli()
-        except SystemExit as e:
-            return e.code
-        return 0
-
-    yield run
-    root.handlers[:], _ = saved
-    root.setLevel(saved[1])
 
 
 def test_failures_verdict_counts_failed_cells_only():

@@ -5,40 +5,16 @@ a report the system cannot write (``job=report``: 1; a grid keeps the status of 
 
 import errno
 import json
-import logging
 import os
-import sys
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from snell_bench.__main__ import cli
 from snell_bench.config import ConfigError, check_config, compose
 from snell_bench.config.camera import MAX_FOV_DEG, focal_for_fov, implied_fov_deg, min_fov_deg
 from tests.experiment.test_exit_status import CHEAP
 from tests.experiment.test_photo import FRAME
-
-
-@pytest.fixture
-def run_cli(tmp_path, monkeypatch):
-    """``cli()`` in this process with these arguments (runs and reports under tmp_path): its exit
-    status. Hydra's logging set-up is undone afterwards."""
-    root = logging.getLogger()
-    saved = root.handlers[:], root.level
-
-    def run(*args: str) -> int:
-        argv = [*args, f"runs_dir={tmp_path / 'runs'}", f"reports_dir={tmp_path / 'reports'}"]
-        monkeypatch.setattr(sys, "argv", ["snell_bench", *argv])
-        try:
-            cli()
-        except SystemExit as e:
-            return e.code
-        return 0
-
-    yield run
-    root.handlers[:], _ = saved
-    root.setLevel(saved[1])
 
 
 def one_error_line(err: str) -> str:

@@ -14,18 +14,8 @@ import numpy as np
 import pandas as pd
 import pytest
 from PIL import Image
+from tiny_runs import smoke_cfg
 
-from snell_bench.config import compose
-
-TINY = [
-    "scene.width=96",
-    "scene.height=64",
-    "warps.pano_height=32",
-    "warps.cache_dir=null",
-    "sampler.steps=4",
-    "reference.spp=2",
-    "reference.true_spp=1",
-]
 ROUNDS = 3
 
 _OPENED: list[str] = []
@@ -33,16 +23,7 @@ sys.addaudithook(lambda event, args: _OPENED.append(str(args[0])) if event == "o
 
 
 def _cfg(root: Path, *more):
-    return compose(
-        [
-            "+experiment=smoke",
-            *TINY,
-            f"runs_dir={root / 'runs'}",
-            f"reports_dir={root / 'reports'}",
-            f"output_dir={root}",
-            *more,
-        ]
-    )
+    return smoke_cfg(root, *more)
 
 
 def _png_header(path: Path, w: int, h: int) -> None:

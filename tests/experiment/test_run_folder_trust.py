@@ -13,20 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+from tiny_runs import smoke_cfg
 
-from snell_bench.config import compose
 from snell_bench.utils.io import file_sha256
 
-TINY = [
-    "scene.width=96",
-    "scene.height=64",
-    "warps.pano_height=32",
-    "warps.cache_dir=null",
-    "sampler.steps=4",
-    "reference.spp=2",
-    "reference.true_spp=1",
-    "grid.methods=[t2i]",
-]
+EXTRA = ["grid.methods=[t2i]"]
 CELL = Path("living_room-0") / "sphere" / "t2i"
 
 _OPENED: list[str] = []
@@ -41,16 +32,7 @@ sys.addaudithook(_audit)
 
 
 def _cfg(root: Path, *more):
-    return compose(
-        [
-            "+experiment=smoke",
-            *TINY,
-            f"runs_dir={root / 'runs'}",
-            f"reports_dir={root / 'reports'}",
-            f"output_dir={root}",
-            *more,
-        ]
-    )
+    return smoke_cfg(root, *EXTRA, *more)
 
 
 @pytest.fixture(scope="module")

@@ -418,32 +418,14 @@ def test_ior_sweep_and_ablation_experiments_compose():
 
 
 # ---------------------------------------------------------------------------- the panorama of a cell
-TINY = [
-    "scene.width=96",
-    "scene.height=64",
-    "warps.pano_height=32",
-    "warps.cache_dir=null",
-    "sampler.steps=4",
-    "reference.spp=2",
-    "reference.true_spp=1",
-]
 
 
 def test_a_snellcaster_cell_saves_and_lists_its_panorama(tmp_path):
-    from snell_bench.config import compose
+    from tiny_runs import smoke_cfg
+
     from snell_bench.experiment.runner import run_grid
 
-    cfg = compose(
-        [
-            "+experiment=smoke",
-            *TINY,
-            "grid.scenes=[living_room]",
-            "grid.methods=[snellcaster,t2i]",
-            f"runs_dir={tmp_path / 'runs'}",
-            f"reports_dir={tmp_path / 'reports'}",
-            f"output_dir={tmp_path}",
-        ]
-    )
+    cfg = smoke_cfg(tmp_path, "grid.scenes=[living_room]", "grid.methods=[snellcaster,t2i]")
     summary = run_grid(cfg)
     assert summary["ok"] == 2, summary
     cell = tmp_path / "runs" / "smoke" / "living_room-0" / "sphere"
